@@ -1,0 +1,132 @@
+"""Compiles a plain `Scene` into the arrays the kernels read.
+
+Geometry and both BVH levels (geometry.py), materials, lights with their
+exact flux, per-instance photon lightmaps with exact texel areas, and the
+camera. The result is what the photon pass and the renderer share.
+"""
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import lightmap as LM
+from . import primitives as P
+from .geometry import compile_geometry
+from .lights import compile_lights
+from .materials import compile_materials
+from .renderer import compile_camera
+from .scene import SceneError, _bands
+
+
+@dataclass
+class CompiledScene:
+    name: str
+    n_bands: int
+    geometry: object
+    materials: object
+    lights: object
+    lightmaps: object
+    camera: object
+    environment: np.ndarray
+    info: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    # instance_lightmaps[i] lists lightmap ids of instance i, in surface-slot order.
+    instance_lightmaps: list = field(default_factory=list)
+
+    def lightmap_bytes(self):
+        lm = self.lightmaps
+        return int(sum(a.nbytes for a in (lm.area, lm.coverage, lm.flux, lm.flux_sq, lm.hits,
+                                          lm.irradiance, lm.state)))
+
+    def reset_lightmaps(self):
+        """Clears recorded photons (areas stay) so a new photon pass starts from zero."""
+        for a in (self.lightmaps.flux, self.lightmaps.flux_sq, self.lightmaps.hits,
+                  self.lightmaps.irradiance, self.lightmaps.state):
+            a[...] = 0
+
+
+def _prototype_surfaces(geom):
+    """For each prototype: list over surface slots of ('mesh', triangle rows) or ('prim', row)."""
+    out = []
+    for p in range(len(geom.proto_shape_start)):
+        s0, s1 = int(geom.proto_shape_start[p]), int(geom.proto_shape_start[p] + geom.proto_shape_count[p])
+        slots = {}
+        for s in range(s0, s1):
+            slot = int(geom.shape_surface[s])
+            if slot < 0:
+                continue
+            if geom.shape_kind[s] == P.TRIANGLE:
+                slots.setdefault(slot, ("mesh", []))[1].append(int(geom.shape_index[s]))
+            else:
+                slots[slot] = ("prim", int(geom.shape_index[s]))
+        out.append([(k, np.asarray(v) if k == "mesh" else v) for k, v in
+                    (slots[i] for i in sorted(slots))])
+    return out
+
+
+def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024):
+    """One lightmap per (recording instance, surface slot), sized by texel density."""
+    surfaces = _prototype_surfaces(geom)
+    layouts, fills, per_instance = [], [], []
+    for i, inst in enumerate(scene.instances):
+        ids = []
+        if geom.inst_lm_base[i] >= 0:
+            M = geom.inst_xf[i][:, :3]
+            forced = int(inst.lightmap_resolution)
+            for kind, data in surfaces[int(geom.inst_proto[i])]:
+                if kind == "mesh":
+                    area3d = LM.triangle_world_areas(geom.tri_p[data], M)
+                    res = forced or LM.resolution_for(area3d.sum(), texel_density, max_res=max_resolution)
+                    layouts.append((res, res, 1))
+                    fills.append(("mesh", data, area3d))
+                else:
+                    pk = int(geom.prim_kind[data])
+                    M3 = M @ geom.prim_xf[data][:, :3]
+                    nf = int(P.N_FACES[pk])
+                    face_area = LM.primitive_texel_areas(pk, geom.prim_params[data], M3, 2).sum() / nf
+                    res = forced or LM.resolution_for(face_area, texel_density, max_res=max_resolution)
+                    layouts.append((nf * res, res, nf))
+                    fills.append(("prim", data, M3))
+                ids.append(len(layouts) - 1)
+        per_instance.append(ids)
+    lm = LM.allocate(layouts, scene.n_bands)
+    for lid, (kind, data, extra) in enumerate(fills):
+        if kind == "mesh":
+            LM.set_triangle_areas(lm, lid, geom.tri_uv[data], extra)
+        else:
+            LM.set_primitive_areas(lm, lid, int(geom.prim_kind[data]), geom.prim_params[data], extra)
+    return lm, per_instance
+
+
+def compile_scene(scene, texel_density=None, max_resolution=1024):
+    t0 = time.perf_counter()
+    if int(scene.n_bands) < 1:
+        raise SceneError(f"n_bands must be >= 1, got {scene.n_bands}")
+    density = float(scene.texel_density if texel_density is None else texel_density)
+    if not (math.isfinite(density) and density > 0):
+        raise SceneError(f"texel density must be positive, got {density}")
+    materials = compile_materials(scene)
+    geom, info = compile_geometry(scene)
+    n_mat = materials.diffuse.shape[0]
+    if geom.shape_material.size and (geom.shape_material.max() >= n_mat or geom.shape_material.min() < 0):
+        bad = int(geom.shape_material.max())
+        raise SceneError(f"a shape uses material {bad}, but the scene has {len(scene.materials)} materials")
+    t_geo = time.perf_counter()
+    lightmaps, per_instance = allocate_lightmaps(scene, geom, density, max_resolution)
+    t_lm = time.perf_counter()
+    if geom.tlas_min.shape[0] > 0:
+        bounds = (geom.tlas_min[0].astype(np.float64), geom.tlas_max[0].astype(np.float64))
+    else:
+        bounds = (np.zeros(3), np.zeros(3))
+    lights = compile_lights(scene, geom, materials, bounds)
+    camera = compile_camera(scene.camera)
+    env = _bands(scene.environment, scene.n_bands, "environment")
+    info = dict(info)
+    info.update(lightmaps=int(lightmaps.offset.shape[0]), texels=int(lightmaps.area.shape[0]),
+                lights=int(lights.kind.shape[0]))
+    cs = CompiledScene(scene.name, int(scene.n_bands), geom, materials, lights, lightmaps, camera,
+                       env, info, instance_lightmaps=per_instance)
+    cs.timings.update(geometry=t_geo - t0, lightmap_setup=t_lm - t_geo,
+                      setup=time.perf_counter() - t0)
+    return cs

@@ -1,0 +1,846 @@
+"""Photon lightmaps (thesis 3.5.2): texel buckets that count photon flux.
+
+Every surface that records photons owns a regular texel grid. A texel j stores
+the flux deposited by the photons that hit it; its radiosity is
+B_j = m_j Φ / A_j (thesis eq. 3.7), so the texel's *exact* world-space area A_j
+is computed once per surface:
+
+* mesh atlases: each UV triangle is clipped against every texel square it
+  overlaps (Sutherland–Hodgman) and its world area is shared out in proportion
+  to the clipped UV area;
+* analytic primitives: Gauss–Legendre quadrature of |M dp/du × M dp/dv| over
+  every texel cell, with the cells split along the creases of the (u, v) maps
+  (octahedral sphere map, concentric disk map) so the integrand is smooth on
+  every piece.
+
+Layout (``Lightmaps``): one flat texel array for the whole scene; lightmap l
+covers ``offset[l] : offset[l] + width[l] * height[l]``, row-major (index =
+offset + y * width + x). A primitive with F faces has F square tiles of R × R
+side by side (width = F·R); texel (x, y) of a tile covers the chart square
+[x/R, (x+1)/R] × [y/R, (y+1)/R] of that face. A mesh atlas is one tile.
+"""
+import math
+from collections import namedtuple
+
+import numpy as np
+from numba import njit, prange
+
+from .primitives import prim_nfaces, prim_point
+
+MODE_CONSTANT = 0
+MODE_BILINEAR = 1
+
+# Texel state after finalize(): bilinear lookups skip EMPTY texels.
+STATE_EMPTY = 0
+STATE_MEASURED = 1
+STATE_DILATED = 2
+
+# A texel whose area is below this fraction of its lightmap's mean texel area
+# holds a sliver of surface: flux / area would be pure noise, so it is treated
+# as empty and filled by dilation instead.
+EMPTY_AREA_FRACTION = 1e-12
+DILATION_PASSES = 4
+
+Lightmaps = namedtuple("Lightmaps", [
+    "offset",      # int64[L]   first texel of lightmap l
+    "width",       # int32[L]   texels per row (tiles * R for primitives)
+    "height",      # int32[L]
+    "tiles",       # int32[L]   face tiles side by side (1 for a mesh atlas)
+    "area",        # float64[N] exact world area of each texel (m²)
+    "coverage",    # float64[N] covered fraction of the texel's UV square (alpha for baking)
+    "flux",        # float64[N, B] accumulated photon power (W)
+    "flux_sq",     # float64[N] sum of squared band-mean photon powers (variance estimate)
+    "hits",        # int64[N]
+    "irradiance",  # float64[N, B] E = flux / area after finalize(), dilated into empty texels
+    "state",       # int8[N]    STATE_EMPTY / STATE_MEASURED / STATE_DILATED
+])
+
+LightmapStats = namedtuple("LightmapStats", [
+    "mean_irradiance",   # float64[L, B] Σflux / Σarea over texels with area
+    "hits_per_texel",    # float64[L] mean photon hits per texel with area
+    "rel_error",         # float64[N] sqrt(flux_sq) / flux (inf where no flux)
+    "median_rel_error",  # float64[L] over texels that received hits (inf if none)
+    "memory_bytes",      # int, all texel arrays together
+])
+
+
+# --------------------------------------------------------------------------------------
+# Allocation and layout helpers (Python)
+# --------------------------------------------------------------------------------------
+
+def allocate(layouts, n_bands):
+    """Lightmaps for a list of (width, height, tiles); all texels start empty."""
+    n_bands = int(n_bands)
+    if n_bands < 1:
+        raise ValueError(f"n_bands must be >= 1, got {n_bands}")
+    L = len(layouts)
+    width = np.zeros(L, np.int32)
+    height = np.zeros(L, np.int32)
+    tiles = np.zeros(L, np.int32)
+    offset = np.zeros(L, np.int64)
+    n = 0
+    for l, lay in enumerate(layouts):
+        w, h, f = (int(x) for x in lay)
+        if w < 1 or h < 1 or f < 1 or w % f != 0:
+            raise ValueError(f"lightmap {l}: invalid layout (width={w}, height={h}, tiles={f}); "
+                             "width must be a positive multiple of tiles")
+        width[l], height[l], tiles[l], offset[l] = w, h, f, n
+        n += w * h
+    return Lightmaps(offset, width, height, tiles,
+                     np.zeros(n), np.zeros(n), np.zeros((n, n_bands)), np.zeros(n),
+                     np.zeros(n, np.int64), np.zeros((n, n_bands)), np.zeros(n, np.int8))
+
+
+def n_texels(lm):
+    return lm.area.shape[0]
+
+
+def texel_slice(lm, lm_id):
+    o = int(lm.offset[lm_id])
+    return slice(o, o + int(lm.width[lm_id]) * int(lm.height[lm_id]))
+
+
+def resolution_for(area_world, texel_density, min_res=2, max_res=1024):
+    """Texels per side so that a texel is about 1/density metres wide.
+
+    For primitives pass the area of one face (one tile), for meshes the whole
+    surface area of the atlas.
+    """
+    a = float(area_world)
+    d = float(texel_density)
+    if not (math.isfinite(a) and a > 0.0 and math.isfinite(d) and d > 0.0):
+        return int(min_res)
+    r = int(math.ceil(math.sqrt(a) * d - 1e-9))
+    return int(min(max(r, int(min_res)), int(max_res)))
+
+
+def set_areas(lm, lm_id, area, coverage=None):
+    """Writes a lightmap's texel areas (row-major, lightmap layout) and coverage."""
+    sl = texel_slice(lm, lm_id)
+    n = sl.stop - sl.start
+    area = np.asarray(area, np.float64).reshape(-1)
+    if area.size != n:
+        raise ValueError(f"lightmap {lm_id}: expected {n} texel areas, got {area.size}")
+    if not np.all(np.isfinite(area)) or np.any(area < 0):
+        raise ValueError(f"lightmap {lm_id}: texel areas must be finite and >= 0")
+    lm.area[sl] = area
+    if coverage is None:
+        lm.coverage[sl] = 1.0
+    else:
+        lm.coverage[sl] = np.clip(np.asarray(coverage, np.float64).reshape(-1), 0.0, 1.0)
+
+
+def set_triangle_areas(lm, lm_id, uv, area3d):
+    """Fills a mesh atlas lightmap from its UV triangles and world triangle areas."""
+    w, h = int(lm.width[lm_id]), int(lm.height[lm_id])
+    area, cov = triangle_texel_areas(uv, area3d, w, h)
+    set_areas(lm, lm_id, area, cov)
+
+
+def set_primitive_areas(lm, lm_id, kind, params, M, order=None):
+    """Fills a primitive's lightmap (F tiles of R×R) from its world linear map M."""
+    f, w, h = int(lm.tiles[lm_id]), int(lm.width[lm_id]), int(lm.height[lm_id])
+    r = w // f
+    if h != r:
+        raise ValueError(f"lightmap {lm_id}: primitive tiles must be square, got {r}x{h}")
+    a = primitive_texel_areas(kind, params, M, r, order)
+    if a.size != f * r * r:
+        raise ValueError(f"lightmap {lm_id}: layout has {f} tiles, primitive kind {kind} "
+                         f"has {a.size // (r * r)} faces")
+    set_areas(lm, lm_id, faces_to_rows(a, f, r), None)
+
+
+def faces_to_rows(face_major, n_faces, r):
+    """(F, R, R) face-major areas -> lightmap row layout (tiles side by side)."""
+    a = np.asarray(face_major, np.float64).reshape(n_faces, r, r)
+    return np.ascontiguousarray(a.transpose(1, 0, 2)).reshape(-1)
+
+
+def cofactor(M):
+    """cof(M) = det(M) M^-T, so (M a) × (M b) = cof(M) (a × b); defined for singular M too."""
+    M = np.asarray(M, np.float64)[:3, :3]
+    c0, c1, c2 = M[:, 0], M[:, 1], M[:, 2]
+    return np.ascontiguousarray(np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=1))
+
+
+def triangle_world_areas(tri_p, M=None):
+    """World areas of triangles (T, 3, 3) under the linear part M of an affine map."""
+    p = np.asarray(tri_p, np.float64)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    if M is not None:
+        n = n @ cofactor(M).T
+    return 0.5 * np.linalg.norm(n, axis=1)
+
+
+# --------------------------------------------------------------------------------------
+# Exact texel areas of UV triangles
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _clip_axis(px, py, n, qx, qy, axis, bound, keep_below):
+    """One Sutherland–Hodgman step against x<=bound / x>=bound (axis 0) or y (axis 1)."""
+    m = 0
+    if n == 0:
+        return 0
+    for i in range(n):
+        j = i + 1 if i + 1 < n else 0
+        ax, ay, bx, by = px[i], py[i], px[j], py[j]
+        ca = ax if axis == 0 else ay
+        cb = bx if axis == 0 else by
+        ina = (ca <= bound) if keep_below else (ca >= bound)
+        inb = (cb <= bound) if keep_below else (cb >= bound)
+        if ina:
+            qx[m] = ax
+            qy[m] = ay
+            m += 1
+        if ina != inb:
+            t = (bound - ca) / (cb - ca)
+            if axis == 0:
+                qx[m] = bound
+                qy[m] = ay + t * (by - ay)
+            else:
+                qx[m] = ax + t * (bx - ax)
+                qy[m] = bound
+            m += 1
+    return m
+
+
+@njit(cache=True)
+def _clipped_area_unit_square(x0, y0, x1, y1, x2, y2, px, py, qx, qy):
+    """Area of the triangle (in texel units, relative to the texel corner) inside [0,1]²."""
+    px[0], py[0], px[1], py[1], px[2], py[2] = x0, y0, x1, y1, x2, y2
+    n = _clip_axis(px, py, 3, qx, qy, 0, 0.0, False)
+    n = _clip_axis(qx, qy, n, px, py, 0, 1.0, True)
+    n = _clip_axis(px, py, n, qx, qy, 1, 0.0, False)
+    n = _clip_axis(qx, qy, n, px, py, 1, 1.0, True)
+    if n < 3:
+        return 0.0
+    s = 0.0
+    for i in range(n):
+        j = i + 1 if i + 1 < n else 0
+        s += px[i] * py[j] - px[j] * py[i]
+    return abs(0.5 * s)
+
+
+@njit(cache=True)
+def _triangle_texel_areas(uv, area3d, width, height):
+    W = width
+    H = height
+    area = np.zeros(W * H)
+    cov = np.zeros(W * H)
+    px = np.empty(16)
+    py = np.empty(16)
+    qx = np.empty(16)
+    qy = np.empty(16)
+    cap = 64
+    buf_i = np.empty(cap, np.int64)
+    buf_a = np.empty(cap)
+    for k in range(uv.shape[0]):
+        a3 = area3d[k]
+        if not (a3 > 0.0) or not math.isfinite(a3):
+            continue  # zero-area (or invalid) surface carries no photons
+        x0 = uv[k, 0, 0] * W
+        y0 = uv[k, 0, 1] * H
+        x1 = uv[k, 1, 0] * W
+        y1 = uv[k, 1, 1] * H
+        x2 = uv[k, 2, 0] * W
+        y2 = uv[k, 2, 1] * H
+        if not (math.isfinite(x0) and math.isfinite(y0) and math.isfinite(x1)
+                and math.isfinite(y1) and math.isfinite(x2) and math.isfinite(y2)):
+            continue
+        uv2 = abs((x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0))  # 2 × area in texel units
+        m = 0
+        total = 0.0
+        if uv2 > 1e-12:
+            bx0 = max(int(math.floor(min(x0, x1, x2))), 0)
+            by0 = max(int(math.floor(min(y0, y1, y2))), 0)
+            bx1 = min(int(math.floor(max(x0, x1, x2))), W - 1)
+            by1 = min(int(math.floor(max(y0, y1, y2))), H - 1)
+            if bx1 >= bx0 and by1 >= by0:
+                need = (bx1 - bx0 + 1) * (by1 - by0 + 1)
+                if need > cap:
+                    cap = max(need, 2 * cap)
+                    buf_i = np.empty(cap, np.int64)
+                    buf_a = np.empty(cap)
+                for ty in range(by0, by1 + 1):
+                    for tx in range(bx0, bx1 + 1):
+                        c = _clipped_area_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
+                                                      x2 - tx, y2 - ty, px, py, qx, qy)
+                        if c > 0.0:
+                            buf_i[m] = ty * W + tx
+                            buf_a[m] = c
+                            total += c
+                            m += 1
+        if m > 0 and total > 0.0:
+            # Dividing by the sum of the clipped pieces (not the analytic UV area)
+            # makes the triangle deposit exactly its world area, also for parts
+            # that stick out of [0,1]².
+            for i in range(m):
+                area[buf_i[i]] += a3 * (buf_a[i] / total)
+                cov[buf_i[i]] += buf_a[i]
+        else:
+            # Degenerate UV triangle (or fully outside the grid): its surface still
+            # receives photons, so its whole area goes to the texel under the UV centroid.
+            cx = min(max(int(math.floor((x0 + x1 + x2) / 3.0)), 0), W - 1)
+            cy = min(max(int(math.floor((y0 + y1 + y2) / 3.0)), 0), H - 1)
+            area[cy * W + cx] += a3
+    for i in range(W * H):
+        cov[i] = min(cov[i], 1.0)
+    return area, cov
+
+
+def triangle_texel_areas(uv, area3d, width, height):
+    """Exact world area and UV coverage of every texel of a W×H atlas.
+
+    uv (T,3,2) in [0,1]² and area3d (T,) world areas of the same triangles.
+    Returns (area (H*W,), coverage (H*W,)), row-major (index y*W + x).
+    Each triangle's area3d is shared among the texels it overlaps in proportion
+    to the exactly clipped UV area, so sum(area) == sum(area3d). Triangles with
+    zero UV area put all of their area into the texel containing their UV
+    centroid (clamped to the grid); triangles with zero world area add nothing.
+    """
+    uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 3, 2)
+    area3d = np.ascontiguousarray(area3d, dtype=np.float64).reshape(-1)
+    if area3d.shape[0] != uv.shape[0]:
+        raise ValueError(f"{uv.shape[0]} UV triangles but {area3d.shape[0]} areas")
+    width, height = int(width), int(height)
+    if width < 1 or height < 1:
+        raise ValueError(f"invalid atlas size {width}x{height}")
+    return _triangle_texel_areas(uv, area3d, width, height)
+
+
+# --------------------------------------------------------------------------------------
+# Exact texel areas of analytic primitives (quadrature)
+# --------------------------------------------------------------------------------------
+
+# Creases of the primitive (u, v) maps, as lines a·u + b·v = c: the octahedral
+# sphere map folds along u = ½, v = ½ and |u-½| + |v-½| = ½; the concentric disk
+# map along the diagonals u = v and u + v = 1. Quadrature pieces never cross them.
+_CREASES = np.array([
+    [1.0, 0.0, 0.5], [0.0, 1.0, 0.5],
+    [1.0, -1.0, 0.0], [1.0, 1.0, 1.0],
+    [1.0, 1.0, 0.5], [1.0, 1.0, 1.5],
+    [1.0, -1.0, 0.5], [1.0, -1.0, -0.5],
+])
+
+# Small tiles are subdivided so that a quadrature piece spans at most 1/_MIN_CELLS
+# of the chart: a 2×2 sphere map would otherwise integrate a whole octant per rule.
+_MIN_CELLS = 32
+# Rule order for the pieces within _NEAR_CENTRE cells of the chart centre (see _quad_split).
+_CENTRE_ORDER = 16
+_NEAR_CENTRE = 4.0
+
+
+def _gauss_legendre01(order):
+    """Gauss–Legendre nodes and weights on [0, 1]."""
+    x, w = np.polynomial.legendre.leggauss(int(order))
+    return np.ascontiguousarray(0.5 * (x + 1.0)), np.ascontiguousarray(0.5 * w)
+
+
+@njit(cache=True, inline="always")
+def _area_element(kind, params, face, u, v, cof):
+    r = prim_point(kind, params, face, u, v)
+    ax, ay, az = r[3], r[4], r[5]
+    bx, by, bz = r[6], r[7], r[8]
+    nx = ay * bz - az * by
+    ny = az * bx - ax * bz
+    nz = ax * by - ay * bx
+    wx = cof[0, 0] * nx + cof[0, 1] * ny + cof[0, 2] * nz
+    wy = cof[1, 0] * nx + cof[1, 1] * ny + cof[1, 2] * nz
+    wz = cof[2, 0] * nx + cof[2, 1] * ny + cof[2, 2] * nz
+    return math.sqrt(wx * wx + wy * wy + wz * wz)
+
+
+@njit(cache=True)
+def _quad_rect(kind, params, face, cof, u0, v0, du, dv, gx, gw):
+    """Tensor Gauss–Legendre rule on the rectangle [u0, u0+du] × [v0, v0+dv]."""
+    s = 0.0
+    for i in range(gx.shape[0]):
+        for j in range(gx.shape[0]):
+            s += gw[i] * gw[j] * _area_element(kind, params, face, u0 + gx[i] * du,
+                                               v0 + gx[j] * dv, cof)
+    return s * du * dv
+
+
+@njit(cache=True)
+def _quad_triangle(kind, params, face, cof, ax, ay, bx, by, cx, cy, gx, gw):
+    # Collapsed (Duffy) square -> triangle map: p = A + ξ(B-A) + ξη(C-B), dA = 2|T| ξ.
+    j2 = abs((bx - ax) * (cy - ay) - (cx - ax) * (by - ay))
+    if j2 == 0.0:
+        return 0.0
+    s = 0.0
+    for i in range(gx.shape[0]):
+        xi = gx[i]
+        for j in range(gx.shape[0]):
+            et = gx[j]
+            u = ax + xi * (bx - ax) + xi * et * (cx - bx)
+            v = ay + xi * (by - ay) + xi * et * (cy - by)
+            s += gw[i] * gw[j] * xi * _area_element(kind, params, face, u, v, cof)
+    return s * j2
+
+
+@njit(cache=True)
+def _quad_split(kind, params, face, cof, u0, v0, du, dv, gx, gw, gx_c, gw_c, creases):
+    """Integral over a cell that a crease crosses: split it into convex pieces
+    between the creases, fan-triangulate each and integrate the triangles."""
+    maxp = 64
+    maxv = 16
+    polx = np.empty((maxp, maxv))
+    poly = np.empty((maxp, maxv))
+    pn = np.zeros(maxp, np.int64)
+    polx[0, 0], poly[0, 0] = u0, v0
+    polx[0, 1], poly[0, 1] = u0 + du, v0
+    polx[0, 2], poly[0, 2] = u0 + du, v0 + dv
+    polx[0, 3], poly[0, 3] = u0, v0 + dv
+    pn[0] = 4
+    npoly = 1
+    tol = 1e-12 * (du + dv)
+    d = np.empty(maxv)
+    ax_ = np.empty(maxv)
+    ay_ = np.empty(maxv)
+    for c in range(creases.shape[0]):
+        a, b, k = creases[c, 0], creases[c, 1], creases[c, 2]
+        cur = npoly
+        for p in range(cur):
+            n = pn[p]
+            lo = 0
+            hi = 0
+            for i in range(n):
+                d[i] = a * polx[p, i] + b * poly[p, i] - k
+                if d[i] < -tol:
+                    lo += 1
+                elif d[i] > tol:
+                    hi += 1
+            if lo == 0 or hi == 0 or npoly >= maxp:
+                continue
+            # Keep the d <= 0 side in p, append the d >= 0 side as a new polygon.
+            q = npoly
+            npoly += 1
+            na = 0
+            nb = 0
+            for i in range(n):
+                j = i + 1 if i + 1 < n else 0
+                xi_, yi_, di = polx[p, i], poly[p, i], d[i]
+                dj = d[j]
+                if di <= tol:
+                    ax_[na] = xi_
+                    ay_[na] = yi_
+                    na += 1
+                if di >= -tol:
+                    polx[q, nb] = xi_
+                    poly[q, nb] = yi_
+                    nb += 1
+                if (di < -tol and dj > tol) or (di > tol and dj < -tol):
+                    t = di / (di - dj)
+                    ix = xi_ + t * (polx[p, j] - xi_)
+                    iy = yi_ + t * (poly[p, j] - yi_)
+                    ax_[na] = ix
+                    ay_[na] = iy
+                    na += 1
+                    polx[q, nb] = ix
+                    poly[q, nb] = iy
+                    nb += 1
+            for i in range(na):
+                polx[p, i] = ax_[i]
+                poly[p, i] = ay_[i]
+            pn[p] = na
+            pn[q] = nb
+    s = 0.0
+    for p in range(npoly):
+        n = pn[p]
+        # Fan from the vertex nearest the chart centre: the concentric map (and the
+        # cone apex) make the integrand depend on the direction from the centre,
+        # which the collapsed vertex of the Duffy rule turns into a smooth
+        # function of the angle. It does not flatten as cells shrink, so pieces
+        # at the centre get the high-order rule.
+        c0 = 0
+        best = 1e300
+        for i in range(n):
+            dc = abs(polx[p, i] - 0.5) + abs(poly[p, i] - 0.5)
+            if dc < best:
+                best = dc
+                c0 = i
+        centre = best <= tol
+        for k in range(1, n - 1):
+            i = (c0 + k) % n
+            j = (c0 + k + 1) % n
+            if centre:
+                s += _quad_triangle(kind, params, face, cof, polx[p, c0], poly[p, c0],
+                                    polx[p, i], poly[p, i], polx[p, j], poly[p, j], gx_c, gw_c)
+            else:
+                s += _quad_triangle(kind, params, face, cof, polx[p, c0], poly[p, c0],
+                                    polx[p, i], poly[p, i], polx[p, j], poly[p, j], gx, gw)
+    return s
+
+
+@njit(cache=True)
+def _crosses_crease(u0, v0, du, dv, creases):
+    tol = 1e-12 * (du + dv)
+    for c in range(creases.shape[0]):
+        a, b, k = creases[c, 0], creases[c, 1], creases[c, 2]
+        lo = False
+        hi = False
+        for corner in range(4):
+            u = u0 + (du if corner == 1 or corner == 2 else 0.0)
+            v = v0 + (dv if corner >= 2 else 0.0)
+            dd = a * u + b * v - k
+            if dd < -tol:
+                lo = True
+            elif dd > tol:
+                hi = True
+        if lo and hi:
+            return True
+    return False
+
+
+@njit(cache=True, parallel=True)
+def _primitive_areas_kernel(kind, params, cof, n_faces, r, sub, gx, gw, gx_c, gw_c, creases):
+    out = np.zeros(n_faces * r * r)
+    h = 1.0 / (r * sub)
+    for cell in prange(n_faces * r * r):
+        face = cell // (r * r)
+        rem = cell - face * r * r
+        y = rem // r
+        x = rem - y * r
+        s = 0.0
+        for sy in range(sub):
+            v0 = (y * sub + sy) * h
+            for sx in range(sub):
+                u0 = (x * sub + sx) * h
+                # Near the chart centre the integrand of the concentric maps varies
+                # with the direction to the centre on the scale of the cell itself.
+                near = max(abs(u0 + 0.5 * h - 0.5), abs(v0 + 0.5 * h - 0.5)) < _NEAR_CENTRE * h
+                if _crosses_crease(u0, v0, h, h, creases):
+                    if near:
+                        s += _quad_split(kind, params, face, cof, u0, v0, h, h, gx_c, gw_c,
+                                         gx_c, gw_c, creases)
+                    else:
+                        s += _quad_split(kind, params, face, cof, u0, v0, h, h, gx, gw,
+                                         gx_c, gw_c, creases)
+                elif near:
+                    s += _quad_rect(kind, params, face, cof, u0, v0, h, h, gx_c, gw_c)
+                else:
+                    s += _quad_rect(kind, params, face, cof, u0, v0, h, h, gx, gw)
+        out[cell] = s
+    return out
+
+
+def primitive_texel_areas(kind, params, M, R, order=None):
+    """World area of every texel cell of an analytic primitive, by quadrature.
+
+    kind: primitive kind id (engine.primitives); params: float64[4]; M: 3×3 (or
+    3×4) linear part of the primitive -> world map; R: texels per tile side.
+    Returns float64[F*R*R] in FACE-MAJOR order (index f*R*R + y*R + x, texel
+    (x, y) of face f covering [x/R,(x+1)/R]×[y/R,(y+1)/R]); use
+    ``faces_to_rows`` for the lightmap's tiles-side-by-side row layout (both
+    coincide for one face). The area element is |M pu × M pv| = |cof(M)(pu × pv)|,
+    integrated with an order×order Gauss–Legendre rule on every piece of the
+    cell between map creases (order None: 4, or 3 from R = 512 on, where the
+    cells are small enough). Coverage is 1 for all primitive texels.
+    """
+    kind = int(kind)
+    R = int(R)
+    if R < 1:
+        raise ValueError(f"resolution must be >= 1, got {R}")
+    n_faces = int(prim_nfaces(kind))
+    if n_faces < 1:
+        raise ValueError(f"unknown primitive kind {kind}")
+    p = np.zeros(4)
+    pv = np.asarray(params, np.float64).reshape(-1)[:4]
+    p[:pv.size] = pv
+    if order is None:
+        order = 4 if R < 512 else 3
+    gx, gw = _gauss_legendre01(order)
+    gx_c, gw_c = _gauss_legendre01(max(int(order), _CENTRE_ORDER))
+    sub = max(1, -(-_MIN_CELLS // R))
+    return _primitive_areas_kernel(kind, p, cofactor(M), n_faces, R, sub, gx, gw, gx_c, gw_c,
+                                   _CREASES)
+
+
+# --------------------------------------------------------------------------------------
+# Photon recording
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def texel_index(lm, lm_id, face, s, t):
+    """Texel hit at chart coordinate (s, t) in [0,1]² of tile `face` (clamped)."""
+    w = np.int64(lm.width[lm_id])
+    h = np.int64(lm.height[lm_id])
+    nt = np.int64(lm.tiles[lm_id])
+    r = w // nt
+    f = np.int64(face)
+    if f < 0:
+        f = 0
+    elif f >= nt:
+        f = nt - 1
+    if not (s > 0.0):   # also catches NaN
+        s = 0.0
+    if not (t > 0.0):
+        t = 0.0
+    x = np.int64(min(s, 1.0) * r)
+    y = np.int64(min(t, 1.0) * h)
+    if x >= r:
+        x = r - 1
+    if y >= h:
+        y = h - 1
+    return lm.offset[lm_id] + y * w + f * r + x
+
+
+@njit(cache=True)
+def accumulate_kernel(lm, texel_ids, powers):
+    """Serial, in record order: same input order -> bit-identical sums. Ids < 0 are skipped."""
+    flux = lm.flux
+    flux_sq = lm.flux_sq
+    hits = lm.hits
+    nb = flux.shape[1]
+    inv_b = 1.0 / nb
+    for k in range(texel_ids.shape[0]):
+        i = texel_ids[k]
+        if i < 0:
+            continue
+        m = 0.0
+        for b in range(nb):
+            p = powers[k, b]
+            flux[i, b] += p
+            m += p
+        m *= inv_b
+        flux_sq[i] += m * m
+        hits[i] += 1
+
+
+def accumulate(lm, texel_ids, powers):
+    """Adds photon records (texel id int64[K], power float64[K,B]) to the lightmaps."""
+    ids = np.ascontiguousarray(texel_ids, dtype=np.int64).reshape(-1)
+    pw = np.ascontiguousarray(powers, dtype=np.float64)
+    nb = lm.flux.shape[1]
+    if pw.ndim == 1:
+        pw = pw.reshape(-1, nb) if nb > 1 else pw.reshape(-1, 1)
+    if pw.shape != (ids.shape[0], nb):
+        raise ValueError(f"powers must have shape ({ids.shape[0]}, {nb}), got {pw.shape}")
+    if ids.size and ids.max() >= lm.area.shape[0]:
+        raise ValueError(f"texel id {ids.max()} out of range ({lm.area.shape[0]} texels)")
+    accumulate_kernel(lm, ids, pw)
+
+
+def clear(lm):
+    """Forgets all recorded photons (areas stay)."""
+    lm.flux[:] = 0.0
+    lm.flux_sq[:] = 0.0
+    lm.hits[:] = 0
+    lm.irradiance[:] = 0.0
+    lm.state[:] = STATE_EMPTY
+
+
+# --------------------------------------------------------------------------------------
+# Reconstruction: E = flux / area, then dilation
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _owner(offset, i):
+    """Lightmap containing texel i (offsets ascending)."""
+    lo = 0
+    hi = offset.shape[0] - 1
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if offset[mid] <= i:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
+# Parallel kernels take the texel arrays one by one: numba (0.68) silently drops
+# writes made through a namedtuple field inside a prange loop.
+@njit(cache=True, parallel=True)
+def _irradiance(offset, area, flux, threshold, irradiance, state):
+    n = area.shape[0]
+    nb = flux.shape[1]
+    for i in prange(n):
+        l = _owner(offset, i)
+        a = area[i]
+        if a > threshold[l] and a > 0.0:
+            for b in range(nb):
+                irradiance[i, b] = flux[i, b] / a
+            state[i] = STATE_MEASURED
+        else:
+            for b in range(nb):
+                irradiance[i, b] = 0.0
+            state[i] = STATE_EMPTY
+
+
+@njit(cache=True, parallel=True)
+def _dilate_pass(offset, width, height, tiles, irr_prev, state_prev, irradiance, state):
+    """Each empty texel takes the mean of its non-empty 8-neighbours inside the same tile."""
+    n = state.shape[0]
+    nb = irradiance.shape[1]
+    changed = 0
+    for i in prange(n):
+        if state_prev[i] != STATE_EMPTY:
+            continue
+        l = _owner(offset, i)
+        w = np.int64(width[l])
+        h = np.int64(height[l])
+        r = w // np.int64(tiles[l])
+        local = i - offset[l]
+        y = local // w
+        x = local - y * w
+        x_lo = (x // r) * r
+        x_hi = x_lo + r - 1
+        cnt = 0
+        for b in range(nb):
+            irradiance[i, b] = 0.0
+        for dy in range(-1, 2):
+            ny = y + dy
+            if ny < 0 or ny >= h:
+                continue
+            for dx in range(-1, 2):
+                nx = x + dx
+                if (dx == 0 and dy == 0) or nx < x_lo or nx > x_hi:
+                    continue
+                j = offset[l] + ny * w + nx
+                if state_prev[j] != STATE_EMPTY:
+                    for b in range(nb):
+                        irradiance[i, b] += irr_prev[j, b]
+                    cnt += 1
+        if cnt > 0:
+            inv = 1.0 / cnt
+            for b in range(nb):
+                irradiance[i, b] *= inv
+            state[i] = STATE_DILATED
+            changed += 1
+    return changed
+
+
+def finalize(lm, passes=DILATION_PASSES):
+    """Irradiance E = flux / area per texel, then `passes` rings of dilation.
+
+    Texels with (near-)zero area get E = 0 and are marked empty; dilation then
+    fills empty texels next to valid ones (within the same tile only), so that
+    bilinear reconstruction near chart borders reads plausible values. Can be
+    called repeatedly (progressive rendering): it always recomputes from flux.
+    """
+    L = lm.offset.shape[0]
+    threshold = np.zeros(L)
+    for l in range(L):
+        sl = texel_slice(lm, l)
+        n = sl.stop - sl.start
+        if n:
+            threshold[l] = EMPTY_AREA_FRACTION * float(lm.area[sl].sum()) / n
+    if lm.area.shape[0] == 0:
+        return
+    _irradiance(lm.offset, lm.area, lm.flux, threshold, lm.irradiance, lm.state)
+    for _ in range(int(passes)):
+        irr_prev = lm.irradiance.copy()
+        state_prev = lm.state.copy()
+        if _dilate_pass(lm.offset, lm.width, lm.height, lm.tiles, irr_prev, state_prev,
+                        lm.irradiance, lm.state) == 0:
+            break
+
+
+# --------------------------------------------------------------------------------------
+# Lookups (renderer)
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def lookup_constant(lm, lm_id, face, s, t, out):
+    """E of the texel containing (s, t) of tile `face` -> out (B,)."""
+    i = texel_index(lm, lm_id, face, s, t)
+    for b in range(out.shape[0]):
+        out[b] = lm.irradiance[i, b]
+
+
+@njit(cache=True)
+def lookup_bilinear(lm, lm_id, face, s, t, out):
+    """Bilinear E between texel centres, clamped to the tile, skipping empty texels."""
+    w = np.int64(lm.width[lm_id])
+    h = np.int64(lm.height[lm_id])
+    nt = np.int64(lm.tiles[lm_id])
+    r = w // nt
+    f = np.int64(face)
+    if f < 0:
+        f = 0
+    elif f >= nt:
+        f = nt - 1
+    if not (s > 0.0):
+        s = 0.0
+    if not (t > 0.0):
+        t = 0.0
+    s = min(s, 1.0)
+    t = min(t, 1.0)
+    fx = s * r - 0.5
+    fy = t * h - 0.5
+    x0f = math.floor(fx)
+    y0f = math.floor(fy)
+    wx = fx - x0f
+    wy = fy - y0f
+    x0 = np.int64(x0f)
+    y0 = np.int64(y0f)
+    x1 = min(max(x0 + 1, 0), r - 1)
+    y1 = min(max(y0 + 1, 0), h - 1)
+    x0 = min(max(x0, 0), r - 1)
+    y0 = min(max(y0, 0), h - 1)
+    base = lm.offset[lm_id] + f * r
+    for b in range(out.shape[0]):
+        out[b] = 0.0
+    wsum = 0.0
+    for k in range(4):
+        xx = x1 if (k & 1) else x0
+        yy = y1 if (k & 2) else y0
+        wk = (wx if (k & 1) else 1.0 - wx) * (wy if (k & 2) else 1.0 - wy)
+        i = base + yy * w + xx
+        if wk > 0.0 and lm.state[i] != STATE_EMPTY:
+            for b in range(out.shape[0]):
+                out[b] += wk * lm.irradiance[i, b]
+            wsum += wk
+    if wsum > 0.0:
+        inv = 1.0 / wsum
+        for b in range(out.shape[0]):
+            out[b] *= inv
+    else:
+        lookup_constant(lm, lm_id, face, s, t, out)
+
+
+@njit(cache=True)
+def lookup(lm, lm_id, face, s, t, mode, out):
+    if mode == MODE_BILINEAR:
+        lookup_bilinear(lm, lm_id, face, s, t, out)
+    else:
+        lookup_constant(lm, lm_id, face, s, t, out)
+
+
+# --------------------------------------------------------------------------------------
+# Statistics
+# --------------------------------------------------------------------------------------
+
+def memory_bytes(lm):
+    return int(sum(a.nbytes for a in lm))
+
+
+def texel_stats(lm):
+    """Per-lightmap mean E and hits per texel, per-texel relative standard error.
+
+    The relative error of a texel's flux estimate is sqrt(Σ p_k²) / Σ p_k over its
+    photon records (band means): 1/sqrt(m) for m equal-power photons.
+    """
+    L = lm.offset.shape[0]
+    nb = lm.flux.shape[1]
+    fm = lm.flux.mean(axis=1)
+    rel = np.full(lm.area.shape[0], np.inf)
+    ok = fm > 0
+    rel[ok] = np.sqrt(lm.flux_sq[ok]) / fm[ok]
+    mean_e = np.zeros((L, nb))
+    hpt = np.zeros(L)
+    med = np.full(L, np.inf)
+    for l in range(L):
+        sl = texel_slice(lm, l)
+        a = lm.area[sl]
+        valid = a > 0
+        atot = a[valid].sum()
+        if atot > 0:
+            mean_e[l] = lm.flux[sl][valid].sum(axis=0) / atot
+        if valid.any():
+            hpt[l] = lm.hits[sl][valid].sum() / valid.sum()
+        hit = lm.hits[sl] > 0
+        if hit.any():
+            med[l] = float(np.median(rel[sl][hit]))
+    return LightmapStats(mean_e, hpt, rel, med, memory_bytes(lm))

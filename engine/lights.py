@@ -1,0 +1,472 @@
+"""Emitters: exact emitted flux, photon emission and direct-light sampling.
+
+Units follow Cycles so that a Blender scene means the same here:
+* point/spot of power P [W]: intensity I = P / (4 pi) W/sr (a spot only masks it);
+  with a radius r it is a uniform sphere of radiance I / (pi r^2).
+* area light of power P: one-sided Lambertian, radiance L = P / (pi A).
+* sun of strength S: irradiance S [W/m^2] on a surface facing it.
+* emissive surfaces: radiance L = emission colour x strength; open surfaces
+  (triangles, disks, quads) emit from both sides as in Cycles, solids outward.
+* constant environment of radiance L.
+Every light reports its exact emitted flux, so the photon pass can be audited.
+"""
+import math
+from collections import namedtuple
+
+import numpy as np
+from numba import njit
+
+from . import primitives as P
+from .sampling import (concentric_disk, cosine_hemisphere, next_float, orthonormal_basis,
+                       sample_discrete, to_world, uniform_cone, uniform_sphere)
+from .scene import AREA_SHAPES, SceneError, _affine, _bands
+
+POINT, SPOT, SUN, AREA, EMISSIVE, ENVIRONMENT = 0, 1, 2, 3, 4, 5
+RECT, ELLIPSE = 0, 1
+
+LightSet = namedtuple("LightSet", [
+    "kind", "pos", "axis_u", "axis_v", "normal", "shape", "radius", "cos_half", "smooth",
+    "radiance", "flux", "area", "two_sided", "inst", "shape_id",
+    "cell_start", "cell_count", "cell_face", "cell_u0", "cell_v0", "cell_du", "cell_dv",
+    "cell_cdf", "power_cdf", "center", "bound_radius", "total_power"])
+
+EMISSIVE_GRID = 16  # (u,v) cells per primitive face used to sample emissive primitives
+
+
+def spot_flux_factor(cos_half, smooth):
+    """Integral of the spot mask over the sphere: 2 pi [(1 - cos_half) - smooth/2].
+
+    The mask is smoothstep((cos - cos_half) / smooth); its integral over the
+    blend ring is smooth/2 because smoothstep averages 1/2 over [0, 1].
+    """
+    return 2.0 * math.pi * ((1.0 - cos_half) - 0.5 * smooth)
+
+
+def _transform_dir(xf, v):
+    return xf[:, :3] @ v
+
+
+def compile_lights(scene, geom, materials, bounds):
+    """LightSet for the scene's lights, emissive shapes and environment.
+
+    `bounds` = (lo, hi) world bounds of the geometry, used to aim sun and
+    environment photons at the scene.
+    """
+    nb = scene.n_bands
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))) or np.any(hi < lo):
+        lo, hi = np.zeros(3), np.zeros(3)
+    center = 0.5 * (lo + hi)
+    bound_radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-3) * 1.001
+
+    rows = []  # dicts, turned into arrays below
+    cells = {"face": [], "u0": [], "v0": [], "du": [], "dv": [], "cdf": []}
+
+    def row(**kw):
+        r = dict(kind=0, pos=np.zeros(3), axis_u=np.zeros(3), axis_v=np.zeros(3),
+                 normal=np.array([0.0, 0.0, -1.0]), shape=RECT, radius=0.0, cos_half=-1.0,
+                 smooth=0.0, radiance=np.zeros(nb), flux=np.zeros(nb), area=0.0, two_sided=False,
+                 inst=-1, shape_id=-1, cell_start=0, cell_count=0)
+        r.update(kw)
+        rows.append(r)
+
+    for light in scene.lights:
+        name = f"light '{light.name}'"
+        if light.kind not in ("point", "spot", "sun", "area"):
+            raise SceneError(f"{name}: unknown kind '{light.kind}'")
+        color = _bands(light.color, nb, f"{name} colour")
+        if not math.isfinite(light.power) or light.power < 0 or np.any(color < 0):
+            raise SceneError(f"{name}: power must be finite and non-negative (got {light.power})")
+        xf = _affine(light.transform, name)
+        strength = color * float(light.power)
+        if not np.any(strength > 0):
+            continue  # a dark light emits nothing; it is not an error
+        pos = xf[:, 3].copy()
+        down = _transform_dir(xf, np.array([0.0, 0.0, -1.0]))
+        down /= np.linalg.norm(down)
+        if light.kind in ("point", "spot"):
+            intensity = strength / (4.0 * math.pi)
+            radius = max(float(light.radius), 0.0)
+            if light.kind == "point":
+                row(kind=POINT, pos=pos, radius=radius, radiance=intensity,
+                    flux=intensity * 4.0 * math.pi)
+            else:
+                cos_half = math.cos(min(max(float(light.spot_size), 1e-6), math.pi) / 2.0)
+                smooth = (1.0 - cos_half) * min(max(float(light.spot_blend), 0.0), 1.0)
+                row(kind=SPOT, pos=pos, normal=down, radius=radius, cos_half=cos_half, smooth=smooth,
+                    radiance=intensity, flux=intensity * spot_flux_factor(cos_half, smooth))
+        elif light.kind == "sun":
+            half = 0.5 * max(float(light.angle), 0.0)
+            row(kind=SUN, normal=down, cos_half=math.cos(half), radiance=strength,
+                flux=strength * math.pi * bound_radius ** 2)
+        else:
+            if light.shape not in AREA_SHAPES:
+                raise SceneError(f"{name}: unknown area shape '{light.shape}'")
+            sx = float(light.size)
+            sy = sx if light.shape in ("square", "disk") else float(light.size_y)
+            au = _transform_dir(xf, np.array([0.5 * sx, 0.0, 0.0]))
+            av = _transform_dir(xf, np.array([0.0, 0.5 * sy, 0.0]))
+            ellipse = light.shape in ("disk", "ellipse")
+            area = float(np.linalg.norm(np.cross(au, av))) * (math.pi if ellipse else 4.0)
+            if not area > 0:
+                raise SceneError(f"{name}: area light has zero size")
+            normal = -np.cross(au, av)
+            normal /= np.linalg.norm(normal)
+            radiance = strength / (math.pi * area)
+            row(kind=AREA, pos=pos, axis_u=au, axis_v=av, normal=normal,
+                shape=ELLIPSE if ellipse else RECT, radiance=radiance, flux=strength, area=area)
+
+    _emissive_rows(scene, geom, materials, row, cells)
+
+    env = _bands(scene.environment, nb, "environment")
+    if np.any(env < 0):
+        raise SceneError("environment radiance must be non-negative")
+    if np.any(env > 0):
+        # Radiance L from every direction crosses a sphere of radius R with flux L pi 4 pi R^2.
+        row(kind=ENVIRONMENT, pos=center.copy(), radius=bound_radius, radiance=env,
+            flux=env * math.pi * 4.0 * math.pi * bound_radius ** 2)
+
+    n = len(rows)
+    arr = lambda key, dtype: np.array([r[key] for r in rows], dtype=dtype) if n else None
+    f64 = lambda key, shape: arr(key, np.float64) if n else np.zeros(shape)
+    i32 = lambda key: arr(key, np.int32) if n else np.zeros(0, np.int32)
+    flux = f64("flux", (0, nb)).reshape(n, nb)
+    power = flux.mean(axis=1) if n else np.zeros(0)
+    cdf = np.cumsum(power)
+    c = {k: np.asarray(v, dtype=np.float64 if k != "face" else np.int32) for k, v in cells.items()}
+    return LightSet(
+        kind=i32("kind"), pos=f64("pos", (0, 3)).reshape(n, 3),
+        axis_u=f64("axis_u", (0, 3)).reshape(n, 3), axis_v=f64("axis_v", (0, 3)).reshape(n, 3),
+        normal=f64("normal", (0, 3)).reshape(n, 3), shape=i32("shape"),
+        radius=f64("radius", 0), cos_half=f64("cos_half", 0), smooth=f64("smooth", 0),
+        radiance=f64("radiance", (0, nb)).reshape(n, nb), flux=flux, area=f64("area", 0),
+        two_sided=arr("two_sided", np.bool_) if n else np.zeros(0, np.bool_),
+        inst=i32("inst"), shape_id=i32("shape_id"), cell_start=i32("cell_start"),
+        cell_count=i32("cell_count"), cell_face=c["face"], cell_u0=c["u0"], cell_v0=c["v0"],
+        cell_du=c["du"], cell_dv=c["dv"], cell_cdf=c["cdf"],
+        power_cdf=cdf.astype(np.float64), center=center, bound_radius=float(bound_radius),
+        total_power=float(cdf[-1]) if n else 0.0)
+
+
+def _emissive_rows(scene, geom, materials, row, cells):
+    """One light per (instance, emissive shape); primitives get an area table of (u,v) cells."""
+    emissive = np.where(materials.emission.max(axis=1) > 0)[0]
+    if emissive.size == 0:
+        return
+    from .lightmap import primitive_texel_areas  # exact cell areas by quadrature
+
+    shape_emits = np.isin(geom.shape_material, emissive)
+    proto_shapes = {}
+    for s in np.where(shape_emits)[0]:
+        proto_shapes.setdefault(int(geom.shape_proto[s]), []).append(int(s))
+    for i, p in enumerate(geom.inst_proto):
+        for s in proto_shapes.get(int(p), ()):
+            m = int(geom.shape_material[s])
+            le = materials.emission[m]
+            lin = geom.inst_xf[i][:, :3]
+            kind = int(geom.shape_kind[s])
+            start = len(cells["cdf"])
+            if kind == P.TRIANGLE:
+                tri = geom.tri_p[geom.shape_index[s]]
+                area = 0.5 * float(np.linalg.norm(np.cross(lin @ (tri[1] - tri[0]), lin @ (tri[2] - tri[0]))))
+                if not area > 0:
+                    continue
+                cells["face"].append(0)
+                for k, v in (("u0", 0.0), ("v0", 0.0), ("du", 1.0), ("dv", 1.0)):
+                    cells[k].append(v)
+                cells["cdf"].append(area)
+                two_sided = True
+            else:
+                j = int(geom.shape_index[s])
+                m3 = lin @ geom.prim_xf[j][:, :3]
+                g = EMISSIVE_GRID
+                areas = primitive_texel_areas(kind, geom.prim_params[j], m3, g)
+                nf = areas.size // (g * g)
+                area = float(areas.sum())
+                if not area > 0:
+                    continue
+                acc = 0.0
+                for f in range(nf):
+                    for y in range(g):
+                        for x in range(g):
+                            acc += areas[f * g * g + y * g + x]
+                            cells["face"].append(f)
+                            cells["u0"].append(x / g)
+                            cells["v0"].append(y / g)
+                            cells["du"].append(1.0 / g)
+                            cells["dv"].append(1.0 / g)
+                            cells["cdf"].append(acc)
+                two_sided = kind in (P.DISK, P.QUAD)
+            sides = 2.0 if two_sided else 1.0
+            row(kind=EMISSIVE, radiance=le.copy(), flux=le * math.pi * area * sides, area=area,
+                two_sided=two_sided, inst=i, shape_id=int(s), cell_start=start,
+                cell_count=len(cells["cdf"]) - start)
+
+
+# --------------------------------------------------------------------------------------
+# Kernels
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def _xf_point(xf, x, y, z):
+    return (xf[0, 0] * x + xf[0, 1] * y + xf[0, 2] * z + xf[0, 3],
+            xf[1, 0] * x + xf[1, 1] * y + xf[1, 2] * z + xf[1, 3],
+            xf[2, 0] * x + xf[2, 1] * y + xf[2, 2] * z + xf[2, 3])
+
+
+@njit(cache=True)
+def _xf_vec(xf, x, y, z):
+    return (xf[0, 0] * x + xf[0, 1] * y + xf[0, 2] * z,
+            xf[1, 0] * x + xf[1, 1] * y + xf[1, 2] * z,
+            xf[2, 0] * x + xf[2, 1] * y + xf[2, 2] * z)
+
+
+@njit(cache=True)
+def _xf_normal(inv, x, y, z):
+    """Normals transform by the inverse transpose: n' = inv^T n."""
+    return (inv[0, 0] * x + inv[1, 0] * y + inv[2, 0] * z,
+            inv[0, 1] * x + inv[1, 1] * y + inv[2, 1] * z,
+            inv[0, 2] * x + inv[1, 2] * y + inv[2, 2] * z)
+
+
+@njit(cache=True)
+def _normalize(x, y, z):
+    ln = math.sqrt(x * x + y * y + z * z)
+    if ln == 0.0:
+        return 0.0, 0.0, 1.0, 0.0
+    return x / ln, y / ln, z / ln, ln
+
+
+@njit(cache=True)
+def emissive_point(ls, g, li, u1, u2, u3):
+    """Point on emissive shape li: (px,py,pz, nx,ny,nz, weight) with weight = A_cell-relative
+    density correction (1 for triangles; J du dv / A_cell for primitive cells), and the
+    area pdf of the sampled point (1/A for uniform)."""
+    start = ls.cell_start[li]
+    cnt = ls.cell_count[li]
+    inst = ls.inst[li]
+    s = ls.shape_id[li]
+    ixf = g.inst_xf[inst]
+    iinv = g.inst_inv[inst]
+    if g.shape_kind[s] == 0:
+        t = g.tri_p[g.shape_index[s]]
+        su = math.sqrt(u1)
+        b1 = 1.0 - su
+        b2 = u2 * su
+        x = t[0, 0] + b1 * (t[1, 0] - t[0, 0]) + b2 * (t[2, 0] - t[0, 0])
+        y = t[0, 1] + b1 * (t[1, 1] - t[0, 1]) + b2 * (t[2, 1] - t[0, 1])
+        z = t[0, 2] + b1 * (t[1, 2] - t[0, 2]) + b2 * (t[2, 2] - t[0, 2])
+        e1x, e1y, e1z = t[1, 0] - t[0, 0], t[1, 1] - t[0, 1], t[1, 2] - t[0, 2]
+        e2x, e2y, e2z = t[2, 0] - t[0, 0], t[2, 1] - t[0, 1], t[2, 2] - t[0, 2]
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        px, py, pz = _xf_point(ixf, x, y, z)
+        wx, wy, wz = _xf_normal(iinv, nx, ny, nz)
+        wx, wy, wz, _ = _normalize(wx, wy, wz)
+        return px, py, pz, wx, wy, wz, 1.0, 1.0 / ls.area[li]
+    # Primitive: choose a cell by area, then (u,v) uniformly inside it.
+    total = ls.cell_cdf[start + cnt - 1]
+    target = u3 * total
+    lo = start
+    hi = start + cnt - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if ls.cell_cdf[mid] <= target:
+            lo = mid + 1
+        else:
+            hi = mid
+    c = lo
+    prev = ls.cell_cdf[c - 1] if c > start else 0.0
+    a_cell = ls.cell_cdf[c] - prev
+    u = ls.cell_u0[c] + u1 * ls.cell_du[c]
+    v = ls.cell_v0[c] + u2 * ls.cell_dv[c]
+    j = g.shape_index[s]
+    kind = g.prim_kind[j]
+    params = g.prim_params[j]
+    (x, y, z, ax, ay, az, bx, by, bz) = P.prim_point(kind, params, ls.cell_face[c], u, v)
+    pxf = g.prim_xf[j]
+    pinv = g.prim_inv[j]
+    x, y, z = _xf_point(pxf, x, y, z)
+    px, py, pz = _xf_point(ixf, x, y, z)
+    ax, ay, az = _xf_vec(pxf, ax, ay, az)
+    ax, ay, az = _xf_vec(ixf, ax, ay, az)
+    bx, by, bz = _xf_vec(pxf, bx, by, bz)
+    bx, by, bz = _xf_vec(ixf, bx, by, bz)
+    cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    cx, cy, cz, jac = _normalize(cx, cy, cz)
+    # Orient by the exact outward normal (parameterisations may be left-handed).
+    lx, ly, lz = P.prim_point(kind, params, ls.cell_face[c], u, v)[:3]
+    f, uu, vv, nx, ny, nz = P.prim_surface(kind, params, lx, ly, lz)
+    nx, ny, nz = _xf_normal(pinv, nx, ny, nz)
+    nx, ny, nz = _xf_normal(iinv, nx, ny, nz)
+    if cx * nx + cy * ny + cz * nz < 0.0:
+        cx, cy, cz = -cx, -cy, -cz
+    du_dv = ls.cell_du[c] * ls.cell_dv[c]
+    weight = jac * du_dv / a_cell if a_cell > 0.0 else 0.0
+    pdf_area = (a_cell / total) / (du_dv * jac) if jac > 0.0 else 0.0
+    return px, py, pz, cx, cy, cz, weight, pdf_area
+
+
+@njit(cache=True)
+def spot_mask(ls, li, dx, dy, dz):
+    """Cycles' spot falloff: smoothstep over the blend ring inside the cone (d unit, from light)."""
+    c = dx * ls.normal[li, 0] + dy * ls.normal[li, 1] + dz * ls.normal[li, 2]
+    if c <= ls.cos_half[li]:
+        return 0.0
+    sm = ls.smooth[li]
+    if sm <= 0.0:
+        return 1.0
+    x = min((c - ls.cos_half[li]) / sm, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+@njit(cache=True)
+def emit_photon(ls, g, state):
+    """Samples a photon: returns (state, light, ox,oy,oz, dx,dy,dz, weight).
+
+    The photon's power is weight * ls.flux[light] * total_power / power(light) / N:
+    lights are chosen in proportion to power, so photons carry similar power.
+    weight is 0 when the sample is rejected (it then carries nothing).
+    """
+    state, u0 = next_float(state)
+    li = sample_discrete(ls.power_cdf, u0)
+    state, u1 = next_float(state)
+    state, u2 = next_float(state)
+    state, u3 = next_float(state)
+    state, u4 = next_float(state)
+    state, u5 = next_float(state)
+    k = ls.kind[li]
+    weight = 1.0
+    if k == POINT or k == SPOT:
+        cx, cy, cz = ls.pos[li, 0], ls.pos[li, 1], ls.pos[li, 2]
+        r = ls.radius[li]
+        if k == SPOT:
+            # Uniform in the cone, weighted by the falloff over its mean: the expected
+            # power matches the exact spot flux and no photon is wasted on rejection.
+            lx, ly, lz = uniform_cone(u1, u2, ls.cos_half[li])
+            dx, dy, dz = to_world(lx, ly, lz, ls.normal[li, 0], ls.normal[li, 1], ls.normal[li, 2])
+            mean_mask = spot_flux_mean(ls, li)
+            weight = spot_mask(ls, li, dx, dy, dz) / mean_mask if mean_mask > 0.0 else 0.0
+            if r > 0.0:
+                nx, ny, nz = uniform_sphere(u3, u4)
+                if nx * dx + ny * dy + nz * dz < 0.0:
+                    nx, ny, nz = -nx, -ny, -nz
+                return state, li, cx + r * nx, cy + r * ny, cz + r * nz, dx, dy, dz, weight
+            return state, li, cx, cy, cz, dx, dy, dz, weight
+        if r > 0.0:
+            nx, ny, nz = uniform_sphere(u1, u2)
+            lx, ly, lz = cosine_hemisphere(u3, u4)
+            dx, dy, dz = to_world(lx, ly, lz, nx, ny, nz)
+            return state, li, cx + r * nx, cy + r * ny, cz + r * nz, dx, dy, dz, weight
+        dx, dy, dz = uniform_sphere(u1, u2)
+        return state, li, cx, cy, cz, dx, dy, dz, weight
+    if k == AREA:
+        if ls.shape[li] == ELLIPSE:
+            a, b = concentric_disk(u1, u2)
+        else:
+            a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
+        ox = ls.pos[li, 0] + a * ls.axis_u[li, 0] + b * ls.axis_v[li, 0]
+        oy = ls.pos[li, 1] + a * ls.axis_u[li, 1] + b * ls.axis_v[li, 1]
+        oz = ls.pos[li, 2] + a * ls.axis_u[li, 2] + b * ls.axis_v[li, 2]
+        lx, ly, lz = cosine_hemisphere(u3, u4)
+        dx, dy, dz = to_world(lx, ly, lz, ls.normal[li, 0], ls.normal[li, 1], ls.normal[li, 2])
+        return state, li, ox, oy, oz, dx, dy, dz, weight
+    if k == SUN:
+        lx, ly, lz = uniform_cone(u3, u4, ls.cos_half[li])
+        dx, dy, dz = to_world(lx, ly, lz, ls.normal[li, 0], ls.normal[li, 1], ls.normal[li, 2])
+        # A disk of the scene's bounding radius facing the sun, just outside the scene.
+        a, b = concentric_disk(u1, u2)
+        R = ls.bound_radius
+        tx, ty, tz, bx, by, bz = orthonormal_basis(dx, dy, dz)
+        ox = ls.center[0] + R * (a * tx + b * bx) - 2.0 * R * dx
+        oy = ls.center[1] + R * (a * ty + b * by) - 2.0 * R * dy
+        oz = ls.center[2] + R * (a * tz + b * bz) - 2.0 * R * dz
+        return state, li, ox, oy, oz, dx, dy, dz, weight
+    if k == ENVIRONMENT:
+        nx, ny, nz = uniform_sphere(u1, u2)
+        R = ls.radius[li]
+        lx, ly, lz = cosine_hemisphere(u3, u4)
+        dx, dy, dz = to_world(lx, ly, lz, -nx, -ny, -nz)
+        return (state, li, ls.center[0] + R * nx, ls.center[1] + R * ny, ls.center[2] + R * nz,
+                dx, dy, dz, weight)
+    # EMISSIVE
+    px, py, pz, nx, ny, nz, w, pdf = emissive_point(ls, g, li, u1, u2, u5)
+    if ls.two_sided[li]:
+        state, us = next_float(state)
+        if us < 0.5:
+            nx, ny, nz = -nx, -ny, -nz
+    lx, ly, lz = cosine_hemisphere(u3, u4)
+    dx, dy, dz = to_world(lx, ly, lz, nx, ny, nz)
+    return state, li, px, py, pz, dx, dy, dz, w
+
+
+@njit(cache=True)
+def spot_flux_mean(ls, li):
+    """Mean falloff over the cone (accept rate of spot photon rejection sampling)."""
+    ch = ls.cos_half[li]
+    return ((1.0 - ch) - 0.5 * ls.smooth[li]) / (1.0 - ch) if ch < 1.0 else 1.0
+
+
+@njit(cache=True)
+def sample_light(ls, g, li, px, py, pz, u1, u2, u3):
+    """Direct light from light li at point p.
+
+    Returns (wx, wy, wz, dist, contrib_scale, ok): the unit direction towards the
+    light, the distance for the shadow ray (inf for sun/environment), and a
+    scalar so that irradiance from this sample = radiance[li] * contrib_scale
+    (already includes cos at the light and 1/pdf, but not cos at the receiver,
+    which the caller multiplies in).
+    """
+    k = ls.kind[li]
+    if k == POINT or k == SPOT:
+        cx, cy, cz = ls.pos[li, 0], ls.pos[li, 1], ls.pos[li, 2]
+        wx, wy, wz, d = _normalize(cx - px, cy - py, cz - pz)
+        if d == 0.0:
+            return 0.0, 0.0, 1.0, 0.0, 0.0, False
+        mask = 1.0
+        if k == SPOT:
+            mask = spot_mask(ls, li, -wx, -wy, -wz)
+            if mask <= 0.0:
+                return wx, wy, wz, d, 0.0, False
+        r = ls.radius[li]
+        if r <= 0.0 or d <= r:
+            return wx, wy, wz, d, mask / (d * d), True
+        # Sphere light: uniform direction in the visible cone; radiance I/(pi r^2).
+        sin2 = (r * r) / (d * d)
+        cos_max = math.sqrt(max(0.0, 1.0 - sin2))
+        lx, ly, lz = uniform_cone(u1, u2, cos_max)
+        sx, sy, sz = to_world(lx, ly, lz, wx, wy, wz)
+        # Distance to the sphere along the sample direction.
+        b = lz * d
+        disc = r * r - (d * d - b * b)
+        ts = b - math.sqrt(max(disc, 0.0))
+        pdf = 1.0 / (2.0 * math.pi * (1.0 - cos_max))
+        return sx, sy, sz, ts, mask / (math.pi * r * r) / pdf, True
+    if k == AREA:
+        if ls.shape[li] == ELLIPSE:
+            a, b = concentric_disk(u1, u2)
+        else:
+            a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
+        qx = ls.pos[li, 0] + a * ls.axis_u[li, 0] + b * ls.axis_v[li, 0]
+        qy = ls.pos[li, 1] + a * ls.axis_u[li, 1] + b * ls.axis_v[li, 1]
+        qz = ls.pos[li, 2] + a * ls.axis_u[li, 2] + b * ls.axis_v[li, 2]
+        wx, wy, wz, d = _normalize(qx - px, qy - py, qz - pz)
+        cos_l = -(wx * ls.normal[li, 0] + wy * ls.normal[li, 1] + wz * ls.normal[li, 2])
+        if cos_l <= 0.0 or d == 0.0:
+            return wx, wy, wz, d, 0.0, False
+        return wx, wy, wz, d, cos_l * ls.area[li] / (d * d), True
+    if k == SUN:
+        lx, ly, lz = uniform_cone(u1, u2, ls.cos_half[li])
+        wx, wy, wz = to_world(lx, ly, lz, -ls.normal[li, 0], -ls.normal[li, 1], -ls.normal[li, 2])
+        return wx, wy, wz, math.inf, 1.0, True
+    if k == ENVIRONMENT:
+        # Uniform sphere; the caller's receiver cosine completes E = int L cos.
+        wx, wy, wz = uniform_sphere(u1, u2)
+        return wx, wy, wz, math.inf, 4.0 * math.pi, True
+    qx, qy, qz, nx, ny, nz, w, pdf_area = emissive_point(ls, g, li, u1, u2, u3)
+    wx, wy, wz, d = _normalize(qx - px, qy - py, qz - pz)
+    cos_l = -(wx * nx + wy * ny + wz * nz)
+    if ls.two_sided[li]:
+        cos_l = abs(cos_l)
+    if cos_l <= 0.0 or d == 0.0 or pdf_area <= 0.0:
+        return wx, wy, wz, d, 0.0, False
+    return wx, wy, wz, d, cos_l / (d * d) / pdf_area, True

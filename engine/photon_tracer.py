@@ -1,0 +1,209 @@
+"""Particle tracing (thesis 3.4.3, after Pattanaik & Mudur): the photon pass.
+
+Photons leave the lights in proportion to power and travel unsplit; at every
+hit they are recorded in the surface's photon lightmap (thesis 3.5.2), then
+Russian roulette on the material picks one interaction (diffuse, specular,
+transmission) or absorption. With direct light computed at render time only
+hits after the first bounce are recorded.
+
+Photons are traced in parallel chunks; each photon writes its hits into its
+own slots, and the slots are added to the lightmaps in photon order, so a seed
+gives bit-identical lightmaps however threads are scheduled. Every joule is
+booked as absorbed, escaped or truncated (the path-length cap), which lets
+tests audit energy against each light's exact emitted flux.
+"""
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit, prange
+
+from . import lightmap as LM
+from .lights import emit_photon
+from .materials import DIFFUSE, SPECULAR, TRANSMIT, lobe_probabilities, scatter
+from .raycast import STACK_WORDS, intersect_closest
+from .sampling import next_float, stream_state
+
+MAX_BOUNCES_LIMIT = 256
+
+
+
+class Cancelled(Exception):
+    """The host asked to stop (e.g. Esc in Blender); partial results were discarded."""
+
+
+@dataclass
+class PhotonStats:
+    photons: int = 0
+    rays: int = 0
+    records: int = 0
+    seconds: float = 0.0
+    emitted: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    absorbed: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    escaped: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    truncated: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def audit_error(self):
+        """Relative imbalance of emitted vs absorbed + escaped + truncated (0 when exact)."""
+        booked = self.absorbed + self.escaped + self.truncated
+        return float(np.max(np.abs(self.emitted - booked)) / max(np.max(np.abs(self.emitted)), 1e-300))
+
+    def as_dict(self):
+        return {"photons": self.photons, "rays": self.rays, "records": self.records,
+                "seconds": self.seconds, "photons_per_second": self.photons / max(self.seconds, 1e-9),
+                "emitted": self.emitted.tolist(), "absorbed": self.absorbed.tolist(),
+                "escaped": self.escaped.tolist(), "truncated": self.truncated.tolist()}
+
+
+@njit(cache=True)
+def ray_epsilon(px, py, pz):
+    """Offset that moves a ray origin off its surface, relative to the coordinates' size."""
+    return 1e-7 * (1.0 + max(abs(px), abs(py), abs(pz)))
+
+
+@njit(cache=True)
+def lightmap_slot(g, lm, inst, shape, face, u, v):
+    """(lightmap id, face, s, t) where hit (inst, shape, face, u, v) lands; id -1 if none."""
+    base = g.inst_lm_base[inst]
+    slot = g.shape_surface[shape]
+    if base < 0 or slot < 0:
+        return -1, 0, 0.0, 0.0
+    if g.shape_kind[shape] == 0:
+        # Triangle: interpolate the atlas UVs with the barycentrics.
+        uv = g.tri_uv[g.shape_index[shape]]
+        w0 = 1.0 - u - v
+        s = w0 * uv[0, 0] + u * uv[1, 0] + v * uv[2, 0]
+        t = w0 * uv[0, 1] + u * uv[1, 1] + v * uv[2, 1]
+        return base + slot, 0, s, t
+    return base + slot, face, u, v
+
+
+@njit(cache=True, parallel=True)
+def _trace_chunk(g, ms, ls, lm, seed, first, n_total, max_bounces, record_from,
+                 rec_texel, rec_power, ledger, rays):
+    count = rec_texel.shape[0]
+    n_rec = rec_texel.shape[1]
+    nb = ledger.shape[2]
+    scale = ls.total_power / n_total
+    for i in prange(count):
+        stack = np.empty(STACK_WORDS, np.int32)
+        power = np.empty(nb)
+        for r in range(n_rec):
+            rec_texel[i, r] = -1
+        for k in range(4):
+            for b in range(nb):
+                ledger[i, k, b] = 0.0
+        state = stream_state(seed, first + i)
+        state, li, ox, oy, oz, dx, dy, dz, w = emit_photon(ls, g, state)
+        p_light = ls.flux[li].mean()
+        for b in range(nb):
+            power[b] = w * ls.flux[li, b] * scale / p_light if p_light > 0.0 else 0.0
+            ledger[i, 0, b] = power[b]
+        n_rays = 0
+        rec = 0
+        depth = 0
+        tmin = 0.0
+        while True:
+            hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
+                g, stack, ox, oy, oz, dx, dy, dz, tmin, math.inf)
+            n_rays += 1
+            if not hit:
+                for b in range(nb):
+                    ledger[i, 2, b] += power[b]
+                break
+            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+            if depth >= record_from and rec < n_rec:
+                lid, f, s, tt = lightmap_slot(g, lm, inst, shape, face, u, v)
+                if lid >= 0:
+                    rec_texel[i, rec] = LM.texel_index(lm, lid, f, s, tt)
+                    for b in range(nb):
+                        rec_power[i, rec, b] = power[b]
+                    rec += 1
+            if depth >= max_bounces:
+                for b in range(nb):
+                    ledger[i, 3, b] += power[b]
+                break
+            m = g.shape_material[shape]
+            pd, ps, pt = lobe_probabilities(ms, m)
+            state, ur = next_float(state)
+            if ur < pd:
+                lobe, k, prob = DIFFUSE, ms.diffuse, pd
+            elif ur < pd + ps:
+                lobe, k, prob = SPECULAR, ms.specular, ps
+            elif ur < pd + ps + pt:
+                lobe, k, prob = TRANSMIT, ms.transmission, pt
+            else:
+                for b in range(nb):
+                    ledger[i, 1, b] += power[b]
+                break
+            # Survivor keeps power * k / p <= power per band; the rest is absorbed here.
+            for b in range(nb):
+                kept = power[b] * k[m, b] / prob
+                ledger[i, 1, b] += power[b] - kept
+                power[b] = kept
+            state, u1 = next_float(state)
+            state, u2 = next_float(state)
+            state, u3 = next_float(state)
+            ok, dx, dy, dz = scatter(ms, m, lobe, dx, dy, dz, nx, ny, nz, u1, u2, u3)
+            if not ok:
+                for b in range(nb):
+                    ledger[i, 1, b] += power[b]
+                break
+            # Leave the surface on the side the new direction points to.
+            eps = ray_epsilon(px, py, pz)
+            side = eps if (dx * nx + dy * ny + dz * nz) > 0.0 else -eps
+            ox, oy, oz = px + side * nx, py + side * ny, pz + side * nz
+            depth += 1
+        rays[i] = n_rays
+
+
+def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
+                  progress=None, chunk=None):
+    """Runs the photon pass on a compiled scene `cs`, adding into cs.lightmaps.
+
+    record_direct: True when the lightmaps must hold direct light too (baking);
+    False for the two-pass renderer, which samples direct light itself.
+    progress(done, total) may return False to cancel (raises Cancelled).
+    """
+    if not 0 <= int(max_bounces) <= MAX_BOUNCES_LIMIT:
+        raise ValueError(f"max_bounces must be in [0, {MAX_BOUNCES_LIMIT}], got {max_bounces}")
+    n_photons = int(n_photons)
+    if n_photons < 0:
+        raise ValueError(f"photon count must be non-negative, got {n_photons}")
+    nb = cs.n_bands
+    stats = PhotonStats(emitted=np.zeros(nb), absorbed=np.zeros(nb), escaped=np.zeros(nb),
+                        truncated=np.zeros(nb))
+    if n_photons == 0 or cs.lights.total_power <= 0.0:
+        return stats
+    t0 = time.perf_counter()
+    n_rec = int(max_bounces) + 1
+    chunk = chunk or max(4096, min(1 << 16, (1 << 21) // n_rec))
+    rec_texel = np.empty((chunk, n_rec), np.int64)
+    rec_power = np.empty((chunk, n_rec, nb))
+    ledger = np.empty((chunk, 4, nb))
+    rays = np.empty(chunk, np.int64)
+    lm = cs.lightmaps
+    done = 0
+    while done < n_photons:
+        c = min(chunk, n_photons - done)
+        _trace_chunk(cs.geometry, cs.materials, cs.lights, lm, np.uint64(seed), done, n_photons,
+                     int(max_bounces), 0 if record_direct else 1,
+                     rec_texel[:c], rec_power[:c], ledger[:c], rays[:c])
+        ids = rec_texel[:c].reshape(-1)
+        keep = ids >= 0
+        LM.accumulate(lm, ids[keep], rec_power[:c].reshape(-1, nb)[keep])
+        stats.records += int(keep.sum())
+        sums = ledger[:c].sum(axis=0)
+        stats.emitted += sums[0]
+        stats.absorbed += sums[1]
+        stats.escaped += sums[2]
+        stats.truncated += sums[3]
+        stats.rays += int(rays[:c].sum())
+        done += c
+        if progress is not None and progress(done, n_photons) is False:
+            raise Cancelled("photon pass cancelled")
+    stats.photons = n_photons
+    LM.finalize(lm)
+    stats.seconds = time.perf_counter() - t0
+    return stats

@@ -1,0 +1,192 @@
+"""Plain-data scene description: what the exporter fills and the tracer compiles.
+
+Nothing here knows Blender. Units follow Blender/Cycles: metres, watts, W/m²
+for sun strength, and colours are band arrays of shape (n_bands,).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class SceneError(ValueError):
+    """Raised for scene input the tracer cannot represent (names the culprit)."""
+
+
+# Primitive kinds (mirrors engine.primitives; kept here so the scene stays import-light).
+PRIMITIVE_KINDS = ("sphere", "box", "cylinder", "cone", "torus", "paraboloid", "disk", "quad")
+LIGHT_KINDS = ("point", "spot", "sun", "area")
+AREA_SHAPES = ("square", "rectangle", "disk", "ellipse")
+
+
+def _bands(value, n_bands, what):
+    a = np.asarray(value, dtype=np.float64).reshape(-1)
+    if a.size == 1:
+        a = np.full(n_bands, float(a[0]))
+    if a.size != n_bands:
+        raise SceneError(f"{what}: expected {n_bands} bands, got {a.size}")
+    if not np.all(np.isfinite(a)):
+        raise SceneError(f"{what}: non-finite colour {a}")
+    return a
+
+
+def _affine(m, what):
+    """Accepts a 4x4 or 3x4 matrix; returns a finite, invertible 3x4 float64 array."""
+    a = np.asarray(m, dtype=np.float64)
+    if a.shape == (4, 4):
+        a = a[:3]
+    if a.shape != (3, 4):
+        raise SceneError(f"{what}: transform must be 4x4 or 3x4, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise SceneError(f"{what}: transform contains NaN or infinity")
+    det = np.linalg.det(a[:, :3])
+    scale = max(np.abs(a[:, :3]).max(), 1e-300)
+    if not abs(det) > 1e-12 * scale ** 3:
+        raise SceneError(f"{what}: transform is singular (det={det:.3g})")
+    return np.ascontiguousarray(a)
+
+
+def identity():
+    return np.eye(4)[:3].copy()
+
+
+def translate(x, y, z):
+    m = identity()
+    m[:, 3] = (x, y, z)
+    return m
+
+
+def scale(sx, sy=None, sz=None):
+    sy = sx if sy is None else sy
+    sz = sx if sz is None else sz
+    return np.array([[sx, 0, 0, 0], [0, sy, 0, 0], [0, 0, sz, 0]], dtype=np.float64)
+
+
+def rotate(axis, angle_deg):
+    """Rotation about a coordinate axis ('x', 'y' or 'z')."""
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    i = "xyz".index(axis)
+    j, k = (i + 1) % 3, (i + 2) % 3
+    m = identity()
+    m[j, j], m[j, k], m[k, j], m[k, k] = c, -s, s, c
+    return m
+
+
+def compose(*ms):
+    """compose(a, b, c) applies c first, then b, then a (like a @ b @ c)."""
+    out = np.eye(4)
+    for m in ms:
+        m4 = np.eye(4)
+        m4[:3] = np.asarray(m, dtype=np.float64)[:3]
+        out = out @ m4
+    return out[:3].copy()
+
+
+@dataclass
+class Material:
+    """A layered surface: diffuse + specular (roughness) + transmission + emission.
+
+    Weights are per band; diffuse + specular + transmission must not exceed 1
+    in any band, otherwise the material would create energy.
+    """
+    name: str = "material"
+    diffuse: object = 0.8
+    specular: object = 0.0
+    roughness: float = 0.0          # 0 = perfect mirror/refraction; >0 glossy lobe
+    transmission: object = 0.0
+    ior: float = 1.5
+    emission: object = 0.0          # radiance W/(m² sr) per band, Lambertian, front side
+
+
+@dataclass
+class TriangleMesh:
+    vertices: np.ndarray            # (V, 3)
+    triangles: np.ndarray           # (T, 3) int
+    material: int = 0
+    material_ids: np.ndarray | None = None  # (T,) per-triangle override
+    uvs: np.ndarray | None = None   # (T, 3, 2) lightmap UVs in [0,1]²; None -> xatlas
+    name: str = "mesh"
+
+
+@dataclass
+class Primitive:
+    kind: str                       # one of PRIMITIVE_KINDS
+    transform: np.ndarray = field(default_factory=identity)  # primitive -> prototype
+    material: int = 0
+    params: tuple = ()              # torus: (minor_radius,)
+    name: str = "primitive"
+
+
+@dataclass
+class Prototype:
+    """Object-space geometry stored once and shared by all its instances."""
+    name: str = "prototype"
+    meshes: list = field(default_factory=list)
+    primitives: list = field(default_factory=list)
+
+
+@dataclass
+class Instance:
+    prototype: int
+    transform: np.ndarray = field(default_factory=identity)  # object -> world
+    name: str = "instance"
+    lightmap: bool = True           # record photon hits on own lightmaps
+    lightmap_resolution: int = 0    # per-surface texels per side; 0 = from texel density
+
+
+@dataclass
+class Light:
+    kind: str                       # point | spot | sun | area
+    color: object = 1.0
+    power: float = 100.0            # W (point/spot/area); W/m² (sun: 'strength')
+    transform: np.ndarray = field(default_factory=identity)  # emits along local -Z
+    radius: float = 0.0             # point/spot soft radius (0 = delta light)
+    spot_size: float = math.radians(45.0)  # full cone angle
+    spot_blend: float = 0.15
+    shape: str = "square"           # area shape
+    size: float = 1.0               # area size x (diameter for disk/ellipse)
+    size_y: float = 1.0
+    angle: float = 0.0              # sun angular diameter (radians)
+    name: str = "light"
+
+
+@dataclass
+class Camera:
+    transform: np.ndarray = field(default_factory=identity)  # camera -> world, looks along -Z
+    kind: str = "perspective"       # perspective | orthographic
+    fov: float = math.radians(39.6)  # horizontal field of view (sensor fit: larger side)
+    ortho_scale: float = 6.0
+    width: int = 256
+    height: int = 256
+
+
+@dataclass
+class Scene:
+    n_bands: int = 3
+    materials: list = field(default_factory=list)
+    prototypes: list = field(default_factory=list)
+    instances: list = field(default_factory=list)
+    lights: list = field(default_factory=list)
+    camera: Camera = field(default_factory=Camera)
+    environment: object = 0.0       # constant world radiance per band
+    texel_density: float = 16.0     # lightmap texels per metre
+    name: str = "scene"
+
+    # convenience builders -------------------------------------------------
+    def add_material(self, material):
+        self.materials.append(material)
+        return len(self.materials) - 1
+
+    def add_object(self, geometry, transform=None, name=None, **kw):
+        """Adds a one-instance prototype from a TriangleMesh, Primitive or a list of them."""
+        items = geometry if isinstance(geometry, (list, tuple)) else [geometry]
+        proto = Prototype(name=name or getattr(items[0], "name", "object"))
+        for g in items:
+            (proto.meshes if isinstance(g, TriangleMesh) else proto.primitives).append(g)
+        self.prototypes.append(proto)
+        inst = Instance(len(self.prototypes) - 1, identity() if transform is None else transform,
+                        name=proto.name, **kw)
+        self.instances.append(inst)
+        return len(self.instances) - 1

@@ -7,10 +7,10 @@ touched inside register()/unregister().
 
 
 def register():
-    from . import blender_addon
-    blender_addon.register()
+    from . import registration
+    registration.register()
 
 
 def unregister():
-    from . import blender_addon
-    blender_addon.unregister()
+    from . import registration
+    registration.unregister()

@@ -1,50 +1,53 @@
-"""Command line for the bpy-module world: `python -m photon_lightmaps {demo,render,bake}`."""
+"""Command line for the bpy-module world: `python -m photon_lightmaps {demo,render,bake}`.
+
+Each command lives with the code it drives: `render` in headless.py, `bake`
+in bake.py, `demo` in demo.py; this module only parses arguments, so
+`--help` works without importing Blender.
+"""
 import argparse
-import json
-import os
+import importlib
 import sys
-import time
 
 
-def _demo(args):
-    from .engine import demo_scenes
-    from .engine.compile import compile_scene
-    from .engine.imageio import write_png
-    from .engine.photon_tracer import trace_photons
-    from .engine.renderer import render
+def _add_common(p):
+    p.add_argument("--photons", type=int, default=None, help="photons to shoot (default: scene setting)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default: scene setting)")
+    p.add_argument("--json", metavar="REPORT", default=None, help="write a JSON report here")
 
-    os.makedirs(args.out, exist_ok=True)
-    t0 = time.perf_counter()
-    scene = demo_scenes.cornell_box(width=args.width, height=args.height)
-    cs = compile_scene(scene)
-    stats = trace_photons(cs, args.photons, seed=args.seed)
-    img = render(cs, samples=args.samples, seed=args.seed)
-    path = os.path.join(args.out, "cornell.png")
-    write_png(path, img)
-    report = {"scene": scene.name, "image": path, "photons": stats.photons, "rays": stats.rays,
-              "seconds": {"setup": cs.timings.get("setup", 0.0), "photon_pass": stats.seconds,
-                          "render": cs.timings.get("render", 0.0),
-                          "total": time.perf_counter() - t0},
-              "memory": {"lightmap_bytes": cs.lightmap_bytes()},
-              "energy_audit_error": stats.audit_error()}
-    print(json.dumps(report, indent=2))
-    return 0
+
+def build_parser():
+    p = argparse.ArgumentParser(
+        prog="python -m photon_lightmaps",
+        description="Photon Lightmaps: lightmap-based photon tracing (Wilkie 2001) for Blender files.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    d = sub.add_parser("demo", help="render and bake the built-in demo scene")
+    d.add_argument("--out", default="out/demo", help="output folder")
+    _add_common(d)
+    d.add_argument("--samples", type=int, default=None)
+    d.set_defaults(module="demo", func="demo_main")
+
+    r = sub.add_parser("render", help="render a .blend with the Photon Lightmaps engine")
+    r.add_argument("blend", metavar="FILE.blend")
+    r.add_argument("--out", required=True, metavar="IMG", help="output image (.png or .exr)")
+    _add_common(r)
+    r.add_argument("--samples", type=int, default=None, help="pixel samples")
+    r.set_defaults(module="headless", func="render_main")
+
+    b = sub.add_parser("bake", help="bake photon lightmaps of a .blend to OpenEXR images")
+    b.add_argument("blend", metavar="FILE.blend")
+    b.add_argument("--out", required=True, metavar="DIR", help="folder for <object name>.exr")
+    _add_common(b)
+    b.add_argument("--resolution", type=int, default=None, metavar="R", help="force R x R lightmaps")
+    b.add_argument("--indirect-only", action="store_true", help="leave direct light out of the maps")
+    b.set_defaults(module="bake", func="bake_main")
+    return p
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m photon_lightmaps",
-                                description="Photon Lightmaps: lightmap-based photon tracing (Wilkie 2001).")
-    sub = p.add_subparsers(dest="command", required=True)
-    d = sub.add_parser("demo", help="render the built-in demo scene")
-    d.add_argument("--out", default="out/demo", help="output folder")
-    d.add_argument("--photons", type=int, default=1_000_000)
-    d.add_argument("--samples", type=int, default=8)
-    d.add_argument("--seed", type=int, default=0)
-    d.add_argument("--width", type=int, default=256)
-    d.add_argument("--height", type=int, default=256)
-    d.set_defaults(func=_demo)
-    args = p.parse_args(argv)
-    return args.func(args)
+    args = build_parser().parse_args(argv)
+    module = importlib.import_module(f"{__package__}.{args.module}")
+    return getattr(module, args.func)(args)
 
 
 if __name__ == "__main__":

@@ -143,6 +143,7 @@ class Light:
     power: float = 100.0            # W (point/spot/area); W/m² (sun: 'strength')
     transform: np.ndarray = field(default_factory=identity)  # emits along local -Z
     radius: float = 0.0             # point/spot soft radius (0 = delta light)
+    soft_falloff: bool = False      # Blender's 'Soft Falloff': direct E ~ I cos / (d^2 + r^2)
     spot_size: float = math.radians(45.0)  # full cone angle
     spot_blend: float = 0.15
     shape: str = "square"           # area shape

@@ -1,0 +1,246 @@
+"""Scenes built with bpy: the Cornell-like room (engine/demo_scenes.cornell_box in
+Blender form) and small one-light scenes for comparing light units with Cycles.
+
+Both start from an empty file, so what they build does not depend on the
+user's startup file. Materials are Principled BSDFs with Specular IOR Level 0:
+pure Lambertian surfaces, which this engine and Cycles shade identically, so
+comparisons measure light transport rather than the glossy-layer approximation
+(see export.py).
+"""
+import math
+
+import bmesh
+import bpy
+import numpy as np
+
+ENGINE_ID = "PHOTON_LIGHTMAPS"
+LIGHTMAP_UV = "Lightmap"
+# Texel inset of the unit-square lightmap UVs, so bilinear lookups never clamp at borders.
+UV_INSET = 0.002
+
+
+def _reset():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return bpy.context.scene
+
+
+def principled(name, base, *, roughness=0.5, metallic=0.0, transmission=0.0, ior=1.5,
+               emission=None, specular_level=0.0):
+    mat = bpy.data.materials.new(name)
+    if mat.node_tree is None:  # files from before node-only materials
+        mat.use_nodes = True
+    tree = mat.node_tree
+    p = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    p.inputs["Base Color"].default_value = (*base, 1.0)
+    p.inputs["Roughness"].default_value = roughness
+    p.inputs["Metallic"].default_value = metallic
+    p.inputs["Transmission Weight"].default_value = transmission
+    p.inputs["IOR"].default_value = ior
+    p.inputs["Specular IOR Level"].default_value = specular_level
+    if emission is not None:
+        p.inputs["Emission Color"].default_value = (*emission[:3], 1.0)
+        p.inputs["Emission Strength"].default_value = emission[3] if len(emission) > 3 else 1.0
+    mat.diffuse_color = (*base, 1.0)
+    return mat
+
+
+def mesh_object(name, verts, faces, material=None, *, uvs=None, collection=None):
+    """A mesh object; uvs (one (u, v) per face corner, in face order) become the 'Lightmap' layer."""
+    me = bpy.data.meshes.new(name)
+    me.from_pydata([tuple(v) for v in verts], [], [tuple(f) for f in faces])
+    me.update()
+    if uvs is not None:
+        layer = me.uv_layers.new(name=LIGHTMAP_UV)
+        layer.uv.foreach_set("vector", np.asarray(uvs, dtype=np.float32).reshape(-1))
+    if material is not None:
+        me.materials.append(material)
+    ob = bpy.data.objects.new(name, me)
+    (collection or bpy.context.scene.collection).objects.link(ob)
+    return ob
+
+
+def quad_uvs():
+    return UV_INSET + (1.0 - 2.0 * UV_INSET) * np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float64)
+
+
+def box_mesh_data():
+    """Unit cube [-1,1]³ with outward faces (no lightmap UVs: the engine unwraps it)."""
+    v = [(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    return v, faces
+
+
+def add_light(scene, light_type, name="light", *, power=None, location=(0, 0, 1.98), rotation=(0, 0, 0),
+              shape="SQUARE", size=0.5, size_y=0.25, radius=0.0, spot_size=math.radians(60),
+              spot_blend=0.3, angle=0.0, visible_camera=False, soft_falloff=True, normalize=True):
+    lt = bpy.data.lights.new(name, light_type)
+    lt.normalize = normalize
+    defaults = {"AREA": 25.0, "POINT": 25.0, "SPOT": 25.0, "SUN": 3.0}
+    lt.energy = defaults[light_type] if power is None else power
+    if light_type == "AREA":
+        lt.shape = shape
+        lt.size = size
+        lt.size_y = size_y
+    elif light_type in ("POINT", "SPOT"):
+        lt.shadow_soft_size = radius
+        lt.use_soft_falloff = soft_falloff
+        if light_type == "SPOT":
+            lt.spot_size = spot_size
+            lt.spot_blend = spot_blend
+    else:
+        lt.angle = angle
+    ob = bpy.data.objects.new(name, lt)
+    ob.location = location
+    ob.rotation_euler = rotation
+    # Lights are not geometry in this engine; keep them out of Cycles' camera rays too.
+    ob.visible_camera = visible_camera
+    scene.collection.objects.link(ob)
+    return ob
+
+
+def add_camera(scene, location, rotation, *, lens=50.0, sensor=36.0, ortho_scale=None):
+    cam = bpy.data.cameras.new("camera")
+    cam.lens = lens
+    cam.sensor_width = sensor
+    if ortho_scale is not None:
+        cam.type = 'ORTHO'
+        cam.ortho_scale = ortho_scale
+    ob = bpy.data.objects.new("camera", cam)
+    ob.location = location
+    ob.rotation_euler = rotation
+    scene.collection.objects.link(ob)
+    scene.camera = ob
+    return ob
+
+
+def set_world(scene, color=(0.0, 0.0, 0.0), strength=1.0):
+    world = bpy.data.worlds.new("world")
+    world.color = color
+    scene.world = world
+    tree = world.node_tree
+    if tree is not None:
+        bg = next((n for n in tree.nodes if n.bl_idname == "ShaderNodeBackground"), None)
+        if bg is not None:
+            bg.inputs["Color"].default_value = (*color, 1.0)
+            bg.inputs["Strength"].default_value = strength
+    return world
+
+
+def _finish(scene, path, width, height, engine, photons, samples):
+    r = scene.render
+    r.resolution_x, r.resolution_y, r.resolution_percentage = width, height, 100
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.view_settings.gamma = 1.0
+    if engine is not None:
+        r.engine = engine
+    settings = getattr(scene, "photon_lightmaps", None)
+    if settings is not None:
+        if photons is not None:
+            settings.photons = photons
+        if samples is not None:
+            settings.samples = samples
+    if path is not None:
+        bpy.ops.wm.save_as_mainfile(filepath=str(path), check_existing=False)
+    return scene
+
+
+def build_cornell_blend(path=None, *, light_type="AREA", power=None, width=128, height=128, box=True,
+                        spheres=False, engine=ENGINE_ID, photons=None, samples=None):
+    """The Cornell-like room of engine/demo_scenes.cornell_box, built in bpy.
+
+    A 2 m room (Z up, open towards the camera at -Y), red left and green right
+    walls, each wall a quad with a 'Lightmap' UV layer, a tall white box (left
+    without lightmap UVs, so the engine unwraps it), a 0.5 m square area light
+    of 25 W under the ceiling, a 50 mm camera at (0, -3.9, 1). `spheres` adds
+    the mirror and glass balls. Saves to `path` when given; returns the scene.
+    """
+    scene = _reset()
+    white = principled("white", (0.73, 0.73, 0.73))
+    red = principled("red", (0.65, 0.05, 0.05))
+    green = principled("green", (0.12, 0.45, 0.15))
+    A, B = -1.0, 1.0
+    walls = [
+        ("floor", [(A, A, 0), (B, A, 0), (B, B, 0), (A, B, 0)], white),
+        ("ceiling", [(A, A, 2), (A, B, 2), (B, B, 2), (B, A, 2)], white),
+        ("back", [(A, B, 0), (B, B, 0), (B, B, 2), (A, B, 2)], white),
+        ("left", [(A, A, 0), (A, B, 0), (A, B, 2), (A, A, 2)], red),
+        ("right", [(B, A, 0), (B, A, 2), (B, B, 2), (B, B, 0)], green),
+    ]
+    for name, corners, mat in walls:
+        mesh_object(name, corners, [(0, 1, 2, 3)], mat, uvs=quad_uvs())
+    if box:
+        v, f = box_mesh_data()
+        ob = mesh_object("tall_box", v, f, white)
+        ob.location = (-0.35, 0.3, 0.6)
+        ob.rotation_euler = (0.0, 0.0, math.radians(18.0))
+        ob.scale = (0.3, 0.3, 0.6)
+    if spheres:
+        mirror = principled("mirror", (0.9, 0.9, 0.9), metallic=1.0, roughness=0.0)
+        glass = principled("glass", (0.98, 0.98, 0.98), transmission=1.0, roughness=0.0, specular_level=0.5)
+        for name, mat, loc, rad in (("mirror_ball", mirror, (0.4, -0.2, 0.35), 0.35),
+                                    ("glass_ball", glass, (-0.2, -0.55, 0.22), 0.22)):
+            me = bpy.data.meshes.new(name)
+            bm = bmesh.new()
+            bmesh.ops.create_uvsphere(bm, u_segments=48, v_segments=24, radius=rad)
+            bm.to_mesh(me)
+            bm.free()
+            me.materials.append(mat)
+            for poly in me.polygons:
+                poly.use_smooth = True
+            ob = bpy.data.objects.new(name, me)
+            ob.location = loc
+            scene.collection.objects.link(ob)
+    if light_type == "AREA":
+        add_light(scene, "AREA", "ceiling_light", power=power, location=(0, 0, 1.98))
+    elif light_type in ("POINT", "SPOT"):
+        add_light(scene, light_type, "ceiling_light", power=power, location=(0, 0, 1.8), radius=0.05,
+                  spot_size=math.radians(120.0))
+    else:
+        raise ValueError(f"light_type must be AREA, POINT or SPOT for the closed room, got {light_type}")
+    add_camera(scene, (0.0, -3.9, 1.0), (math.radians(90.0), 0.0, 0.0))
+    set_world(scene)
+    return _finish(scene, path, width, height, engine, photons, samples)
+
+
+# Per-light-type test scenes: light placement chosen so the lit pattern (cone edge,
+# penumbra, falloff) lies inside the camera's view of the floor.
+LIGHT_TESTS = {
+    # Radius 0.3 at 1 m: Cycles' soft falloff changes the floor by up to 9 % here.
+    "POINT": dict(light_type="POINT", power=100.0, location=(0.3, 0.2, 1.0), radius=0.3),
+    "POINT_SPHERE": dict(light_type="POINT", power=100.0, location=(0.3, 0.2, 1.0), radius=0.3,
+                         soft_falloff=False),
+    "POINT_UNNORMALIZED": dict(light_type="POINT", power=20.0, location=(0.3, 0.2, 1.0), radius=0.3,
+                               normalize=False),
+    "POINT_HARD": dict(light_type="POINT", power=100.0, location=(0.3, 0.2, 1.0), radius=0.0),
+    "SPOT": dict(light_type="SPOT", power=200.0, location=(0.2, 0.0, 1.2),
+                 rotation=(math.radians(20.0), 0.0, 0.0), spot_size=math.radians(70.0), spot_blend=0.4,
+                 radius=0.05),
+    "SUN": dict(light_type="SUN", power=3.0, rotation=(math.radians(35.0), math.radians(10.0), 0.0),
+                angle=math.radians(5.0), location=(0.0, 0.0, 3.0)),
+    "AREA_SQUARE": dict(light_type="AREA", power=60.0, shape="SQUARE", size=1.0, location=(0.0, 0.0, 0.8)),
+    "AREA_RECTANGLE": dict(light_type="AREA", power=60.0, shape="RECTANGLE", size=1.5, size_y=0.5,
+                           location=(0.2, 0.0, 0.7), rotation=(math.radians(25.0), 0.0, 0.0)),
+    "AREA_DISK": dict(light_type="AREA", power=60.0, shape="DISK", size=1.0, location=(0.0, 0.2, 0.6)),
+    "AREA_ELLIPSE": dict(light_type="AREA", power=60.0, shape="ELLIPSE", size=1.2, size_y=0.6,
+                         location=(-0.2, 0.0, 0.6), rotation=(0.0, math.radians(20.0), 0.0)),
+}
+
+
+def build_light_test_blend(light_type, path=None, *, width=32, height=32, albedo=0.8, engine=ENGINE_ID,
+                           photons=None, samples=None):
+    """A white Lambertian floor (6 x 6 m, 'Lightmap' UVs), one light from LIGHT_TESTS
+    (e.g. 'POINT', 'SPOT', 'SUN', 'AREA_DISK'; plain 'AREA' means 'AREA_SQUARE'),
+    a black world and a camera 3 m above looking straight down at a 4 x 4 m patch."""
+    key = "AREA_SQUARE" if light_type == "AREA" else light_type
+    spec = dict(LIGHT_TESTS[key])
+    scene = _reset()
+    floor = principled("floor", (albedo, albedo, albedo))
+    s = 3.0
+    mesh_object("floor", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)], floor, uvs=quad_uvs())
+    kind = spec.pop("light_type")
+    add_light(scene, kind, "light", **spec)
+    add_camera(scene, (0.0, 0.0, 3.0), (0.0, 0.0, 0.0), lens=18.0, sensor=24.0)
+    set_world(scene)
+    return _finish(scene, path, width, height, engine, photons, samples)

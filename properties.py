@@ -1,0 +1,53 @@
+"""Settings stored in .blend files: `Scene.photon_lightmaps` and `Object.photon_lightmaps`."""
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
+
+
+class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
+    photons: IntProperty(
+        name="Photons", default=1_000_000, min=0, soft_max=100_000_000,
+        description="Photons shot from the lights in the photon pass")
+    max_bounces: IntProperty(
+        name="Max Bounces", default=8, min=0, max=256,
+        description="Longest photon path; energy still carried at the cap is booked as truncated")
+    texel_density: FloatProperty(
+        name="Texel Density", default=16.0, min=0.01, soft_max=1024.0, unit='NONE',
+        description="Lightmap texels per metre for surfaces without a forced resolution")
+    reconstruction: EnumProperty(
+        name="Reconstruction", default='BILINEAR',
+        items=(('BILINEAR', "Bilinear", "Interpolate irradiance between texel centres"),
+               ('CONSTANT', "Constant", "One irradiance value per texel (shows the texels)")),
+        description="How the renderer reads indirect light from the lightmaps")
+    samples: IntProperty(
+        name="Samples", default=16, min=1, soft_max=4096,
+        description="Camera samples per pixel in the render pass")
+    seed: IntProperty(
+        name="Seed", default=0, min=0,
+        description="Random seed; the same seed gives the same image")
+
+
+class PhotonLightmapsObjectSettings(bpy.types.PropertyGroup):
+    exclude: BoolProperty(
+        name="Exclude from Lightmaps", default=False,
+        description="Give this object no lightmap: it still casts shadows and reflects light, "
+                    "but records no photons and renders with direct light only")
+    lightmap_resolution: IntProperty(
+        name="Lightmap Resolution", default=0, min=0, soft_max=4096,
+        description="Texels per side of each lightmap of this object; 0 uses the scene's texel density")
+
+
+classes = (PhotonLightmapsSceneSettings, PhotonLightmapsObjectSettings)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.Scene.photon_lightmaps = PointerProperty(type=PhotonLightmapsSceneSettings)
+    bpy.types.Object.photon_lightmaps = PointerProperty(type=PhotonLightmapsObjectSettings)
+
+
+def unregister():
+    del bpy.types.Object.photon_lightmaps
+    del bpy.types.Scene.photon_lightmaps
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,299 @@
+"""The "Photon Lightmaps" render engine: export -> compile -> photon pass -> two-pass render.
+
+`run_render` is the whole pipeline with host callbacks; the RenderEngine and
+headless.py both go through it (headless by calling bpy.ops.render.render,
+which lands in PhotonLightmapsRenderEngine.render), and the last run's
+numbers are kept in LAST_RUN for the JSON report.
+"""
+import sys
+import time
+from dataclasses import dataclass, field
+
+import bpy
+import numpy as np
+
+from .engine import lightmap as LM
+from .engine.compile import compile_scene
+from .engine.photon_tracer import Cancelled, trace_photons
+from .engine.renderer import render as render_image
+from .export import export_scene
+
+try:
+    from .bake import BakeMixin
+except ModuleNotFoundError as exc:
+    # bake.py is developed separately; until it exists the engine simply cannot bake.
+    # (An empty class, not `object`: (object, RenderEngine) has no consistent MRO.)
+    if exc.name != f"{__package__}.bake":
+        raise
+
+    class BakeMixin:
+        pass
+
+ENGINE_ID = "PHOTON_LIGHTMAPS"
+TILE = 64
+
+
+@dataclass
+class RenderRun:
+    """What one render did; headless.py turns it into the JSON report."""
+    scene: str = ""
+    width: int = 0
+    height: int = 0
+    photons: int = 0
+    rays: int = 0
+    photons_per_second: float = 0.0
+    samples: int = 0
+    seconds: dict = field(default_factory=dict)
+    lightmap_bytes: int = 0
+    lightmaps: int = 0
+    texels: int = 0
+    warnings: list = field(default_factory=list)
+    cancelled: bool = False
+    image: np.ndarray = None
+
+    def as_dict(self):
+        return {"scene": self.scene, "width": self.width, "height": self.height,
+                "photons": self.photons, "rays": self.rays,
+                "photons_per_second": self.photons_per_second, "samples": self.samples,
+                "seconds": dict(self.seconds),
+                "memory": {"lightmap_bytes": self.lightmap_bytes, "peak_rss_bytes": peak_rss_bytes()},
+                "lightmaps": self.lightmaps, "texels": self.texels,
+                "warnings": list(self.warnings), "cancelled": self.cancelled}
+
+
+LAST_RUN = None
+
+
+def peak_rss_bytes():
+    """Peak resident memory of this process in bytes (0 where the platform will not say)."""
+    if sys.platform == "win32":
+        import ctypes
+        from ctypes import wintypes
+
+        class Counters(ctypes.Structure):
+            _fields_ = [("cb", wintypes.DWORD), ("PageFaultCount", wintypes.DWORD)] + [
+                (name, ctypes.c_size_t) for name in (
+                    "PeakWorkingSetSize", "WorkingSetSize", "QuotaPeakPagedPoolUsage",
+                    "QuotaPagedPoolUsage", "QuotaPeakNonPagedPoolUsage", "QuotaNonPagedPoolUsage",
+                    "PagefileUsage", "PeakPagefileUsage")]
+
+        c = Counters()
+        c.cb = ctypes.sizeof(c)
+        proc = ctypes.windll.kernel32.GetCurrentProcess()
+        ok = ctypes.windll.psapi.GetProcessMemoryInfo(proc, ctypes.byref(c), c.cb)
+        return int(c.PeakWorkingSetSize) if ok else 0
+    import resource
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    # ru_maxrss is in KiB on Linux, in bytes on macOS.
+    return int(rss if sys.platform == "darwin" else rss * 1024)
+
+
+def _mib(n):
+    return n / (1024.0 * 1024.0)
+
+
+def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=None, should_stop=None,
+               camera_override=None, resolution=None):
+    """Renders the evaluated depsgraph with the scene's Photon Lightmaps settings.
+
+    report(level, msg); stats(text); progress(fraction in [0, 1]);
+    on_tile(x0, y0, tile) with y0 counted from the top and tile (h, w, 3);
+    should_stop() -> True cancels (the run returns with cancelled=True).
+    Returns a RenderRun whose image is (H, W, 3) linear radiance (None if cancelled).
+    """
+    global LAST_RUN
+    host_report = report or (lambda level, msg: None)
+    stats = stats or (lambda text: None)
+    progress = progress or (lambda f: None)
+    should_stop = should_stop or (lambda: False)
+    settings = depsgraph.scene.photon_lightmaps
+    run = RenderRun(scene=depsgraph.scene.name, samples=int(settings.samples))
+    LAST_RUN = run
+    t0 = time.perf_counter()
+
+    def report(level, msg):
+        if level == "WARNING" and msg not in run.warnings:
+            run.warnings.append(msg)
+        host_report(level, msg)
+
+    stats("Exporting scene")
+    scene, _ = export_scene(depsgraph, report=report, camera_override=camera_override,
+                            resolution=resolution)
+    cam = scene.camera
+    run.width, run.height = cam.width, cam.height
+    t_export = time.perf_counter()
+    has_light = bool(scene.lights) or np.any(np.asarray(scene.environment) > 0) or any(
+        np.any(np.asarray(m.emission) > 0) for m in scene.materials)
+    if not scene.instances:
+        report("WARNING", "Photon Lightmaps: the scene has no renderable geometry")
+    if not has_light:
+        report("WARNING", "Photon Lightmaps: the scene has no lights, emissive materials or world light; "
+                          "the image is black")
+    stats("Compiling scene")
+    cs = compile_scene(scene)
+    run.lightmap_bytes = cs.lightmap_bytes()
+    run.lightmaps, run.texels = int(cs.info.get("lightmaps", 0)), int(cs.info.get("texels", 0))
+    lm_text = f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB ({run.texels:,} texels)"
+    t_compile = time.perf_counter()
+
+    n_photons = int(settings.photons) if scene.instances else 0
+    t_photon0 = time.perf_counter()
+
+    def photon_progress(done, total):
+        rate = done / max(time.perf_counter() - t_photon0, 1e-9)
+        stats(f"Photons {done:,}/{total:,} | {rate:,.0f} photons/s | {lm_text}")
+        progress(0.5 * done / max(total, 1))
+        return not should_stop()
+
+    try:
+        if n_photons > 0 and cs.lights.total_power > 0.0:
+            ps = trace_photons(cs, n_photons, seed=int(settings.seed), max_bounces=int(settings.max_bounces),
+                               record_direct=False, progress=photon_progress)
+            run.photons, run.rays = ps.photons, ps.rays
+            run.photons_per_second = ps.photons / max(ps.seconds, 1e-9)
+        t_photons = time.perf_counter()
+        if should_stop():
+            raise Cancelled("stopped after the photon pass")
+
+        n_tiles = max(1, -(-cam.width // TILE) * -(-cam.height // TILE))
+        done_tiles = [0]
+        t_render0 = time.perf_counter()
+        mode = LM.MODE_CONSTANT if settings.reconstruction == 'CONSTANT' else LM.MODE_BILINEAR
+
+        def tile_progress(x0, y0, tile, img):
+            done_tiles[0] += 1
+            if on_tile is not None:
+                on_tile(x0, y0, tile)
+            progress(0.5 + 0.5 * done_tiles[0] / n_tiles)
+            stats(f"Rendering tile {done_tiles[0]}/{n_tiles} | {run.samples} samples | "
+                  f"{run.photons:,} photons | {lm_text}")
+            return not should_stop()
+
+        img = render_image(cs, samples=run.samples, seed=int(settings.seed), mode=mode,
+                           max_depth=int(settings.max_bounces), tile=TILE, progress=tile_progress)
+        t_render = time.perf_counter()
+    except Cancelled:
+        run.cancelled = True
+        run.seconds = {"total": time.perf_counter() - t0}
+        return run
+    run.image = img
+    run.seconds = {"export": t_export - t0, "compile": t_compile - t_export,
+                   "photon_pass": t_photons - t_photon0, "render": t_render - t_render0,
+                   "total": t_render - t0}
+    return run
+
+
+def render_region(render, width, height):
+    """Pixel rectangle (x, y from the bottom, w, h) that Blender's render result covers.
+
+    With a render region (border) the result holds only that part of the frame;
+    Blender truncates border * size in single precision, so the same is done here.
+    """
+    if not render.use_border:
+        return 0, 0, width, height
+    f = np.float32
+    x0, x1 = (int(f(v) * f(width)) for v in (render.border_min_x, render.border_max_x))
+    y0, y1 = (int(f(v) * f(height)) for v in (render.border_min_y, render.border_max_y))
+    x0, y0 = min(max(x0, 0), width), min(max(y0, 0), height)
+    return x0, y0, max(min(x1, width) - x0, 0), max(min(y1, height) - y0, 0)
+
+
+class PhotonLightmapsRenderEngine(BakeMixin, bpy.types.RenderEngine):
+    bl_idname = ENGINE_ID
+    bl_label = "Photon Lightmaps"
+    bl_use_preview = False
+    bl_use_postprocess = True
+    # Materials are Cycles/EEVEE shader nodes (Principled BSDF), so keep those nodes visible,
+    # and let EEVEE draw material previews in the viewport.
+    bl_use_shading_nodes_custom = False
+    bl_use_eevee_viewport = True
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+
+    def render(self, depsgraph):
+        scene = depsgraph.scene
+        width, height = int(self.resolution_x), int(self.resolution_y)
+        layer = depsgraph.view_layer.name
+        rx, ry, rw, rh = render_region(scene.render, width, height)
+
+        def on_tile(x0, y0, tile):
+            th, tw = tile.shape[:2]
+            # Blender's rows run bottom to top; the renderer's run top to bottom.
+            bx, by = x0, height - y0 - th
+            ix0, ix1 = max(bx, rx), min(bx + tw, rx + rw)
+            iy0, iy1 = max(by, ry), min(by + th, ry + rh)
+            if ix1 <= ix0 or iy1 <= iy0:
+                return
+            rgba = np.ones((th, tw, 4), np.float32)
+            rgba[..., :3] = tile[..., :3] if tile.shape[2] >= 3 else tile[..., :1]
+            sub = np.ascontiguousarray(rgba[::-1][iy0 - by:iy1 - by, ix0 - bx:ix1 - bx])
+            # Result coordinates are relative to the render region.
+            result = self.begin_result(ix0 - rx, iy0 - ry, ix1 - ix0, iy1 - iy0, layer=layer)
+            result.layers[0].passes["Combined"].rect.foreach_set(sub.reshape(-1))
+            self.end_result(result)
+
+        try:
+            run = run_render(depsgraph,
+                             report=lambda level, msg: self.report({level}, msg),
+                             stats=lambda text: self.update_stats("", text),
+                             progress=self.update_progress,
+                             on_tile=on_tile,
+                             should_stop=self.test_break,
+                             camera_override=self.camera_override,
+                             resolution=(width, height))
+        except Exception as exc:  # noqa: BLE001 - shown to the user instead of a silent black frame
+            self.error_set(f"Photon Lightmaps: {exc}")
+            raise
+        if run.cancelled:
+            return
+        self.update_memory_stats(memory_used=_mib(run.lightmap_bytes), memory_peak=_mib(peak_rss_bytes()))
+        self.update_stats("", f"Done | {run.photons:,} photons in {run.seconds['photon_pass']:.2f} s "
+                              f"({run.photons_per_second:,.0f} photons/s) | render {run.seconds['render']:.2f} s | "
+                              f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB")
+
+
+# Built-in panels that make sense for this engine (dimensions, output, camera, object
+# data, ...), found by the BLENDER_RENDER marker. Left out: panels that would
+# mislead (previews, EEVEE light probes, the bare light panel, which ui/panels.py
+# replaces with one that shows the settings this engine reads).
+_EXCLUDED_PANELS = {
+    "DATA_PT_preview", "DATA_PT_light", "NODE_DATA_PT_light", "DATA_PT_spot",
+    "DATA_PT_context_lightprobe", "DATA_PT_lightprobe", "DATA_PT_lightprobe_visibility",
+    "DATA_PT_lightprobe_parallax", "DATA_PT_lightprobe_display",
+    "EEVEE_MATERIAL_PT_viewport_settings", "MATERIAL_PT_freestyle_line",
+}
+_added_to = []
+
+
+def get_panels():
+    out = []
+    stack = list(bpy.types.Panel.__subclasses__())
+    seen = set()
+    while stack:
+        cls = stack.pop()
+        if cls in seen:
+            continue
+        seen.add(cls)
+        stack.extend(cls.__subclasses__())
+        engines = getattr(cls, "COMPAT_ENGINES", None)
+        # Only BLENDER_RENDER marks engine-generic panels; Cycles' own panels share one
+        # COMPAT_ENGINES set across all of them, so adding to it would show them all.
+        if isinstance(engines, set) and "BLENDER_RENDER" in engines and cls.__name__ not in _EXCLUDED_PANELS:
+            out.append(cls)
+    return out
+
+
+def register():
+    bpy.utils.register_class(PhotonLightmapsRenderEngine)
+    for panel in get_panels():
+        if ENGINE_ID not in panel.COMPAT_ENGINES:
+            panel.COMPAT_ENGINES.add(ENGINE_ID)
+            _added_to.append(panel)
+
+
+def unregister():
+    for panel in _added_to:
+        panel.COMPAT_ENGINES.discard(ENGINE_ID)
+    _added_to.clear()
+    bpy.utils.unregister_class(PhotonLightmapsRenderEngine)

@@ -1,0 +1,283 @@
+"""The Photon Lightmaps render engine inside Blender, measured against Cycles.
+
+Agreement bounds (stated here, measured values in the test messages; run with
+-s to print them):
+* one light over a white Lambertian floor (direct light only): image mean
+  within 2 % of Cycles, and every 4x4-block mean within 3 % of the brightest
+  block (measured: mean <= 0.6 %, blocks <= 1.2 %);
+* the Cornell room (direct + photon-lightmap indirect): mean of each colour
+  channel within 3 % of Cycles, 4x4 blocks within 6 % (measured <= 0.5 % / ~2 %).
+Cycles runs on the CPU, 128 samples, no denoising, no adaptive sampling, light
+threshold 0, view transform Standard; images are compared as linear EXR.
+"""
+import json
+import os
+import pathlib
+import struct
+import subprocess
+import sys
+import time
+import types
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+import photon_lightmaps  # noqa: E402
+from photon_lightmaps import demo_blend, headless, registration, render_engine  # noqa: E402
+
+ENGINE = "PHOTON_LIGHTMAPS"
+REPO = pathlib.Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def addon():
+    owned = not registration.is_registered()
+    if owned:
+        photon_lightmaps.register()
+    yield
+    if owned:
+        photon_lightmaps.unregister()
+
+
+@pytest.fixture(autouse=True)
+def empty_file():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    yield
+
+
+def read_image(path):
+    """(H, W, 4) float pixels, rows top to bottom (float EXR: linear; PNG: encoded bytes / 255)."""
+    img = bpy.data.images.load(str(path), check_existing=False)
+    try:
+        w, h = img.size
+        px = np.empty(w * h * 4, np.float32)
+        img.pixels.foreach_get(px)
+    finally:
+        bpy.data.images.remove(img)
+    return px.reshape(h, w, 4)[::-1].astype(np.float64)
+
+
+def render_exr(scene, engine, path, cycles_samples=128):
+    scene.render.engine = engine
+    if engine == "CYCLES":
+        c = scene.cycles
+        c.device = "CPU"
+        c.samples = cycles_samples
+        c.use_denoising = False
+        c.use_adaptive_sampling = False
+        c.light_sampling_threshold = 0.0
+        c.max_bounces = c.diffuse_bounces = 16
+        c.seed = 1
+    scene.render.filepath = str(path)
+    scene.render.use_file_extension = False
+    im = scene.render.image_settings
+    im.file_format, im.color_depth, im.color_mode = "OPEN_EXR", "32", "RGBA"
+    bpy.ops.render.render(write_still=True)
+    return read_image(path)
+
+
+def block_means(img, n=4):
+    h, w = img.shape[:2]
+    return img[: h - h % n, : w - w % n, :3].reshape(n, h // n, n, w // n, 3).mean(axis=(1, 3, 4))
+
+
+LIGHT_CASES = ["POINT", "POINT_SPHERE", "POINT_UNNORMALIZED", "POINT_HARD", "SPOT", "SUN", "AREA_SQUARE", "AREA_RECTANGLE", "AREA_DISK",
+               "AREA_ELLIPSE"]
+
+
+@pytest.mark.parametrize("case", LIGHT_CASES)
+def test_light_agrees_with_cycles(case, tmp_path):
+    scene = demo_blend.build_light_test_blend(case, width=32, height=32, photons=20_000, samples=64)
+    ours = render_exr(scene, ENGINE, tmp_path / "ours.exr")
+    run = render_engine.LAST_RUN
+    t0 = time.perf_counter()
+    ref = render_exr(scene, "CYCLES", tmp_path / "cycles.exr")
+    t_cycles = time.perf_counter() - t0
+    assert ref[..., :3].mean() > 0.01, "the test scene must be lit"
+    np.testing.assert_allclose(ours[..., 3], 1.0)
+    ratio = ours[..., :3].mean() / ref[..., :3].mean()
+    bo, br = block_means(ours), block_means(ref)
+    block_dev = float(np.abs(bo - br).max() / br.max())
+    print(f"\n{case}: mean ours/Cycles = {ratio:.4f}, max block deviation {block_dev:.4f}, "
+          f"ours {run.seconds['total']:.2f} s, Cycles {t_cycles:.2f} s")
+    assert abs(ratio - 1.0) < 0.02, f"{case}: mean ratio {ratio:.4f}"
+    assert block_dev < 0.03, f"{case}: block deviation {block_dev:.4f}"
+
+
+def test_cornell_agrees_with_cycles(tmp_path):
+    scene = demo_blend.build_cornell_blend(width=48, height=48, photons=300_000, samples=32)
+    ours = render_exr(scene, ENGINE, tmp_path / "ours.exr")
+    run = render_engine.LAST_RUN
+    t0 = time.perf_counter()
+    ref = render_exr(scene, "CYCLES", tmp_path / "cycles.exr")
+    t_cycles = time.perf_counter() - t0
+    per_channel = ours[..., :3].mean(axis=(0, 1)) / ref[..., :3].mean(axis=(0, 1))
+    bo, br = block_means(ours), block_means(ref)
+    block_dev = float(np.abs(bo - br).max() / br.max())
+    print(f"\nCornell: ours/Cycles per channel {np.round(per_channel, 4)}, max block deviation "
+          f"{block_dev:.4f}; ours {run.seconds['total']:.2f} s ({run.photons:,} photons, "
+          f"{run.seconds['photon_pass']:.2f} s photon pass); Cycles {t_cycles:.2f} s")
+    assert run.photons == 300_000 and run.lightmaps == 6
+    assert np.all(np.abs(per_channel - 1.0) < 0.03), per_channel
+    assert block_dev < 0.06, block_dev
+
+
+def test_tiles_and_outputs_carry_the_image_exactly(tmp_path):
+    """Odd size over several tiles: the EXR Blender writes equals the engine's image (no flips,
+    no offsets), and the PNG is that image through the Standard view transform."""
+    scene = demo_blend.build_cornell_blend(width=150, height=70, photons=20_000, samples=2)
+    scene.render.dither_intensity = 0.0
+    exr = render_exr(scene, ENGINE, tmp_path / "tiles.exr")
+    run = render_engine.LAST_RUN
+    assert run.image.shape == (70, 150, 3) and render_engine.TILE < 70  # 3 x 2 tiles, partial ones too
+    np.testing.assert_allclose(exr[..., :3], run.image.astype(np.float32), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(exr[..., 3], 1.0)
+    # Red wall on the left, green on the right (the image is not mirrored).
+    left, right = exr[35, 10, :3], exr[35, 140, :3]
+    assert left[0] > left[1] and right[1] > right[0]
+
+    png_path = tmp_path / "tiles.png"
+    run = headless.render_to_file(scene, png_path)
+    png = read_image(png_path)[..., :3]
+    lin = np.clip(run.image, 0.0, 1.0)
+    srgb = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+    assert np.abs(png - srgb).max() <= 1.0 / 255 + 1e-6
+
+
+@pytest.mark.parametrize("crop", [False, True])
+def test_render_region(crop, tmp_path):
+    """A render region (border) receives exactly its part of the frame."""
+    scene = demo_blend.build_cornell_blend(width=100, height=80, photons=10_000, samples=1)
+    r = scene.render
+    r.use_border, r.use_crop_to_border = True, crop
+    r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = 0.236, 0.7, 0.1, 0.65
+    img = render_exr(scene, ENGINE, tmp_path / "region.exr")
+    full = render_engine.LAST_RUN.image
+    x0, x1, y0, y1 = 23, 70, 8, 52  # Blender truncates border * size; y counted from the bottom
+    region = full[80 - y1:80 - y0, x0:x1]
+    if crop:
+        assert img.shape[:2] == (44, 47)
+        got = img
+    else:
+        assert img.shape[:2] == (80, 100)
+        got = img[80 - y1:80 - y0, x0:x1]
+        outside = np.ones((80, 100), bool)
+        outside[80 - y1:80 - y0, x0:x1] = False
+        assert np.all(img[outside][:, 3] == 0.0)
+    np.testing.assert_allclose(got[..., :3], region.astype(np.float32), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(got[..., 3], 1.0)
+
+
+def test_scene_without_lights_or_geometry_renders_black(tmp_path):
+    scene = demo_blend.build_light_test_blend("AREA")
+    bpy.data.objects.remove(bpy.data.objects["light"])
+    img = render_exr(scene, ENGINE, tmp_path / "dark.exr")
+    assert np.all(img[..., :3] == 0.0)
+    assert any("no lights" in w for w in render_engine.LAST_RUN.warnings)
+    bpy.data.objects.remove(bpy.data.objects["floor"])
+    demo_blend.add_light(scene, "POINT")
+    img = render_exr(scene, ENGINE, tmp_path / "empty.exr")
+    assert np.all(img[..., :3] == 0.0)
+    assert any("no renderable geometry" in w for w in render_engine.LAST_RUN.warnings)
+
+
+def test_cancel_stops_cleanly():
+    demo_blend.build_cornell_blend(width=130, height=130, photons=50_000, samples=1)
+    dg = bpy.context.evaluated_depsgraph_get()
+    tiles = []
+    run = render_engine.run_render(dg, on_tile=lambda x, y, t: tiles.append((x, y)),
+                                   should_stop=lambda: len(tiles) >= 2)
+    assert run.cancelled and run.image is None and len(tiles) == 2
+    progress = []
+    run = render_engine.run_render(dg, progress=progress.append, should_stop=lambda: len(progress) >= 1)
+    assert run.cancelled and run.image is None and max(progress) <= 0.5
+
+
+def test_registration_round_trip():
+    fmt = bpy.types.RENDER_PT_format
+    assert ENGINE in fmt.COMPAT_ENGINES and headless.engine_registered()
+    assert ENGINE not in bpy.types.DATA_PT_preview.COMPAT_ENGINES  # excluded: no previews
+    assert "CYCLES_RENDER_PT_sampling" not in {p.__name__ for p in render_engine.get_panels()}
+    registration.unregister()
+    try:
+        assert not headless.engine_registered()
+        assert ENGINE not in fmt.COMPAT_ENGINES
+        assert not hasattr(bpy.types.Scene, "photon_lightmaps")
+    finally:
+        registration.register()
+    assert headless.engine_registered() and ENGINE in fmt.COMPAT_ENGINES
+    assert bpy.context.scene.photon_lightmaps.photons == 1_000_000
+
+
+def _png_size(path):
+    data = pathlib.Path(path).read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    return struct.unpack(">II", data[16:24])
+
+
+def test_headless_command_line(tmp_path):
+    blend = tmp_path / "room.blend"
+    demo_blend.build_cornell_blend(blend, width=48, height=32, photons=10_000, samples=2)
+    png, report = tmp_path / "out" / "room.png", tmp_path / "out" / "room.json"
+    env = dict(os.environ, NUMBA_CACHE_DIR=os.environ.get("NUMBA_CACHE_DIR", str(REPO / ".numba_cache")))
+    cmd = [sys.executable, "-m", "photon_lightmaps", "render", str(blend), "--out", str(png),
+           "--json", str(report), "--photons", "30000", "--samples", "3", "--seed", "5"]
+    proc = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert _png_size(png) == (48, 32)
+    r = json.loads(report.read_text())
+    assert r["photons"] == 30000 and r["rays"] >= 30000
+    for key in ("photon_pass", "render", "total"):
+        assert r["seconds"][key] > 0.0
+    assert r["seconds"]["total"] >= r["seconds"]["photon_pass"] + r["seconds"]["render"]
+    assert r["memory"]["lightmap_bytes"] > 0 and r["memory"]["peak_rss_bytes"] > 10 * 2 ** 20
+    assert r["image"] == str(png)
+    assert r["settings"]["samples"] == 3 and r["settings"]["seed"] == 5
+
+    bad = subprocess.run([sys.executable, "-m", "photon_lightmaps", "render", str(tmp_path / "missing.blend"),
+                          "--out", str(png)], env=env, cwd=tmp_path, capture_output=True, text=True,
+                         timeout=120)
+    assert bad.returncode == 2 and "no such" in bad.stderr
+
+
+class _RecordingLayout:
+    """Stands in for UILayout: checks every drawn property exists on its data block."""
+
+    def __init__(self):
+        self.drawn = []
+
+    def _prop(self, data, name, **_kw):
+        assert name in data.bl_rna.properties, f"{type(data).__name__} has no property '{name}'"
+        self.drawn.append(name)
+
+    def __getattr__(self, name):
+        if name == "prop":
+            return self._prop
+        if name in ("row", "column", "split", "box", "grid_flow", "column_flow"):
+            return lambda *a, **k: self
+        return lambda *a, **k: None
+
+
+def test_panels_draw_existing_properties():
+    from photon_lightmaps.ui import panels
+    scene = demo_blend.build_light_test_blend("SPOT")
+    ob = bpy.data.objects["floor"]
+    ctx = types.SimpleNamespace(engine=ENGINE, scene=scene, object=ob, material=ob.active_material,
+                                world=scene.world, light=None, space_data=None)
+    drawn = {}
+    for light_type in ("POINT", "SPOT", "SUN", "AREA"):
+        ctx.light = bpy.data.lights.new(f"l_{light_type}", light_type)
+        for cls in panels.classes:
+            assert cls.poll(ctx), cls.__name__
+            fake = types.SimpleNamespace(layout=_RecordingLayout(), bl_space_type="PROPERTIES")
+            cls.draw(fake, ctx)
+            drawn.setdefault(cls.__name__, set()).update(fake.layout.drawn)
+    assert {"photons", "max_bounces", "texel_density", "reconstruction", "samples", "seed"} <= \
+        drawn["PHOTON_LIGHTMAPS_PT_render"]
+    assert {"exclude", "lightmap_resolution"} <= drawn["PHOTON_LIGHTMAPS_PT_object"]
+    assert {"spot_size", "spot_blend", "angle", "shape", "shadow_soft_size", "energy"} <= \
+        drawn["PHOTON_LIGHTMAPS_PT_light"]
+    ctx.engine = "CYCLES"
+    assert not any(cls.poll(ctx) for cls in panels.classes)

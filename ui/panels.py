@@ -1,0 +1,188 @@
+"""Properties-editor panels for the Photon Lightmaps engine.
+
+Engine-generic built-in panels (dimensions, output, camera, ...) are reused
+through COMPAT_ENGINES (render_engine.get_panels); the panels here cover what
+this engine reads that no generic panel shows: its settings, per-object
+lightmap settings, and the material/light/world inputs the exporter uses.
+"""
+import bpy
+
+ENGINE_ID = "PHOTON_LIGHTMAPS"
+
+
+class _EnginePanel:
+    bl_space_type = 'PROPERTIES'
+    bl_region_type = 'WINDOW'
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine == ENGINE_ID
+
+
+def _draw_output(layout, tree, output_type, input_name):
+    """Draws the shader connected to the active output's input, as the node would show it."""
+    outputs = [n for n in tree.nodes if n.bl_idname == output_type]
+    if not outputs:
+        return False
+    node = next((n for n in outputs if n.is_active_output), outputs[0])
+    layout.template_node_view(tree, node, node.inputs[input_name])
+    return True
+
+
+class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
+    bl_label = "Photon Lightmaps"
+    bl_context = "render"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        s = context.scene.photon_lightmaps
+        col = layout.column(heading="Photon Pass")
+        col.prop(s, "photons")
+        col.prop(s, "max_bounces")
+        col.prop(s, "seed")
+        col = layout.column(heading="Lightmaps")
+        col.prop(s, "texel_density")
+        col.prop(s, "reconstruction")
+        col = layout.column(heading="Render")
+        col.prop(s, "samples")
+
+
+class PHOTON_LIGHTMAPS_PT_object(_EnginePanel, bpy.types.Panel):
+    bl_label = "Photon Lightmap"
+    bl_context = "object"
+
+    @classmethod
+    def poll(cls, context):
+        ob = context.object
+        return super().poll(context) and ob is not None and ob.type in {'MESH', 'CURVE', 'SURFACE', 'META', 'FONT', 'EMPTY'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        ob = context.object
+        s = ob.photon_lightmaps
+        layout.prop(s, "exclude")
+        sub = layout.column()
+        sub.active = not s.exclude
+        sub.prop(s, "lightmap_resolution", text="Resolution")
+        if ob.type == 'MESH':
+            has_uv = ob.data.uv_layers.get("Lightmap") is not None
+            sub.label(text="UVs: 'Lightmap' layer" if has_uv else "UVs: automatic (no 'Lightmap' UV layer)",
+                      icon='UV' if has_uv else 'INFO')
+
+
+class PHOTON_LIGHTMAPS_PT_material_slots(_EnginePanel, bpy.types.Panel):
+    bl_label = ""
+    bl_context = "material"
+    bl_options = {'HIDE_HEADER'}
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and (context.material or context.object)
+
+    def draw(self, context):
+        layout = self.layout
+        ob = context.object
+        if ob:
+            row = layout.row()
+            row.template_list("MATERIAL_UL_matslots", "", ob, "material_slots", ob, "active_material_index",
+                              rows=3)
+            col = row.column(align=True)
+            col.operator("object.material_slot_add", icon='ADD', text="")
+            col.operator("object.material_slot_remove", icon='REMOVE', text="")
+            layout.template_ID(ob, "active_material", new="material.new")
+        elif context.material:
+            layout.template_ID(context.space_data, "pin_id")
+
+
+class PHOTON_LIGHTMAPS_PT_material_surface(_EnginePanel, bpy.types.Panel):
+    bl_label = "Surface"
+    bl_context = "material"
+
+    @classmethod
+    def poll(cls, context):
+        mat = context.material
+        return super().poll(context) and mat is not None and not mat.grease_pencil
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        mat = context.material
+        layout.label(text="Read: Principled, Diffuse, Glossy, Glass or Emission", icon='INFO')
+        if mat.node_tree is None or not _draw_output(layout, mat.node_tree, "ShaderNodeOutputMaterial", "Surface"):
+            layout.prop(mat, "diffuse_color")
+
+
+class PHOTON_LIGHTMAPS_PT_light(_EnginePanel, bpy.types.Panel):
+    bl_label = "Light"
+    bl_context = "data"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.light is not None
+
+    def draw(self, context):
+        layout = self.layout
+        light = context.light
+        layout.row().prop(light, "type", expand=True)
+        layout.use_property_split = True
+        col = layout.column()
+        row = col.row(heading="Temperature")
+        row.prop(light, "use_temperature", text="")
+        sub = row.row()
+        sub.active = light.use_temperature
+        sub.prop(light, "temperature", text="")
+        col.prop(light, "color", text="Tint" if light.use_temperature else "Color")
+        col = layout.column()
+        col.prop(light, "energy", text="Strength" if light.type == 'SUN' else "Power")
+        col.prop(light, "exposure")
+        if light.type != 'SUN':
+            col.prop(light, "normalize")
+        col = layout.column()
+        if light.type in {'POINT', 'SPOT'}:
+            col.prop(light, "shadow_soft_size", text="Radius")
+        elif light.type == 'SUN':
+            col.prop(light, "angle")
+        elif light.type == 'AREA':
+            col.prop(light, "shape")
+            sub = col.column(align=True)
+            if light.shape in {'SQUARE', 'DISK'}:
+                sub.prop(light, "size")
+            else:
+                sub.prop(light, "size", text="Size X")
+                sub.prop(light, "size_y", text="Y")
+        if light.type == 'SPOT':
+            col = layout.column()
+            col.prop(light, "spot_size", text="Angle")
+            col.prop(light, "spot_blend", text="Blend", slider=True)
+            col.prop(light, "show_cone")
+
+
+class PHOTON_LIGHTMAPS_PT_world(_EnginePanel, bpy.types.Panel):
+    bl_label = "Surface"
+    bl_context = "world"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.world is not None
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        world = context.world
+        layout.label(text="Read: a constant Background colour x strength", icon='INFO')
+        if world.node_tree is None or not _draw_output(layout, world.node_tree, "ShaderNodeOutputWorld", "Surface"):
+            layout.prop(world, "color")
+
+
+classes = (
+    PHOTON_LIGHTMAPS_PT_render,
+    PHOTON_LIGHTMAPS_PT_object,
+    PHOTON_LIGHTMAPS_PT_material_slots,
+    PHOTON_LIGHTMAPS_PT_material_surface,
+    PHOTON_LIGHTMAPS_PT_light,
+    PHOTON_LIGHTMAPS_PT_world,
+)

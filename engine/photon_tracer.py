@@ -43,6 +43,8 @@ class PhotonStats:
     absorbed: np.ndarray = field(default_factory=lambda: np.zeros(0))
     escaped: np.ndarray = field(default_factory=lambda: np.zeros(0))
     truncated: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    points: np.ndarray | None = None       # (K, 6) hit position + normal, with keep_points
+    point_power: np.ndarray | None = None  # (K, B)
 
     def audit_error(self):
         """Relative imbalance of emitted vs absorbed + escaped + truncated (0 when exact)."""
@@ -81,7 +83,7 @@ def lightmap_slot(g, lm, inst, shape, face, u, v):
 
 @njit(cache=True, parallel=True)
 def _trace_chunk(g, ms, ls, lm, seed, first, n_total, max_bounces, record_from,
-                 rec_texel, rec_power, ledger, rays):
+                 rec_texel, rec_power, rec_point, ledger, rays):
     count = rec_texel.shape[0]
     n_rec = rec_texel.shape[1]
     nb = ledger.shape[2]
@@ -119,6 +121,14 @@ def _trace_chunk(g, ms, ls, lm, seed, first, n_total, max_bounces, record_from,
                     rec_texel[i, rec] = LM.texel_index(lm, lid, f, s, tt)
                     for b in range(nb):
                         rec_power[i, rec, b] = power[b]
+                    if rec_point.shape[0] > 0:
+                        # Photon-map baselines keep the hit itself: position and normal.
+                        rec_point[i, rec, 0] = px
+                        rec_point[i, rec, 1] = py
+                        rec_point[i, rec, 2] = pz
+                        rec_point[i, rec, 3] = nx
+                        rec_point[i, rec, 4] = ny
+                        rec_point[i, rec, 5] = nz
                     rec += 1
             if depth >= max_bounces:
                 for b in range(nb):
@@ -159,12 +169,14 @@ def _trace_chunk(g, ms, ls, lm, seed, first, n_total, max_bounces, record_from,
 
 
 def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
-                  progress=None, chunk=None):
+                  progress=None, chunk=None, keep_points=False):
     """Runs the photon pass on a compiled scene `cs`, adding into cs.lightmaps.
 
     record_direct: True when the lightmaps must hold direct light too (baking);
     False for the two-pass renderer, which samples direct light itself.
     progress(done, total) may return False to cancel (raises Cancelled).
+    keep_points: also return every recorded hit as stats.points (K, 6)
+    position+normal and stats.point_power (K, B), for photon-map baselines.
     """
     if not 0 <= int(max_bounces) <= MAX_BOUNCES_LIMIT:
         raise ValueError(f"max_bounces must be in [0, {MAX_BOUNCES_LIMIT}], got {max_bounces}")
@@ -183,16 +195,21 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     rec_power = np.empty((chunk, n_rec, nb))
     ledger = np.empty((chunk, 4, nb))
     rays = np.empty(chunk, np.int64)
+    rec_point = np.empty((chunk if keep_points else 0, n_rec, 6))
+    points, point_power = [], []
     lm = cs.lightmaps
     done = 0
     while done < n_photons:
         c = min(chunk, n_photons - done)
         _trace_chunk(cs.geometry, cs.materials, cs.lights, lm, np.uint64(seed), done, n_photons,
                      int(max_bounces), 0 if record_direct else 1,
-                     rec_texel[:c], rec_power[:c], ledger[:c], rays[:c])
+                     rec_texel[:c], rec_power[:c], rec_point[:c], ledger[:c], rays[:c])
         ids = rec_texel[:c].reshape(-1)
         keep = ids >= 0
         LM.accumulate(lm, ids[keep], rec_power[:c].reshape(-1, nb)[keep])
+        if keep_points:
+            points.append(rec_point[:c].reshape(-1, 6)[keep])
+            point_power.append(rec_power[:c].reshape(-1, nb)[keep])
         stats.records += int(keep.sum())
         sums = ledger[:c].sum(axis=0)
         stats.emitted += sums[0]
@@ -204,6 +221,9 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
         if progress is not None and progress(done, n_photons) is False:
             raise Cancelled("photon pass cancelled")
     stats.photons = n_photons
+    if keep_points:
+        stats.points = np.concatenate(points)
+        stats.point_power = np.concatenate(point_power)
     LM.finalize(lm)
     stats.seconds = time.perf_counter() - t0
     return stats

@@ -68,3 +68,12 @@ def test_furnace_truncated_series(depth):
     assert stats.audit_error() < 1e-12
     if depth == 0:
         np.testing.assert_allclose(stats.truncated, FLUX, rtol=1e-9)
+
+
+def test_kept_photon_points_lie_on_the_surface_and_carry_the_recorded_flux():
+    """keep_points hands photon-map baselines exactly what the lightmaps received."""
+    cs = compile_scene(demo_scenes.furnace_sphere(RHO, FLUX, radius=2.0))
+    stats = trace_photons(cs, 20_000, seed=4, max_bounces=3, record_direct=True, keep_points=True)
+    assert stats.points.shape == (stats.records, 6)
+    np.testing.assert_allclose(np.linalg.norm(stats.points[:, :3], axis=1), 2.0, rtol=1e-9)
+    np.testing.assert_allclose(stats.point_power.sum(axis=0), cs.lightmaps.flux.sum(axis=0), rtol=1e-12)

@@ -1,0 +1,979 @@
+"""Baking photon lightmaps to image textures (and Blender's own Bake button).
+
+One photon pass lights the whole scene; each baked mesh object's lightmap is
+then written to a float RGBA image:
+
+* RGB = E / pi, the irradiance E of the texel divided by pi: the radiance a
+  white Lambertian surface would reflect there. This is what Cycles' Diffuse
+  bake gives with Direct + Indirect and without Color.
+* A = the texel's UV coverage (0 where no UV triangle touches it). RGB next to
+  the charts holds the lightmap's dilated values, so texture filtering at
+  chart borders reads sensible colours.
+
+Texel (x, y) of a lightmap is image pixel (x, y): both count rows bottom-up,
+like UV v. Images are called "<object>_Lightmap" and use the mesh's
+`Lightmap` UV layer (uv_layers.py makes one where missing).
+
+Image policy. An image we made carries the custom property
+``photon_lightmaps_object`` and is updated in place by the next bake. An
+image of the same name that we did not make belongs to the user: with
+``overwrite`` it is replaced (its users are remapped to the new image);
+otherwise the bake writes a new image with a unique name (".001", ...) and
+says so in `BakeResult.warnings`. Nothing is written until every lightmap
+has been computed, so a cancelled or failed bake leaves all images as they
+were (new Lightmap UV layers may already have been added by then).
+
+Files. `save_dir` saves "<dir>/<object>.exr"; otherwise an image is saved to
+"//lightmaps/<object>.exr" next to a saved .blend, or packed with `pack`.
+OpenEXR, 32-bit float, ZIP, RGBA, alpha stored as is (images use the
+"Channel Packed" alpha mode: coverage is data, not transparency).
+
+Material hook (`hook_materials`): a node group "Photon Lightmap" is added to
+each material of a baked object, with its own Material Output for EEVEE only,
+so EEVEE and Material Preview show baked light while Cycles keeps rendering
+the material as it was. Every node we add is named "Photon Lightmap ..." and
+tagged; `remove_lightmap_hook` deletes exactly those nodes.
+
+`BakeMixin` gives the render engine Blender's bake API (see BakeMixin.bake).
+`bake_main` is the `python -m photon_lightmaps bake` command.
+"""
+import hashlib
+import math
+import os
+import re
+import tempfile
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit, prange
+
+from .engine import lightmap as LM
+from .engine.photon_tracer import Cancelled
+
+IMAGE_SUFFIX = "_Lightmap"
+OWNER_PROP = "photon_lightmaps_object"
+HOOK_PROP = "photon_lightmaps_hook"
+HOOK_GROUP = "Photon Lightmap"
+HOOK_PREFIX = "Photon Lightmap"
+LIGHTMAP_DIR = "lightmaps"
+
+# RenderEngine.bake pass_filter bits (BakeSettings.pass_filter enum values, read from bpy).
+FILTER_EMIT = 2
+FILTER_DIFFUSE = 4
+FILTER_GLOSSY = 8
+FILTER_TRANSMISSION = 16
+FILTER_DIRECT = 64
+FILTER_INDIRECT = 128
+FILTER_COLOR = 256
+
+_DEFAULTS = dict(photons=1_000_000, max_bounces=8, seed=0)
+
+
+# --------------------------------------------------------------------------------------
+# Results
+# --------------------------------------------------------------------------------------
+
+@dataclass
+class BakedMap:
+    """One object's lightmap as an image: rgba float32 (height, width, 4), rows bottom-up."""
+    object_name: str
+    rgba: np.ndarray
+    lightmap_id: int
+
+    @property
+    def width(self):
+        return int(self.rgba.shape[1])
+
+    @property
+    def height(self):
+        return int(self.rgba.shape[0])
+
+    def mean(self):
+        """Coverage-weighted mean RGB over the texels a UV triangle touches."""
+        a = self.rgba[..., 3].astype(np.float64)
+        if a.sum() <= 0:
+            return [0.0, 0.0, 0.0]
+        return [float((self.rgba[..., c] * a).sum() / a.sum()) for c in range(3)]
+
+
+@dataclass
+class BakeResult:
+    maps: dict = field(default_factory=dict)      # object name -> BakedMap
+    images: dict = field(default_factory=dict)    # object name -> bpy image name
+    paths: dict = field(default_factory=dict)     # object name -> saved file (None: unsaved/packed)
+    skipped: dict = field(default_factory=dict)   # object name -> why it was not baked
+    hooked: list = field(default_factory=list)    # materials given a lightmap hook
+    warnings: list = field(default_factory=list)
+    stats: object = None                          # PhotonStats of the photon pass
+    seconds: dict = field(default_factory=dict)   # export, photon_pass, bake, total
+    lightmap_bytes: int = 0
+    uv_layers: dict = field(default_factory=dict)  # mesh name -> uv_layers.ensure_lightmap_uv status
+
+
+# --------------------------------------------------------------------------------------
+# Lightmap -> pixels
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, parallel=True)
+def _sample_bilinear(lm, lm_id, s, t, out):
+    for i in prange(s.shape[0]):
+        LM.lookup_bilinear(lm, lm_id, 0, s[i], t[i], out[i])
+
+
+def lightmap_rgba(lm, lm_id):
+    """Lightmap `lm_id` as float32 (height, width, 4): RGB = E/pi, A = coverage."""
+    sl = LM.texel_slice(lm, lm_id)
+    w, h = int(lm.width[lm_id]), int(lm.height[lm_id])
+    e = lm.irradiance[sl]
+    rgba = np.zeros((h * w, 4), np.float32)
+    nb = e.shape[1]
+    rgba[:, :3] = (e if nb == 3 else np.repeat(e.mean(axis=1, keepdims=True), 3, axis=1)) / math.pi
+    rgba[:, 3] = lm.coverage[sl]
+    return rgba.reshape(h, w, 4)
+
+
+# --------------------------------------------------------------------------------------
+# Shared helpers
+# --------------------------------------------------------------------------------------
+
+def _settings(bscene):
+    s = getattr(bscene, "photon_lightmaps", None)
+    if s is None:
+        return dict(_DEFAULTS)
+    return dict(photons=int(s.photons), max_bounces=int(s.max_bounces), seed=int(s.seed))
+
+
+def _original(ob):
+    return getattr(ob, "original", None) or ob
+
+
+def _is_excluded(ob):
+    props = getattr(ob, "photon_lightmaps", None)
+    return bool(props is not None and props.exclude)
+
+
+def _depsgraph(context_or_depsgraph):
+    import bpy
+    if isinstance(context_or_depsgraph, bpy.types.Depsgraph):
+        return context_or_depsgraph
+    return context_or_depsgraph.evaluated_depsgraph_get()
+
+
+def _world_area(ob):
+    """Surface area of a mesh object in world units (as the lightmap allocator measures it)."""
+    from .uv_layers import mesh_triangles
+    v, tv, _, _ = mesh_triangles(ob.data)
+    if tv.shape[0] == 0:
+        return 0.0
+    M = np.array(ob.matrix_world, np.float64)[:3, :3]
+    return float(LM.triangle_world_areas(v[tv], M).sum())
+
+
+def layout_resolution(ob, texel_density, resolution=None):
+    """Lightmap texels per side the engine will give mesh object `ob` (what its UV layout is for)."""
+    if resolution:
+        return int(resolution)
+    props = getattr(ob, "photon_lightmaps", None)
+    if props is not None and int(props.lightmap_resolution) > 0:
+        return int(props.lightmap_resolution)
+    return LM.resolution_for(_world_area(ob), texel_density)
+
+
+def _photon_pass(scene, settings, record_direct, progress):
+    from .engine.compile import compile_scene
+    from .engine.photon_tracer import trace_photons
+    cs = compile_scene(scene)
+    stats = trace_photons(cs, settings["photons"], seed=settings["seed"],
+                          max_bounces=settings["max_bounces"], record_direct=record_direct,
+                          progress=progress)
+    return cs, stats
+
+
+def _file_name(name):
+    # Object names may hold path separators or characters file systems refuse.
+    return re.sub(r'[\\/:*?"<>|\x00-\x1f]', "_", name).strip() or "object"
+
+
+# --------------------------------------------------------------------------------------
+# bake_objects: prepare (main thread) -> compute (any thread) -> commit (main thread)
+# --------------------------------------------------------------------------------------
+
+@dataclass
+class BakeJob:
+    """A bake split in three, so an operator can run the photon pass off the UI thread."""
+    scene: object                 # engine Scene (plain data)
+    export_map: object
+    targets: dict                 # object name -> engine instance id
+    settings: dict
+    record_direct: bool
+    result: BakeResult
+    t_start: float
+    cs: object = None
+
+
+def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=None,
+                 indirect_only=False):
+    """Main thread: Lightmap UV layers for the objects, then the scene export."""
+    from . import uv_layers
+    from .export import export_scene
+
+    t0 = time.perf_counter()
+    result = BakeResult()
+    depsgraph = _depsgraph(context_or_depsgraph)
+    bscene = depsgraph.scene
+    props = getattr(bscene, "photon_lightmaps", None)
+    density = float(props.texel_density) if props is not None else 16.0
+    if resolution is not None and int(resolution) < 1:
+        raise ValueError(f"resolution must be a positive number of texels, got {resolution}")
+    wanted = []
+    seen = set()
+    for ob in objects:
+        ob = _original(ob)
+        if ob.name in seen:
+            continue
+        seen.add(ob.name)
+        if ob.type != "MESH":
+            result.skipped[ob.name] = f"a {ob.type.lower()}, not a mesh"
+        elif _is_excluded(ob):
+            result.skipped[ob.name] = "excluded from lightmaps (Object > Photon Lightmaps)"
+        else:
+            wanted.append(ob)
+    changed = False
+    for ob in wanted:
+        status = uv_layers.ensure_lightmap_uv(ob, resolution=layout_resolution(ob, density, resolution))
+        result.uv_layers[ob.data.name] = status
+        changed |= status in (uv_layers.CREATED, uv_layers.UPDATED)
+    if changed:
+        # The export reads evaluated meshes: let them pick up the new layers.
+        if context_or_depsgraph is depsgraph:
+            depsgraph.update()
+        else:
+            context_or_depsgraph.view_layer.update()
+            depsgraph = context_or_depsgraph.evaluated_depsgraph_get()
+
+    warnings = result.warnings
+    scene, emap = export_scene(depsgraph, report=lambda level, msg: None)
+    warnings.extend(emap.warnings)
+    targets = {}
+    for ob in wanted:
+        ids = [i for i in emap.object_instances(ob.name) if emap.instances[i].lightmap]
+        if not ids:
+            result.skipped[ob.name] = "not in the rendered scene (hidden from render, or no faces)"
+            continue
+        i = ids[0]
+        rec = emap.prototypes[emap.instances[i].prototype]
+        if rec.uv_source != uv_layers.LAYER_NAME:
+            result.skipped[ob.name] = (f"its UV layer '{uv_layers.LAYER_NAME}' leaves [0,1]², so the "
+                                       "lightmap would not match it; fix or rename that layer")
+            continue
+        targets[ob.name] = i
+    # Only baked objects record photons: the others' lightmaps would cost memory and
+    # time, and recording never changes where photons go.
+    for i, inst in enumerate(scene.instances):
+        inst.lightmap = i in targets.values()
+        if inst.lightmap and resolution:
+            inst.lightmap_resolution = int(resolution)
+    settings = _settings(bscene)
+    settings.update(photons=int(photons), seed=int(seed))
+    result.seconds["export"] = time.perf_counter() - t0
+    return BakeJob(scene, emap, targets, settings, not indirect_only, result, t0)
+
+
+def compute_bake(job, progress=None):
+    """Any thread: photon pass and per-object RGBA arrays. Raises Cancelled."""
+    result = job.result
+    t0 = time.perf_counter()
+    if not job.targets:
+        result.seconds["photon_pass"] = 0.0
+        return job
+    cs, stats = _photon_pass(job.scene, job.settings, job.record_direct, progress)
+    result.stats = stats
+    result.lightmap_bytes = cs.lightmap_bytes()
+    result.seconds["photon_pass"] = time.perf_counter() - t0
+    if stats.photons == 0:
+        result.warnings.append("no photons were traced (no lights, or zero photons): lightmaps are black")
+    t1 = time.perf_counter()
+    for name, i in job.targets.items():
+        lm_id = cs.instance_lightmaps[i][0]
+        result.maps[name] = BakedMap(name, lightmap_rgba(cs.lightmaps, lm_id), lm_id)
+    result.seconds["extract"] = time.perf_counter() - t1
+    job.cs = cs
+    return job
+
+
+def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materials=False):
+    """Main thread: writes the computed maps to images (and files, and material hooks)."""
+    import bpy
+    result = job.result
+    t0 = time.perf_counter()
+    blend_saved = bool(bpy.data.filepath)
+    for name, bm in result.maps.items():
+        ob = bpy.data.objects[name]
+        img = _target_image(ob, bm.width, bm.height, overwrite, result.warnings)
+        img.pixels.foreach_set(bm.rgba.reshape(-1))
+        img.update()
+        path = None
+        if save_dir:
+            path = os.path.join(os.path.abspath(bpy.path.abspath(save_dir)), _file_name(name) + ".exr")
+            _save_exr(img, path, relative=False)
+        elif pack:
+            _pack_exr(img, f"//{LIGHTMAP_DIR}/{_file_name(name)}.exr")
+        elif blend_saved:
+            path = bpy.path.abspath(f"//{LIGHTMAP_DIR}/{_file_name(name)}.exr")
+            _save_exr(img, path, relative=True)
+        result.images[name] = img.name
+        result.paths[name] = path
+    if result.maps and not (save_dir or pack or blend_saved):
+        result.warnings.append("the .blend is not saved yet: the lightmap images live only in memory "
+                               "(save the .blend and bake again, or pack them)")
+    if hook_materials and result.maps:
+        baked = set(result.maps)
+        for name in result.maps:
+            ob = bpy.data.objects[name]
+            result.hooked += add_lightmap_hook(ob, bpy.data.images[result.images[name]],
+                                               baked_objects=baked, warnings=result.warnings)
+    result.seconds["bake"] = result.seconds.get("extract", 0.0) + time.perf_counter() - t0
+    result.seconds["total"] = time.perf_counter() - job.t_start
+    return result
+
+
+def bake_objects(context_or_depsgraph, objects, *, photons, seed, resolution=None,
+                 indirect_only=False, progress=None, overwrite=False, save_dir=None, pack=False,
+                 hook_materials=False):
+    """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
+
+    One photon pass (direct light included unless `indirect_only`) for all of
+    them. `resolution` forces R x R texels per object; otherwise the object's
+    own setting or the scene's texel density decides. `progress(done, total)`
+    may return False to cancel: Cancelled is raised before any image changes.
+    See the module docstring for image naming, overwriting and saving.
+    """
+    job = prepare_bake(context_or_depsgraph, objects, photons=photons, seed=seed,
+                       resolution=resolution, indirect_only=indirect_only)
+    compute_bake(job, progress)
+    return commit_bake(job, overwrite=overwrite, save_dir=save_dir, pack=pack,
+                       hook_materials=hook_materials)
+
+
+# --------------------------------------------------------------------------------------
+# Images
+# --------------------------------------------------------------------------------------
+
+def _our_image(ob):
+    import bpy
+    base = ob.name + IMAGE_SUFFIX
+    ours = [im for im in bpy.data.images if im.library is None and im.get(OWNER_PROP) == ob.name]
+    ours.sort(key=lambda im: (im.name != base, im.name))
+    return ours[0] if ours else None
+
+
+def _new_image(name, w, h):
+    import bpy
+    img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=True)
+    img.use_half_precision = False
+    img.alpha_mode = "CHANNEL_PACKED"
+    img.colorspace_settings.name = "Linear Rec.709"
+    return img
+
+
+def _target_image(ob, w, h, overwrite, warnings):
+    """The image to write object `ob`'s lightmap into, following the module's policy."""
+    import bpy
+    base = ob.name + IMAGE_SUFFIX
+    img = _our_image(ob)
+    if img is None:
+        existing = bpy.data.images.get(base)
+        if existing is None:
+            img = _new_image(base, w, h)
+        elif overwrite and existing.library is None:
+            img = existing
+            warnings.append(f"image '{base}' was replaced (overwrite)")
+        else:
+            img = _new_image(base, w, h)   # Blender appends .001, .002, ...
+            warnings.append(f"image '{base}' already exists and is not a Photon Lightmaps bake: "
+                            f"kept it, wrote '{img.name}' instead (bake with overwrite to replace it)")
+    if (not img.is_float or img.channels != 4 or tuple(img.size) != (w, h)
+            or img.source not in ("GENERATED", "FILE") or img.packed_file is not None):
+        # Rebuild it as a fresh float image; its users (materials) follow via remap.
+        name = img.name
+        fresh = _new_image(name + ".photon_tmp", w, h)
+        img.user_remap(fresh)
+        bpy.data.images.remove(img)
+        fresh.name = name
+        img = fresh
+    img.alpha_mode = "CHANNEL_PACKED"
+    img.use_half_precision = False
+    img[OWNER_PROP] = ob.name
+    return img
+
+
+def _exr_scene():
+    import bpy
+    sc = bpy.data.scenes.new("photon_lightmaps_exr_settings")
+    s = sc.render.image_settings
+    s.file_format = "OPEN_EXR"
+    s.color_depth = "32"
+    s.exr_codec = "ZIP"
+    s.color_mode = "RGBA"
+    return sc
+
+
+def write_exr(img, path):
+    """Writes a float image as OpenEXR 32-bit RGBA, ZIP, values as stored (linear, no view transform)."""
+    import bpy
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    sc = _exr_scene()
+    try:
+        # save_render takes format and codec from a scene; a scratch one leaves the user's alone.
+        img.save_render(path, scene=sc)
+    finally:
+        bpy.data.scenes.remove(sc)
+
+
+def _save_exr(img, path, relative):
+    import bpy
+    # Write beside the target, then rename: a crash never leaves half a file.
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    tmp = f"{path}.{os.getpid()}.tmp.exr"
+    try:
+        write_exr(img, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    img.filepath_raw = bpy.path.relpath(path) if relative else path
+    img.file_format = "OPEN_EXR"
+    if img.source != "FILE":
+        img.source = "FILE"
+    else:
+        img.reload()
+
+
+def _pack_exr(img, filepath):
+    with tempfile.TemporaryDirectory() as d:
+        tmp = os.path.join(d, "lightmap.exr")
+        write_exr(img, tmp)
+        img.filepath_raw = tmp
+        img.file_format = "OPEN_EXR"
+        if img.source != "FILE":
+            img.source = "FILE"
+        else:
+            img.reload()
+        img.pack()
+    img.filepath_raw = filepath   # where "Unpack" will put it
+
+
+# --------------------------------------------------------------------------------------
+# Material hook
+# --------------------------------------------------------------------------------------
+
+def _tag(node, role):
+    node[HOOK_PROP] = role
+    node.name = f"{HOOK_PREFIX} {role}" if role != "Group" else HOOK_PREFIX
+    node.label = node.name
+    return node
+
+
+def _sock(sockets, identifier):
+    # Mix nodes have several sockets of one name; the identifier tells them apart.
+    return next(s for s in sockets if s.identifier == identifier)
+
+
+def hook_group():
+    """The shared node group: mixes emission = base colour x lightmap over the original surface."""
+    import bpy
+    for ng in bpy.data.node_groups:
+        if ng.get(HOOK_PROP) and ng.library is None and ng.bl_idname == "ShaderNodeTree":
+            return ng
+    ng = bpy.data.node_groups.new(HOOK_GROUP, "ShaderNodeTree")
+    ng[HOOK_PROP] = 1
+    ng.description = "Photon Lightmaps: baked light (base colour x lightmap) shown in EEVEE"
+    io = ng.interface
+    io.new_socket("Shader", in_out="INPUT", socket_type="NodeSocketShader")
+    base = io.new_socket("Base Color", in_out="INPUT", socket_type="NodeSocketColor")
+    base.default_value = (0.8, 0.8, 0.8, 1.0)
+    lmap = io.new_socket("Lightmap", in_out="INPUT", socket_type="NodeSocketColor")
+    lmap.default_value = (0.0, 0.0, 0.0, 1.0)
+    st = io.new_socket("Strength", in_out="INPUT", socket_type="NodeSocketFloat")
+    st.default_value, st.min_value = 1.0, 0.0
+    fac = io.new_socket("Factor", in_out="INPUT", socket_type="NodeSocketFloat")
+    fac.default_value, fac.min_value, fac.max_value = 1.0, 0.0, 1.0
+    fac.subtype = "FACTOR"
+    io.new_socket("Shader", in_out="OUTPUT", socket_type="NodeSocketShader")
+    n, l = ng.nodes, ng.links
+    gi, go = n.new("NodeGroupInput"), n.new("NodeGroupOutput")
+    mul = n.new("ShaderNodeMix")
+    mul.data_type, mul.blend_type = "RGBA", "MULTIPLY"
+    _sock(mul.inputs, "Factor_Float").default_value = 1.0
+    em = n.new("ShaderNodeEmission")
+    mix = n.new("ShaderNodeMixShader")
+    gi.location, mul.location, em.location, mix.location, go.location = \
+        (-500, 0), (-250, -100), (-50, -100), (150, 0), (350, 0)
+    l.new(gi.outputs["Base Color"], _sock(mul.inputs, "A_Color"))
+    l.new(gi.outputs["Lightmap"], _sock(mul.inputs, "B_Color"))
+    l.new(_sock(mul.outputs, "Result_Color"), em.inputs["Color"])
+    l.new(gi.outputs["Strength"], em.inputs["Strength"])
+    l.new(gi.outputs["Factor"], mix.inputs[0])
+    l.new(gi.outputs["Shader"], mix.inputs[1])
+    l.new(em.outputs["Emission"], mix.inputs[2])
+    l.new(mix.outputs["Shader"], go.inputs["Shader"])
+    return ng
+
+
+def _user_output(tree):
+    outs = [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial" and not n.get(HOOK_PROP)]
+    # The output Cycles renders: active first, then one meant for all engines.
+    outs.sort(key=lambda n: (not n.is_active_output, n.target not in ("ALL", "CYCLES")))
+    return outs[0] if outs else None
+
+
+def _source(socket):
+    """The output socket feeding `socket`, through reroutes (None if unlinked)."""
+    seen = 0
+    while socket.is_linked and seen < 64:
+        link = socket.links[0]
+        if link.from_node.bl_idname != "NodeReroute":
+            return link.from_socket
+        socket = link.from_node.inputs[0]
+        seen += 1
+    return None
+
+
+def remove_hook_nodes(mat):
+    """Deletes our nodes from one material -> how many."""
+    tree = mat.node_tree
+    if tree is None or mat.library is not None:
+        return 0
+    ours = [n for n in tree.nodes if n.get(HOOK_PROP)]
+    for n in ours:
+        tree.nodes.remove(n)
+    return len(ours)
+
+
+def add_lightmap_hook(ob, image, baked_objects=(), warnings=None):
+    """Adds (or refreshes) our hook in every material of `ob`; returns the material names."""
+    import bpy
+    warnings = warnings if warnings is not None else []
+    from .uv_layers import LAYER_NAME
+    ng = hook_group()
+    done = []
+    mats = []
+    for slot in ob.material_slots:
+        if slot.material is not None and slot.material not in mats:
+            mats.append(slot.material)
+    if not mats:
+        warnings.append(f"object '{ob.name}' has no material: no lightmap hook added")
+    for mat in mats:
+        if mat.library is not None or mat.node_tree is None:
+            why = "is linked from a library" if mat.library is not None else "uses no nodes"
+            warnings.append(f"material '{mat.name}' {why}: no lightmap hook added")
+            continue
+        users = sorted({o.name for o in bpy.data.objects
+                        if any(s.material == mat for s in o.material_slots)} - {ob.name})
+        others_baked = [u for u in users if u in baked_objects]
+        others = [u for u in users if u not in baked_objects]
+        if others:
+            warnings.append(f"material '{mat.name}' is shared with objects not baked now "
+                            f"({', '.join(others)}): in EEVEE they show '{ob.name}''s lightmap")
+        if others_baked:
+            warnings.append(f"material '{mat.name}' is shared by baked objects "
+                            f"({', '.join([ob.name] + others_baked)}): it can show only one of their "
+                            f"lightmaps; give each object its own material")
+        remove_hook_nodes(mat)
+        tree = mat.node_tree
+        out = _user_output(tree)
+        surface = _source(out.inputs["Surface"]) if out is not None else None
+        x0, y0 = (out.location.x, out.location.y - 400) if out is not None else (300, -400)
+        frame = _tag(tree.nodes.new("NodeFrame"), "Frame")
+        frame.label = "Photon Lightmap (baked light, EEVEE only; remove with Remove Lightmap Hook)"
+        uv = _tag(tree.nodes.new("ShaderNodeUVMap"), "UV")
+        uv.uv_map = LAYER_NAME
+        tex = _tag(tree.nodes.new("ShaderNodeTexImage"), "Image")
+        tex.image = image
+        tex.interpolation = "Linear"
+        tex.extension = "EXTEND"
+        grp = _tag(tree.nodes.new("ShaderNodeGroup"), "Group")
+        grp.node_tree = ng
+        eo = _tag(tree.nodes.new("ShaderNodeOutputMaterial"), "Output")
+        eo.target = "EEVEE"
+        for n, dx in ((uv, -700), (tex, -500), (grp, -200), (eo, 0)):
+            n.parent = frame
+            n.location = (x0 + dx, y0)
+        tree.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+        tree.links.new(tex.outputs["Color"], grp.inputs["Lightmap"])
+        if surface is not None:
+            tree.links.new(surface, grp.inputs["Shader"])
+        tree.links.new(grp.outputs["Shader"], eo.inputs["Surface"])
+        if out is not None:
+            for key in ("Volume", "Displacement"):
+                src = _source(out.inputs[key])
+                if src is not None:
+                    tree.links.new(src, eo.inputs[key])
+        _link_base_color(tree, surface, grp, mat, warnings)
+        # EEVEE prefers an output whose target is exactly EEVEE over an "All" one, active
+        # or not, so ours needs no active flag (setting it would clear the user's).
+        theirs = [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial"
+                  and n.target == "EEVEE" and not n.get(HOOK_PROP)]
+        if theirs:
+            warnings.append(f"material '{mat.name}' has its own EEVEE output ('{theirs[0].name}'), "
+                            "which EEVEE keeps using: the lightmap hook is not shown there")
+        done.append(mat.name)
+    return done
+
+
+def _link_base_color(tree, surface, grp, mat, warnings):
+    node = surface.node if surface is not None else None
+    key = {"ShaderNodeBsdfPrincipled": "Base Color", "ShaderNodeBsdfDiffuse": "Color"}.get(
+        node.bl_idname if node is not None else None)
+    if key is None:
+        warnings.append(f"material '{mat.name}': no Principled or Diffuse BSDF on the surface; "
+                        "the lightmap hook uses a white base colour")
+        grp.inputs["Base Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+        return
+    sock = node.inputs[key]
+    src = _source(sock)
+    if src is not None:
+        tree.links.new(src, grp.inputs["Base Color"])
+    else:
+        grp.inputs["Base Color"].default_value = tuple(sock.default_value)
+
+
+def remove_lightmap_hook(materials=None):
+    """Removes our hook nodes from `materials` (default: all); drops the group when unused. -> nodes removed."""
+    import bpy
+    mats = bpy.data.materials if materials is None else materials
+    removed = sum(remove_hook_nodes(m) for m in mats)
+    for ng in list(bpy.data.node_groups):
+        if ng.get(HOOK_PROP) and ng.library is None and ng.users == 0:
+            bpy.data.node_groups.remove(ng)
+    return removed
+
+
+# --------------------------------------------------------------------------------------
+# RenderEngine bake API
+# --------------------------------------------------------------------------------------
+
+# One photon pass serves every object (and image) of a bake: keyed by a digest of
+# the exported scene and the settings, so an edited scene is never served stale maps.
+_cache = {"key": None, "value": None}
+
+
+def clear_cache(*_args):
+    """Frees the photon pass kept for Blender's bake (also a bake-complete/cancel handler)."""
+    _cache["key"] = None
+    _cache["value"] = None
+
+
+def _digest_scene(scene, extra):
+    h = hashlib.sha256(repr(extra).encode())
+
+    def add(x):
+        if isinstance(x, np.ndarray):
+            h.update(str((x.dtype, x.shape)).encode())
+            h.update(np.ascontiguousarray(x).tobytes())
+        elif isinstance(x, (list, tuple)):
+            h.update(b"[")
+            for y in x:
+                add(y)
+            h.update(b"]")
+        elif hasattr(x, "__dataclass_fields__"):
+            h.update(type(x).__name__.encode())
+            for k in x.__dataclass_fields__:
+                add(getattr(x, k))
+        else:
+            h.update(repr(x).encode())
+
+    add(scene)
+    return h.hexdigest()
+
+
+def _patch_missing_uvs(scene):
+    """Gives meshes without a Lightmap layer the core's own xatlas UVs, per loop triangle.
+
+    The core would unwrap them anyway; doing it here keeps the UVs in Blender's
+    loop-triangle order, which is what the bake API's primitive ids index.
+    """
+    from .engine.uv_atlas import unwrap
+    for proto in scene.prototypes:
+        for tm in proto.meshes:
+            if tm.uvs is None:
+                tm.uvs = unwrap(tm.vertices, tm.triangles)
+
+
+def _bake_lightmaps(depsgraph, modes, progress, report):
+    """(scene, export map, {mode: compiled scene}) for the bake API, from the cache if current."""
+    from .export import export_scene
+    scene, emap = export_scene(depsgraph, report=None)
+    _patch_missing_uvs(scene)
+    settings = _settings(depsgraph.scene)
+    key = _digest_scene(scene, sorted(settings.items()))
+    if _cache["key"] != key:
+        clear_cache()
+        for w in emap.warnings:
+            report("WARNING", w)
+        _cache["key"], _cache["value"] = key, (scene, emap, {})
+    scene, emap, passes = _cache["value"]
+    for mode in modes:
+        if mode not in passes:
+            cs, _ = _photon_pass(scene, settings, mode == "total", progress)
+            passes[mode] = cs
+    return scene, emap, passes
+
+
+def _band3(x, nb):
+    a = np.broadcast_to(np.asarray(x, np.float64).reshape(-1), (nb,))
+    return a if nb == 3 else np.repeat(a.mean(), 3)
+
+
+def _target_images(ob):
+    """Images Blender bakes `ob` into, in its order: first active image node per material slot."""
+    images = []
+    for slot in _original(ob).material_slots:
+        mat = slot.material
+        if mat is None or mat.node_tree is None:
+            continue
+        node = mat.node_tree.nodes.active
+        if node is not None and node.bl_idname == "ShaderNodeTexImage" and node.image is not None \
+                and node.image not in images:
+            images.append(node.image)
+    return images
+
+
+def _current_pixels(image, width, height):
+    """An image's pixels as the linear RGBA Blender's bake would turn back into them."""
+    if image is None or tuple(image.size) != (width, height):
+        return None
+    px = np.empty(width * height * image.channels, np.float32)
+    image.pixels.foreach_get(px)
+    px = px.reshape(height, width, image.channels)
+    out = np.ones((height, width, 4), np.float32)
+    out[..., :min(4, image.channels)] = px[..., :4]
+    if not image.is_float and image.colorspace_settings.name == "sRGB":
+        c = out[..., :3]
+        out[..., :3] = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    return out
+
+
+class BakeMixin:
+    """RenderEngine.bake for Blender's Bake button (Render Properties > Bake).
+
+    What Blender 5.0 passes (found by introspection): bake(depsgraph, object,
+    pass_type, pass_filter, width, height) is called once per object and target
+    image, on a fresh engine instance each time. `begin_result(0, 0, width,
+    height, layer=...)` returns one layer with the passes "BakePrimitive" (3
+    channels: barycentric u, barycentric v, loop-triangle index as int32 bits,
+    -1 where no triangle covers the pixel), "BakeDifferential" and "Combined"
+    (RGBA, rows bottom-up like the image); what we write to Combined is what
+    Blender stores in the image after end_result. The barycentrics weigh the
+    triangle's corners as (u, v, 1 - u - v). Blender writes the image even when
+    a bake is cancelled or fails, so those paths write the image's current
+    pixels back instead of black. (With "Clear Image" on, Blender blanks the
+    image before any engine is called; what it blanked cannot come back.)
+
+    Passes: DIFFUSE with DIRECT / INDIRECT / COLOR (no COLOR: E/pi, Cycles'
+    convention), EMIT, and COMBINED (emission + diffuse; glossy and
+    transmission are view-dependent and not in a lightmap). Others: an error.
+    """
+
+    def bake(self, depsgraph, obj, pass_type, pass_filter, width, height):
+        index = getattr(self, "_photon_bake_calls", 0)
+        self._photon_bake_calls = index + 1
+        result = self.begin_result(0, 0, width, height, layer="Bake", view="")
+        try:
+            passes = result.layers[0].passes
+            rgba = None
+            try:
+                prim = passes["BakePrimitive"]
+                raw = np.empty(width * height * prim.channels, np.float32)
+                prim.rect.foreach_get(raw)
+                rgba = self._photon_bake_pixels(depsgraph, obj, pass_type, int(pass_filter),
+                                                raw.reshape(-1, prim.channels))
+            except Cancelled:
+                self.report({"WARNING"}, "Photon Lightmaps bake cancelled; the image was left as it was")
+            except Exception as e:  # noqa: BLE001  (any failure must still end the result)
+                self.report({"ERROR"}, f"Photon Lightmaps bake of '{obj.name}' failed: {e}")
+            if rgba is None:
+                # Blender writes the image whatever happens: give it back what it holds.
+                imgs = _target_images(obj)
+                old = _current_pixels(imgs[index] if index < len(imgs) else None, width, height)
+                rgba = old if old is not None else np.zeros((height, width, 4), np.float32)
+            passes["Combined"].rect.foreach_set(np.ascontiguousarray(rgba, np.float32).reshape(-1))
+        finally:
+            self.end_result(result)
+
+    def _photon_should_stop(self):
+        # Esc during Blender's bake. (A Python name of our own: RNA functions such as
+        # test_break take precedence over class attributes, so tests patch this one.)
+        return bool(self.test_break())
+
+    def _photon_bake_pixels(self, depsgraph, obj, pass_type, pass_filter, raw):
+        if pass_type not in ("DIFFUSE", "EMIT", "COMBINED"):
+            raise ValueError(f"the {pass_type} pass is not supported by Photon Lightmaps "
+                             "(use Diffuse, Emit or Combined, or bake it with Cycles)")
+        direct = bool(pass_filter & FILTER_DIRECT)
+        indirect = bool(pass_filter & FILTER_INDIRECT)
+        if pass_type == "EMIT":
+            want_light, want_color, want_emit = False, False, True
+        elif pass_type == "DIFFUSE":
+            want_light = direct or indirect
+            want_color = bool(pass_filter & FILTER_COLOR)
+            want_emit = False
+            if not (want_light or want_color):
+                raise ValueError("the Diffuse bake needs Direct, Indirect or Color")
+        else:
+            want_light = (direct or indirect) and bool(pass_filter & FILTER_DIFFUSE)
+            want_color = True
+            want_emit = bool(pass_filter & FILTER_EMIT)
+        modes = []
+        if want_light:
+            modes = ["total"] if direct and indirect else ["indirect"] if indirect else ["total", "indirect"]
+
+        def progress(done, total):
+            self.update_progress(done / max(total, 1))
+            return not self._photon_should_stop()
+
+        def report(level, msg):
+            self.report({level}, msg)
+
+        if self._photon_should_stop():
+            raise Cancelled("bake cancelled before the photon pass")
+        scene, emap, passes = _bake_lightmaps(depsgraph, modes, progress, report)
+        name = _original(obj).name
+        ids = emap.object_instances(name)
+        if not ids:
+            raise ValueError(f"object '{name}' is not part of the exported scene")
+        lit = [i for i in ids if emap.instances[i].lightmap]
+        if want_light and not lit:
+            raise ValueError(f"object '{name}' is excluded from lightmaps (Object > Photon Lightmaps)")
+        inst = lit[0] if lit else ids[0]
+        tm = scene.prototypes[emap.instances[inst].prototype].meshes[0]
+
+        prim_id = raw[:, 2].view(np.int32)
+        ok = prim_id >= 0
+        if ok.any() and prim_id[ok].max() >= tm.triangles.shape[0]:
+            raise ValueError(f"object '{name}': Blender's bake mesh has more triangles than the "
+                             "exported one (is the mesh being edited?)")
+        k = prim_id[ok].astype(np.int64)
+        u = raw[ok, 0].astype(np.float64)[:, None]
+        v = raw[ok, 1].astype(np.float64)[:, None]
+        uv = tm.uvs[k]
+        st = u * uv[:, 0] + v * uv[:, 1] + (1.0 - u - v) * uv[:, 2]
+        nb = scene.n_bands
+        light = None
+        if want_light:
+            cs = passes[modes[0]]
+            light = np.zeros((k.shape[0], nb))
+            _sample_bilinear(cs.lightmaps, cs.instance_lightmaps[inst][0], st[:, 0].copy(),
+                             st[:, 1].copy(), light)
+            if modes == ["total", "indirect"]:
+                # Direct only: the same seed traces the same paths, so total - indirect
+                # is exactly what the first hits recorded.
+                cs2 = passes["indirect"]
+                other = np.zeros_like(light)
+                _sample_bilinear(cs2.lightmaps, cs2.instance_lightmaps[inst][0], st[:, 0].copy(),
+                                 st[:, 1].copy(), other)
+                light = np.maximum(light - other, 0.0)
+            light = (light if nb == 3 else np.repeat(light.mean(axis=1, keepdims=True), 3, axis=1)) / math.pi
+        mids = np.asarray(tm.material_ids if tm.material_ids is not None else
+                          np.full(tm.triangles.shape[0], tm.material))[k]
+        albedo = np.array([_band3(m.diffuse, nb) for m in scene.materials])[mids]
+        emission = np.array([_band3(m.emission, nb) for m in scene.materials])[mids]
+        if pass_type == "DIFFUSE":
+            val = light if want_light else np.ones((k.shape[0], 3))
+            if want_color:
+                val = val * albedo
+        elif pass_type == "EMIT":
+            val = emission
+        else:
+            val = np.zeros((k.shape[0], 3))
+            if want_light:
+                val += albedo * light
+            if want_emit:
+                val += emission
+        if pass_type == "COMBINED" and (pass_filter & (FILTER_GLOSSY | FILTER_TRANSMISSION)):
+            spec = [m.name for m in scene.materials if np.any(np.asarray(m.specular) > 0)
+                    or np.any(np.asarray(m.transmission) > 0)]
+            if spec:
+                self.report({"WARNING"}, "glossy and transmitted light are not in photon lightmaps "
+                                         f"(materials: {', '.join(spec[:5])})")
+        out = np.zeros((raw.shape[0], 4), np.float32)
+        out[ok, :3] = val
+        out[ok, 3] = 1.0
+        return out
+
+
+# --------------------------------------------------------------------------------------
+# Command line: python -m photon_lightmaps bake FILE.blend --out DIR
+# --------------------------------------------------------------------------------------
+
+def _peak_rss_bytes():
+    try:
+        import resource
+        import sys
+        r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return int(r if sys.platform == "darwin" else r * 1024)
+    except Exception:  # noqa: BLE001  (not on every platform)
+        return None
+
+
+def _ensure_registered():
+    import bpy
+    if not hasattr(bpy.types.Scene, "photon_lightmaps"):
+        from . import register
+        register()
+
+
+def bake_main(args):
+    """CLI: bakes every mesh object of a .blend (excluded ones skipped) to DIR/<object>.exr."""
+    import json
+    import sys
+
+    import bpy
+    t0 = time.perf_counter()
+    if not os.path.isfile(args.blend):
+        print(f"error: no such file: {args.blend}", file=sys.stderr)
+        return 2
+    if args.resolution is not None and args.resolution < 1:
+        print(f"error: --resolution must be >= 1, got {args.resolution}", file=sys.stderr)
+        return 2
+    _ensure_registered()
+    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(args.blend), load_ui=False)
+    _ensure_registered()
+    context = bpy.context
+    settings = _settings(context.scene)
+    photons = settings["photons"] if args.photons is None else int(args.photons)
+    seed = settings["seed"] if args.seed is None else int(args.seed)
+    objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
+    out_dir = os.path.abspath(args.out)
+    os.makedirs(out_dir, exist_ok=True)
+
+    def progress(done, total):
+        print(f"\rphotons {done}/{total}", end="", file=sys.stderr, flush=True)
+        return True
+
+    res = bake_objects(context, objects, photons=photons, seed=seed, resolution=args.resolution,
+                       indirect_only=args.indirect_only, progress=progress, save_dir=out_dir,
+                       overwrite=True)
+    print(file=sys.stderr)
+    stats = res.stats
+    report = {
+        "blend": os.path.abspath(args.blend),
+        "photons": int(stats.photons) if stats else 0,
+        "rays": int(stats.rays) if stats else 0,
+        "seconds": {"photon_pass": res.seconds.get("photon_pass", 0.0),
+                    "bake": res.seconds.get("bake", 0.0),
+                    "total": time.perf_counter() - t0},
+        "objects": {name: {"path": res.paths[name], "width": bm.width, "height": bm.height,
+                           "bytes": os.path.getsize(res.paths[name]), "mean": bm.mean()}
+                    for name, bm in res.maps.items()},
+        "skipped": res.skipped,
+        "warnings": res.warnings,
+        "memory": {"lightmap_bytes": res.lightmap_bytes, "peak_rss_bytes": _peak_rss_bytes()},
+    }
+    text = json.dumps(report, indent=2)
+    print(text)
+    if args.json:
+        with open(args.json, "w") as f:
+            f.write(text)
+    return 0

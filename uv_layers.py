@@ -1,0 +1,285 @@
+"""The `Lightmap` UV layer of a Blender mesh: honoured when the user made it, else xatlas.
+
+Photon lightmaps need a UV layout in which no two surface points share a
+texel (engine/uv_atlas.py). A mesh that already has a UV layer named
+``Lightmap`` is used exactly as it is: we never write to a user's layer. A
+mesh without one gets a new layer from an xatlas unwrap of its loop
+triangles; the user's layers, and which of them is active and used for
+rendering, are left as they were.
+
+An unwrap costs up to seconds, so the layer we made remembers what it was made
+from in custom properties of the mesh: a hash of the vertex positions and the
+topology, a digest of the UVs we wrote (so a layer the user has since edited
+counts as theirs), and the smallest lightmap resolution at which its charts
+stay apart. It is made again only when one of these says it is stale.
+"""
+import hashlib
+
+import numpy as np
+
+LAYER_NAME = "Lightmap"
+HASH_PROP = "photon_lightmaps_uv_hash"
+DIGEST_PROP = "photon_lightmaps_uv_digest"
+MIN_RES_PROP = "photon_lightmaps_uv_min_res"
+
+# Result of ensure_lightmap_uv: what happened to the mesh's layer.
+USER = "user"          # the user's own layer, untouched
+CACHED = "cached"      # our layer, still up to date, untouched
+CREATED = "created"    # a new layer was added
+UPDATED = "updated"    # our stale layer was unwrapped again
+
+# Bump when the layout of our layers changes meaning, so old ones are redone.
+_VERSION = b"photon-lightmaps-uv-1"
+# Corners of one loop farther apart than this (UV units) belong to different charts.
+_UV_TOL = 1e-6
+
+
+def _mesh_of(obj_or_mesh):
+    import bpy
+    data = getattr(obj_or_mesh, "original", obj_or_mesh)
+    if isinstance(data, bpy.types.Object):
+        if data.type != "MESH":
+            raise TypeError(f"object {data.name!r} is a {data.type}, not a mesh")
+        data = data.data
+    if not isinstance(data, bpy.types.Mesh):
+        raise TypeError(f"expected a mesh or mesh object, got {type(obj_or_mesh).__name__}")
+    return data
+
+
+def mesh_triangles(mesh):
+    """(vertices (V,3) f64, triangle vertices (T,3), triangle loops (T,3), polygon (T,)) of a mesh."""
+    mesh.calc_loop_triangles()
+    n_v, n_t = len(mesh.vertices), len(mesh.loop_triangles)
+    co = np.empty(n_v * 3, np.float32)
+    mesh.vertices.foreach_get("co", co)
+    tv = np.empty(n_t * 3, np.int32)
+    tl = np.empty(n_t * 3, np.int32)
+    tp = np.empty(n_t, np.int32)
+    mesh.loop_triangles.foreach_get("vertices", tv)
+    mesh.loop_triangles.foreach_get("loops", tl)
+    mesh.loop_triangles.foreach_get("polygon_index", tp)
+    return (co.reshape(-1, 3).astype(np.float64), tv.reshape(-1, 3).astype(np.int64),
+            tl.reshape(-1, 3).astype(np.int64), tp.astype(np.int64))
+
+
+def geometry_hash(mesh):
+    """Hash of vertex positions and topology: what an unwrap depends on."""
+    co = np.empty(len(mesh.vertices) * 3, np.float32)
+    mesh.vertices.foreach_get("co", co)
+    lv = np.empty(len(mesh.loops), np.int32)
+    mesh.loops.foreach_get("vertex_index", lv)
+    ps = np.empty(len(mesh.polygons), np.int32)
+    pt = np.empty(len(mesh.polygons), np.int32)
+    mesh.polygons.foreach_get("loop_start", ps)
+    mesh.polygons.foreach_get("loop_total", pt)
+    h = hashlib.sha256(_VERSION)
+    for a in (co, lv, ps, pt):
+        h.update(np.int64(a.size).tobytes())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def read_uvs(layer):
+    """Per-loop UVs (L, 2) float32 of a UV layer."""
+    uv = np.empty(len(layer.uv) * 2, np.float32)
+    layer.uv.foreach_get("vector", uv)
+    return uv.reshape(-1, 2)
+
+
+def _digest(uv):
+    return hashlib.sha256(np.ascontiguousarray(uv, np.float32).tobytes()).hexdigest()
+
+
+def layer_is_ours(mesh):
+    """True when the mesh's Lightmap layer is one we made and nobody has edited since."""
+    layer = mesh.uv_layers.get(LAYER_NAME)
+    if layer is None or HASH_PROP not in mesh or DIGEST_PROP not in mesh:
+        return False
+    return mesh[DIGEST_PROP] == _digest(read_uvs(layer))
+
+
+def _forget(mesh):
+    for k in (HASH_PROP, DIGEST_PROP, MIN_RES_PROP):
+        if k in mesh:
+            del mesh[k]
+
+
+# --------------------------------------------------------------------------------------
+# Unwrap: per-triangle-corner xatlas UVs -> one UV per loop
+# --------------------------------------------------------------------------------------
+
+def _inconsistent_polygons(uv, chart, loops, poly, n_loops):
+    """Polygons whose triangles xatlas put in different charts (one UV per loop cannot say that)."""
+    flat_loops = loops.reshape(-1)
+    flat_uv = uv.reshape(-1, 2)
+    per_loop = np.zeros((n_loops, 2))
+    per_loop[flat_loops] = flat_uv
+    dev = np.abs(per_loop[flat_loops] - flat_uv).max(axis=1).reshape(-1, 3).max(axis=1)
+    bad = dev > _UV_TOL
+    # Chart ids must agree within a polygon too (two charts may touch at a corner).
+    first = np.full(int(poly.max()) + 1 if poly.size else 0, -2, np.int64)
+    first[poly[::-1]] = chart[::-1]
+    bad |= chart != first[poly]
+    return np.unique(poly[bad])
+
+
+def _planar_uvs(v, tri_v, rows):
+    """Flattened corner coordinates (object units) of one polygon's triangles `rows`."""
+    p = v[tri_v[rows]]                                   # (k, 3, 3)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]).sum(axis=0)
+    nl = np.linalg.norm(n)
+    if not nl > 0.0:
+        return np.zeros((len(rows), 3, 2))
+    n /= nl
+    # Any tangent works; the longest edge keeps the basis well conditioned.
+    edges = (p[:, [1, 2, 0]] - p).reshape(-1, 3)
+    e = edges[np.argmax(np.linalg.norm(edges, axis=1))]
+    a = e - n * (e @ n)
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
+    return np.stack([p @ a, p @ b], axis=-1)
+
+
+def _repack(v, tri_v, corner_uv, island, resolution, padding):
+    """Packs given UV islands (corner_uv in object units, island id per triangle) with xatlas.
+
+    Corners are welded by (vertex, island, uv), so xatlas sees each island as one
+    connected chart and only scales and places it.
+    """
+    import math
+    import xatlas
+
+    from .engine import uv_atlas as UA
+
+    T = tri_v.shape[0]
+    q = np.round(corner_uv.reshape(-1, 2) / max(np.abs(corner_uv).max(), 1e-30) * 2 ** 30)
+    key = np.column_stack([tri_v.reshape(-1), np.repeat(island, 3), q]).astype(np.int64)
+    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    pos = v[uniq[:, 0]].astype(np.float32)
+    in_uv = np.zeros((uniq.shape[0], 2))
+    in_uv[inverse] = corner_uv.reshape(-1, 2)
+    idx = inverse.reshape(T, 3).astype(np.uint32)
+    gap = 2 * padding + 1
+    tpu = None
+    for attempt in range(4):
+        atlas = xatlas.Atlas()
+        atlas.add_mesh(pos, idx, None, in_uv.astype(np.float32))
+        co = xatlas.ChartOptions()
+        co.use_input_mesh_uvs = True
+        po = xatlas.PackOptions()
+        po.padding = padding
+        po.bilinear = True
+        if tpu:
+            po.texels_per_unit = tpu
+        else:
+            po.resolution = resolution
+        atlas.generate(chart_options=co, pack_options=po)
+        w, h = int(atlas.width), int(atlas.height)
+        side = max(w, h, 1)
+        if gap * resolution / side >= UA.MIN_GAP_TEXELS or attempt == 3:
+            break
+        # Packed larger than asked: lower the density in proportion and pack again.
+        tpu = float(atlas.texels_per_unit) * (gap * resolution / (UA.MIN_GAP_TEXELS * side)) * 0.97
+    vmap, out_idx, out_uv = atlas[0]
+    if out_idx.shape[0] != T or not np.array_equal(vmap[out_idx], idx):
+        raise RuntimeError("xatlas reordered faces while repacking lightmap UV islands")
+    uv = np.clip(out_uv[out_idx].astype(np.float64) * np.array([w, h]) / side, 0.0, 1.0)
+    return uv, int(math.ceil(UA.MIN_GAP_TEXELS * side / gap))
+
+
+def compute_lightmap_uvs(mesh, resolution=None, padding=2):
+    """xatlas layout of a mesh as one UV per loop -> (uv (L, 2) float64, min_resolution).
+
+    xatlas charts triangles, but a UV layer holds one UV per polygon corner, so
+    a polygon whose triangles land in different charts cannot be written as
+    they are. Such polygons (a few percent on organic meshes) become islands of
+    their own, flattened onto their plane, and all islands are packed again.
+    """
+    from .engine import uv_atlas as UA
+
+    resolution = int(resolution) if resolution else UA.DEFAULT_RESOLUTION
+    v, tri_v, tri_l, poly = mesh_triangles(mesh)
+    n_loops = len(mesh.loops)
+    if tri_v.shape[0] == 0:
+        return np.zeros((n_loops, 2)), 1
+    res = UA.unwrap_atlas(v, tri_v, resolution=resolution, padding=padding)
+    uv, min_res = res.uv, res.min_resolution
+    bad = _inconsistent_polygons(uv, res.chart, tri_l, poly, n_loops)
+    if bad.size:
+        # Back to object units (charts keep their relative scale), detach the bad polygons.
+        a3 = 0.5 * np.linalg.norm(np.cross(v[tri_v[:, 1]] - v[tri_v[:, 0]],
+                                           v[tri_v[:, 2]] - v[tri_v[:, 0]]), axis=1)
+        d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+        a2 = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+        ok = (a3 > 0) & (a2 > 0)
+        scale = np.sqrt(a2[ok].sum() / a3[ok].sum()) if ok.any() else 1.0
+        corner = uv / scale
+        island = res.chart.astype(np.int64).copy()
+        next_id = int(island.max()) + 1
+        order = np.argsort(poly, kind="stable")
+        starts = np.searchsorted(poly[order], bad)
+        ends = np.searchsorted(poly[order], bad, side="right")
+        for s, e in zip(starts, ends):
+            rows = order[s:e]
+            corner[rows] = _planar_uvs(v, tri_v, rows)
+            island[rows] = next_id
+            next_id += 1
+        uv, min_res = _repack(v, tri_v, corner, island, resolution, max(int(padding), 2))
+    per_loop = np.zeros((n_loops, 2))
+    per_loop[tri_l.reshape(-1)] = uv.reshape(-1, 2)
+    return per_loop, int(min_res)
+
+
+# --------------------------------------------------------------------------------------
+# The public entry point
+# --------------------------------------------------------------------------------------
+
+def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False):
+    """Gives a mesh (or a mesh object's mesh) a `Lightmap` UV layer; returns what happened.
+
+    resolution: lightmap texels per side the layout is for (charts stay apart
+    at that size and above); None: engine.uv_atlas.DEFAULT_RESOLUTION.
+    force: unwrap our own layer again even if it looks current. A layer named
+    `Lightmap` that we did not make (or that was edited after we made it) is
+    never modified, force or not. Returns USER, CACHED, CREATED or UPDATED.
+    """
+    mesh = _mesh_of(obj_or_mesh)
+    if mesh.is_editmode:
+        raise RuntimeError(f"mesh {mesh.name!r} is in Edit Mode; leave it to make a lightmap UV layer")
+    layer = mesh.uv_layers.get(LAYER_NAME)
+    if layer is not None and not layer_is_ours(mesh):
+        if HASH_PROP in mesh:
+            _forget(mesh)  # the layer was edited or replaced: it is the user's now
+        return USER
+    if mesh.library is not None:
+        raise RuntimeError(f"mesh {mesh.name!r} is linked from a library; cannot add a lightmap UV layer")
+    ghash = geometry_hash(mesh)
+    want_res = int(resolution) if resolution else None
+    if layer is not None and not force and mesh.get(HASH_PROP) == ghash \
+            and (want_res is None or int(mesh.get(MIN_RES_PROP, 0)) <= want_res):
+        return CACHED
+    uv, min_res = compute_lightmap_uvs(mesh, want_res)
+
+    status = UPDATED
+    if layer is None:
+        status = CREATED
+        # Adding a layer must not change which UV map the user edits and renders with.
+        active_index = mesh.uv_layers.active_index
+        render = [l.name for l in mesh.uv_layers if l.active_render]
+        had_layers = len(mesh.uv_layers) > 0
+        layer = mesh.uv_layers.new(name=LAYER_NAME, do_init=False)
+        if layer is None:
+            raise RuntimeError(f"mesh {mesh.name!r}: cannot add a UV layer (limit reached?)")
+        layer = mesh.uv_layers[LAYER_NAME]
+        if had_layers:
+            mesh.uv_layers.active_index = active_index
+            for l in mesh.uv_layers:
+                if l.name in render:
+                    l.active_render = True
+    layer.uv.foreach_set("vector", uv.astype(np.float32).reshape(-1))
+    mesh.update()
+    mesh[HASH_PROP] = ghash
+    mesh[DIGEST_PROP] = _digest(read_uvs(mesh.uv_layers[LAYER_NAME]))
+    mesh[MIN_RES_PROP] = int(min_res)
+    return status

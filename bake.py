@@ -6,6 +6,11 @@ then written to a float RGBA image:
 * RGB = E / pi, the irradiance E of the texel divided by pi: the radiance a
   white Lambertian surface would reflect there. This is what Cycles' Diffuse
   bake gives with Direct + Indirect and without Color.
+  E = E_direct + E_indirect (thesis 3.5.2 / 8.2): photons are recorded only
+  after their first bounce (indirect), and the direct part is gathered per
+  texel by sampling the lights with shadow rays, averaged over the texel's
+  surface (engine/texel_gather.py), which takes the photon noise out of the
+  brightest component. `indirect_only` skips the direct gather.
 * A = the texel's UV coverage (0 where no UV triangle touches it). RGB next to
   the charts holds the lightmap's dilated values, so texture filtering at
   chart borders reads sensible colours.
@@ -68,6 +73,9 @@ FILTER_INDIRECT = 128
 FILTER_COLOR = 256
 
 _DEFAULTS = dict(photons=1_000_000, max_bounces=8, seed=0)
+# Light-sampled points per texel for the direct part; one unstratified light
+# sample per point, so this sets the direct term's noise (~1/sqrt(n)).
+DIRECT_SAMPLES = 64
 
 
 # --------------------------------------------------------------------------------------
@@ -180,14 +188,25 @@ def layout_resolution(ob, texel_density, resolution=None):
     return LM.resolution_for(_world_area(ob), texel_density)
 
 
-def _photon_pass(scene, settings, record_direct, progress):
+def _photon_pass(scene, settings, progress):
+    """Compiled scene with its lightmaps holding the indirect light (photons after the first bounce)."""
     from .engine.compile import compile_scene
     from .engine.photon_tracer import trace_photons
     cs = compile_scene(scene)
     stats = trace_photons(cs, settings["photons"], seed=settings["seed"],
-                          max_bounces=settings["max_bounces"], record_direct=record_direct,
+                          max_bounces=settings["max_bounces"], record_direct=False,
                           progress=progress)
     return cs, stats
+
+
+def _add_direct(cs, lightmaps, settings, lightmap_ids=None):
+    """Gathers direct light into the lightmaps (a cs.lightmaps or a copy of it); returns seconds."""
+    from .engine import texel_gather as TG
+    t0 = time.perf_counter()
+    ids, E = TG.direct_texel_irradiance(cs, lightmap_ids, samples_per_texel=DIRECT_SAMPLES,
+                                        seed=settings["seed"])
+    TG.add_direct(lightmaps, ids, E)
+    return time.perf_counter() - t0
 
 
 def _file_name(name):
@@ -206,7 +225,7 @@ class BakeJob:
     export_map: object
     targets: dict                 # object name -> engine instance id
     settings: dict
-    record_direct: bool
+    direct: bool                  # gather direct light (False: --indirect-only)
     result: BakeResult
     t_start: float
     cs: object = None
@@ -287,12 +306,18 @@ def compute_bake(job, progress=None):
     if not job.targets:
         result.seconds["photon_pass"] = 0.0
         return job
-    cs, stats = _photon_pass(job.scene, job.settings, job.record_direct, progress)
+    cs, stats = _photon_pass(job.scene, job.settings, progress)
     result.stats = stats
     result.lightmap_bytes = cs.lightmap_bytes()
     result.seconds["photon_pass"] = time.perf_counter() - t0
-    if stats.photons == 0:
-        result.warnings.append("no photons were traced (no lights, or zero photons): lightmaps are black")
+    if job.direct:
+        ids = [cs.instance_lightmaps[i][0] for i in job.targets.values()]
+        result.seconds["direct"] = _add_direct(cs, cs.lightmaps, job.settings, ids)
+    if cs.lights.total_power <= 0.0:
+        result.warnings.append("no photons were traced (no lights): lightmaps are black")
+    elif stats.photons == 0:
+        result.warnings.append("no photons were traced (zero photons): lightmaps hold "
+                               + ("direct light only" if job.direct else "no light"))
     t1 = time.perf_counter()
     for name, i in job.targets.items():
         lm_id = cs.instance_lightmaps[i][0]
@@ -343,8 +368,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons, seed, resolution=Non
                  hook_materials=False):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
-    One photon pass (direct light included unless `indirect_only`) for all of
-    them. `resolution` forces R x R texels per object; otherwise the object's
+    One photon pass (indirect light) for all of them, plus the direct light
+    gathered per texel unless `indirect_only`. `resolution` forces R x R texels per object; otherwise the object's
     own setting or the scene's texel density decides. `progress(done, total)`
     may return False to cancel: Cancelled is raised before any image changes.
     See the module docstring for image naming, overwriting and saving.
@@ -702,7 +727,14 @@ def _patch_missing_uvs(scene):
 
 
 def _bake_lightmaps(depsgraph, modes, progress, report):
-    """(scene, export map, {mode: compiled scene}) for the bake API, from the cache if current."""
+    """(scene, export map, {mode: (compiled scene, lightmaps)}) for the bake API, cached.
+
+    Modes: "indirect" (the photon pass: hits after the first bounce), "direct"
+    (the gathered direct light alone) and "total" (both). One photon pass serves
+    all three; "direct" and "total" are copies of its lightmaps with the direct
+    light added.
+    """
+    from .engine import texel_gather as TG
     from .export import export_scene
     scene, emap = export_scene(depsgraph, report=None)
     _patch_missing_uvs(scene)
@@ -715,9 +747,23 @@ def _bake_lightmaps(depsgraph, modes, progress, report):
         _cache["key"], _cache["value"] = key, (scene, emap, {})
     scene, emap, passes = _cache["value"]
     for mode in modes:
-        if mode not in passes:
-            cs, _ = _photon_pass(scene, settings, mode == "total", progress)
-            passes[mode] = cs
+        if mode in passes:
+            continue
+        if "indirect" not in passes:
+            cs, _ = _photon_pass(scene, settings, progress)
+            passes["indirect"] = (cs, cs.lightmaps)
+        cs, ind = passes["indirect"]
+        if mode == "indirect":
+            continue
+        if "gathered" not in passes:
+            passes["gathered"] = TG.direct_texel_irradiance(cs, None, DIRECT_SAMPLES,
+                                                            seed=settings["seed"])
+        ids, E = passes["gathered"]
+        lm = LM.Lightmaps(*(a.copy() for a in ind))
+        if mode == "direct":
+            lm.flux[...] = 0.0
+        TG.add_direct(lm, ids, E)
+        passes[mode] = (cs, lm)
     return scene, emap, passes
 
 
@@ -827,7 +873,7 @@ class BakeMixin:
             want_emit = bool(pass_filter & FILTER_EMIT)
         modes = []
         if want_light:
-            modes = ["total"] if direct and indirect else ["indirect"] if indirect else ["total", "indirect"]
+            modes = ["total"] if direct and indirect else ["indirect"] if indirect else ["direct"]
 
         def progress(done, total):
             self.update_progress(done / max(total, 1))
@@ -862,18 +908,10 @@ class BakeMixin:
         nb = scene.n_bands
         light = None
         if want_light:
-            cs = passes[modes[0]]
+            cs, lm = passes[modes[0]]
             light = np.zeros((k.shape[0], nb))
-            _sample_bilinear(cs.lightmaps, cs.instance_lightmaps[inst][0], st[:, 0].copy(),
+            _sample_bilinear(lm, cs.instance_lightmaps[inst][0], st[:, 0].copy(),
                              st[:, 1].copy(), light)
-            if modes == ["total", "indirect"]:
-                # Direct only: the same seed traces the same paths, so total - indirect
-                # is exactly what the first hits recorded.
-                cs2 = passes["indirect"]
-                other = np.zeros_like(light)
-                _sample_bilinear(cs2.lightmaps, cs2.instance_lightmaps[inst][0], st[:, 0].copy(),
-                                 st[:, 1].copy(), other)
-                light = np.maximum(light - other, 0.0)
             light = (light if nb == 3 else np.repeat(light.mean(axis=1, keepdims=True), 3, axis=1)) / math.pi
         mids = np.asarray(tm.material_ids if tm.material_ids is not None else
                           np.full(tm.triangles.shape[0], tm.material))[k]
@@ -962,6 +1000,7 @@ def bake_main(args):
         "photons": int(stats.photons) if stats else 0,
         "rays": int(stats.rays) if stats else 0,
         "seconds": {"photon_pass": res.seconds.get("photon_pass", 0.0),
+                    "direct": res.seconds.get("direct", 0.0),
                     "bake": res.seconds.get("bake", 0.0),
                     "total": time.perf_counter() - t0},
         "objects": {name: {"path": res.paths[name], "width": bm.width, "height": bm.height,

@@ -205,14 +205,21 @@ def _clip_axis(px, py, n, qx, qy, axis, bound, keep_below):
     return m
 
 
-@njit(cache=True)
-def _clipped_area_unit_square(x0, y0, x1, y1, x2, y2, px, py, qx, qy):
-    """Area of the triangle (in texel units, relative to the texel corner) inside [0,1]²."""
+@njit(cache=True, inline="always")
+def _clip_unit_square(x0, y0, x1, y1, x2, y2, px, py, qx, qy):
+    """Clips the triangle (texel units, relative to the texel corner) to [0,1]²:
+    the polygon is left in px, py (at most 7 vertices); returns its vertex count."""
     px[0], py[0], px[1], py[1], px[2], py[2] = x0, y0, x1, y1, x2, y2
     n = _clip_axis(px, py, 3, qx, qy, 0, 0.0, False)
     n = _clip_axis(qx, qy, n, px, py, 0, 1.0, True)
     n = _clip_axis(px, py, n, qx, qy, 1, 0.0, False)
-    n = _clip_axis(qx, qy, n, px, py, 1, 1.0, True)
+    return _clip_axis(qx, qy, n, px, py, 1, 1.0, True)
+
+
+@njit(cache=True)
+def _clipped_area_unit_square(x0, y0, x1, y1, x2, y2, px, py, qx, qy):
+    """Area of the triangle (in texel units, relative to the texel corner) inside [0,1]²."""
+    n = _clip_unit_square(x0, y0, x1, y1, x2, y2, px, py, qx, qy)
     if n < 3:
         return 0.0
     s = 0.0
@@ -307,6 +314,147 @@ def triangle_texel_areas(uv, area3d, width, height):
     if width < 1 or height < 1:
         raise ValueError(f"invalid atlas size {width}x{height}")
     return _triangle_texel_areas(uv, area3d, width, height)
+
+
+MAX_PIECE_VERTICES = 7   # a triangle clipped by the four sides of a square
+
+TexelPieces = namedtuple("TexelPieces", [
+    "start",  # int64[W*H+1] pieces of texel j: start[j] : start[j+1]
+    "tri",    # int64[P]     triangle (row of the uv array given)
+    "area",   # float64[P]   world area of the piece (sums to the texel's area)
+    "nv",     # int64[P]     polygon vertex count (3..7)
+    "bary",   # float64[P, 7, 2] polygon vertices as barycentrics (b1, b2) of the triangle
+])
+
+
+@njit(cache=True)
+def _triangle_texel_pieces(uv, area3d, width, height):
+    # Mirrors _triangle_texel_areas exactly (same tests, same clipping, same shares)
+    # so the pieces of a texel add up to the area that kernel gives it.
+    W = width
+    H = height
+    cap = 256
+    p_tri = np.empty(cap, np.int64)
+    p_tex = np.empty(cap, np.int64)
+    p_area = np.empty(cap)
+    p_nv = np.empty(cap, np.int64)
+    p_b = np.empty((cap, MAX_PIECE_VERTICES, 2))
+    n_p = 0
+    px = np.empty(16)
+    py = np.empty(16)
+    qx = np.empty(16)
+    qy = np.empty(16)
+    tcap = 64
+    buf_i = np.empty(tcap, np.int64)
+    buf_a = np.empty(tcap)
+    buf_nv = np.empty(tcap, np.int64)
+    buf_b = np.empty((tcap, MAX_PIECE_VERTICES, 2))
+    for k in range(uv.shape[0]):
+        a3 = area3d[k]
+        if not (a3 > 0.0) or not math.isfinite(a3):
+            continue
+        x0 = uv[k, 0, 0] * W
+        y0 = uv[k, 0, 1] * H
+        x1 = uv[k, 1, 0] * W
+        y1 = uv[k, 1, 1] * H
+        x2 = uv[k, 2, 0] * W
+        y2 = uv[k, 2, 1] * H
+        if not (math.isfinite(x0) and math.isfinite(y0) and math.isfinite(x1)
+                and math.isfinite(y1) and math.isfinite(x2) and math.isfinite(y2)):
+            continue
+        det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+        uv2 = abs(det)
+        m = 0
+        total = 0.0
+        if uv2 > 1e-12:
+            bx0 = max(int(math.floor(min(x0, x1, x2))), 0)
+            by0 = max(int(math.floor(min(y0, y1, y2))), 0)
+            bx1 = min(int(math.floor(max(x0, x1, x2))), W - 1)
+            by1 = min(int(math.floor(max(y0, y1, y2))), H - 1)
+            if bx1 >= bx0 and by1 >= by0:
+                need = (bx1 - bx0 + 1) * (by1 - by0 + 1)
+                if need > tcap:
+                    tcap = max(need, 2 * tcap)
+                    buf_i = np.empty(tcap, np.int64)
+                    buf_a = np.empty(tcap)
+                    buf_nv = np.empty(tcap, np.int64)
+                    buf_b = np.empty((tcap, MAX_PIECE_VERTICES, 2))
+                for ty in range(by0, by1 + 1):
+                    for tx in range(bx0, bx1 + 1):
+                        c = _clipped_area_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
+                                                      x2 - tx, y2 - ty, px, py, qx, qy)
+                        if c > 0.0:
+                            nv = _clip_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
+                                                   x2 - tx, y2 - ty, px, py, qx, qy)
+                            buf_i[m] = ty * W + tx
+                            buf_a[m] = c
+                            buf_nv[m] = min(nv, MAX_PIECE_VERTICES)
+                            for i in range(buf_nv[m]):
+                                rx = px[i] + tx - x0
+                                ry = py[i] + ty - y0
+                                buf_b[m, i, 0] = (rx * (y2 - y0) - (x2 - x0) * ry) / det
+                                buf_b[m, i, 1] = ((x1 - x0) * ry - rx * (y1 - y0)) / det
+                            total += c
+                            m += 1
+        if n_p + max(m, 1) > cap:
+            cap = max(2 * cap, n_p + m + 1)
+            t_tri = np.empty(cap, np.int64)
+            t_tex = np.empty(cap, np.int64)
+            t_area = np.empty(cap)
+            t_nv = np.empty(cap, np.int64)
+            t_b = np.empty((cap, MAX_PIECE_VERTICES, 2))
+            t_tri[:n_p] = p_tri[:n_p]
+            t_tex[:n_p] = p_tex[:n_p]
+            t_area[:n_p] = p_area[:n_p]
+            t_nv[:n_p] = p_nv[:n_p]
+            t_b[:n_p] = p_b[:n_p]
+            p_tri, p_tex, p_area, p_nv, p_b = t_tri, t_tex, t_area, t_nv, t_b
+        if m > 0 and total > 0.0:
+            for i in range(m):
+                p_tri[n_p] = k
+                p_tex[n_p] = buf_i[i]
+                p_area[n_p] = a3 * (buf_a[i] / total)
+                p_nv[n_p] = buf_nv[i]
+                p_b[n_p] = buf_b[i]
+                n_p += 1
+        else:
+            # Degenerate UV triangle: the whole triangle belongs to its centroid's texel.
+            cx = min(max(int(math.floor((x0 + x1 + x2) / 3.0)), 0), W - 1)
+            cy = min(max(int(math.floor((y0 + y1 + y2) / 3.0)), 0), H - 1)
+            p_tri[n_p] = k
+            p_tex[n_p] = cy * W + cx
+            p_area[n_p] = a3
+            p_nv[n_p] = 3
+            p_b[n_p, 0, 0], p_b[n_p, 0, 1] = 0.0, 0.0
+            p_b[n_p, 1, 0], p_b[n_p, 1, 1] = 1.0, 0.0
+            p_b[n_p, 2, 0], p_b[n_p, 2, 1] = 0.0, 1.0
+            n_p += 1
+    return p_tri[:n_p], p_tex[:n_p], p_area[:n_p], p_nv[:n_p], p_b[:n_p]
+
+
+def triangle_texel_pieces(uv, area3d, width, height):
+    """The parts of the UV triangles inside each texel of a W×H atlas (for
+    integrating over a texel's surface, e.g. direct light at bake time).
+
+    Same inputs and rules as `triangle_texel_areas`: a piece is a triangle
+    clipped to a texel square, with that triangle's world area shared in
+    proportion to clipped UV area; a degenerate UV triangle is one whole piece
+    in its centroid's texel. Returns `TexelPieces`, grouped by texel (CSR),
+    within a texel in triangle order; per texel the piece areas sum to the
+    texel's area from `triangle_texel_areas`.
+    """
+    uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 3, 2)
+    area3d = np.ascontiguousarray(area3d, dtype=np.float64).reshape(-1)
+    if area3d.shape[0] != uv.shape[0]:
+        raise ValueError(f"{uv.shape[0]} UV triangles but {area3d.shape[0]} areas")
+    width, height = int(width), int(height)
+    if width < 1 or height < 1:
+        raise ValueError(f"invalid atlas size {width}x{height}")
+    tri, tex, area, nv, bary = _triangle_texel_pieces(uv, area3d, width, height)
+    order = np.argsort(tex, kind="stable")
+    start = np.zeros(width * height + 1, np.int64)
+    np.cumsum(np.bincount(tex, minlength=width * height), out=start[1:])
+    return TexelPieces(start, tri[order], area[order], nv[order], bary[order])
 
 
 # --------------------------------------------------------------------------------------
@@ -711,6 +859,25 @@ def _dilate_pass(offset, width, height, tiles, irr_prev, state_prev, irradiance,
     return changed
 
 
+def empty_thresholds(lm):
+    """Per lightmap: texels with area <= this are empty after finalize() (slivers)."""
+    L = lm.offset.shape[0]
+    threshold = np.zeros(L)
+    for l in range(L):
+        sl = texel_slice(lm, l)
+        n = sl.stop - sl.start
+        if n:
+            threshold[l] = EMPTY_AREA_FRACTION * float(lm.area[sl].sum()) / n
+    return threshold
+
+
+def is_measured(lm, lm_id, threshold=None):
+    """bool per texel of lightmap lm_id: the texels finalize() computes (the rest are dilated)."""
+    thr = empty_thresholds(lm)[lm_id] if threshold is None else threshold
+    a = lm.area[texel_slice(lm, lm_id)]
+    return (a > thr) & (a > 0.0)
+
+
 def finalize(lm, passes=DILATION_PASSES):
     """Irradiance E = flux / area per texel, then `passes` rings of dilation.
 
@@ -719,13 +886,7 @@ def finalize(lm, passes=DILATION_PASSES):
     bilinear reconstruction near chart borders reads plausible values. Can be
     called repeatedly (progressive rendering): it always recomputes from flux.
     """
-    L = lm.offset.shape[0]
-    threshold = np.zeros(L)
-    for l in range(L):
-        sl = texel_slice(lm, l)
-        n = sl.stop - sl.start
-        if n:
-            threshold[l] = EMPTY_AREA_FRACTION * float(lm.area[sl].sum()) / n
+    threshold = empty_thresholds(lm)
     if lm.area.shape[0] == 0:
         return
     _irradiance(lm.offset, lm.area, lm.flux, threshold, lm.irradiance, lm.state)

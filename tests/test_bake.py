@@ -119,7 +119,14 @@ EXR_ZIP, EXR_FLOAT = 3, 2
 
 CYCLES_OBJECTS = ("floor", "ceiling", "left", "tall_box")   # ceiling: indirect light only
 RES = 64
+# Direct light is gathered per texel (engine/texel_gather.py), photons carry only the
+# indirect part. Measured relative RMSE vs Cycles: 1 M photons (the default) 0.095,
+# 4 M 0.060, 16 M 0.047 (before the gather: 1 M 0.128). At 1 M the rest is the
+# indirect photon noise of single texels (ceiling, indirect only: 0.16), so the
+# 5 % bound still needs 16 M photons; the default is held to its measured level.
 PHOTONS = 16_000_000
+DEFAULT_PHOTONS = B._DEFAULTS["photons"]
+DEFAULT_MAX_RMSE = 0.11
 CYCLES_SPP = 512
 
 
@@ -133,6 +140,7 @@ def test_cycles_diffuse_bake_agreement():
     res = B.bake_objects(bpy.context, objs, photons=PHOTONS, seed=3, resolution=RES)
     t_ours = time.perf_counter() - t0
     assert set(res.maps) == set(CYCLES_OBJECTS)
+    res_default = B.bake_objects(bpy.context, objs, photons=DEFAULT_PHOTONS, seed=3, resolution=RES)
 
     scene.render.engine = "CYCLES"
     cy = scene.cycles
@@ -155,27 +163,34 @@ def test_cycles_diffuse_bake_agreement():
         ob.material_slots[0].material.node_tree.nodes.remove(node)
     t_cycles = time.perf_counter() - t0
 
-    ours_all, ref_all = [], []
-    lines = []
-    for name in CYCLES_OBJECTS:
-        ours = res.maps[name].rgba
-        assert ours.shape == (RES, RES, 4)
-        # Interior: fully covered texels at least 2 texels from any chart border.
-        interior = erode(ours[..., 3] >= 1.0 - 1e-6, 2)
-        assert interior.sum() > 100, name
-        a, b = ours[..., :3][interior], ref[name][..., :3][interior]
-        lines.append(f"{name}: rel RMSE {np.sqrt(np.mean((a - b) ** 2)) / b.mean():.4f}, "
-                     f"mean ratio {a.mean() / b.mean():.4f} over {interior.sum()} texels")
-        ours_all.append(a)
-        ref_all.append(b)
-    a, b = np.concatenate(ours_all), np.concatenate(ref_all)
-    rmse = float(np.sqrt(np.mean((a - b) ** 2)) / b.mean())
-    bias = float(a.mean() / b.mean() - 1.0)
+    def agreement(maps):
+        ours_all, ref_all = [], []
+        lines = []
+        for name in CYCLES_OBJECTS:
+            ours = maps[name].rgba
+            assert ours.shape == (RES, RES, 4)
+            # Interior: fully covered texels at least 2 texels from any chart border.
+            interior = erode(ours[..., 3] >= 1.0 - 1e-6, 2)
+            assert interior.sum() > 100, name
+            a, b = ours[..., :3][interior], ref[name][..., :3][interior]
+            lines.append(f"{name}: rel RMSE {np.sqrt(np.mean((a - b) ** 2)) / b.mean():.4f}, "
+                         f"mean ratio {a.mean() / b.mean():.4f} over {interior.sum()} texels")
+            ours_all.append(a)
+            ref_all.append(b)
+        a, b = np.concatenate(ours_all), np.concatenate(ref_all)
+        return (float(np.sqrt(np.mean((a - b) ** 2)) / b.mean()), float(a.mean() / b.mean() - 1.0),
+                lines)
+
+    rmse, bias, lines = agreement(res.maps)
+    rmse_d, bias_d, _ = agreement(res_default.maps)
     print(f"\nCycles agreement at {RES}x{RES}: relative RMSE {rmse:.4f}, mean bias {bias:+.4f}; "
-          f"ours {PHOTONS:,} photons {t_ours:.1f} s, Cycles {CYCLES_SPP} spp {t_cycles:.1f} s\n  "
-          + "\n  ".join(lines))
+          f"ours {PHOTONS:,} photons {t_ours:.1f} s (direct gather {res.seconds['direct']:.1f} s), "
+          f"Cycles {CYCLES_SPP} spp {t_cycles:.1f} s\n  " + "\n  ".join(lines)
+          + f"\n  default {DEFAULT_PHOTONS:,} photons: RMSE {rmse_d:.4f}, bias {bias_d:+.4f}")
     assert rmse <= 0.05
     assert abs(bias) <= 0.01
+    assert rmse_d <= DEFAULT_MAX_RMSE
+    assert abs(bias_d) <= 0.01
 
 
 def test_texel_xy_is_image_pixel_xy_with_y_up():

@@ -1,0 +1,415 @@
+"""Direct light per texel for baking (thesis 3.5.2 / 8.2 applied to lightmaps).
+
+A bake stores E = E_direct + E_indirect per texel. Photons carry only the
+indirect part (trace_photons(record_direct=False)); the direct part is
+gathered here by sampling the lights with shadow rays (renderer.direct_irradiance),
+which removes the photon noise of the brightest component.
+
+Per texel the gathered value is the direct irradiance *averaged over the
+surface that maps into the texel*, i.e. what flux / area of infinitely many
+first-hit photons would give, so both parts mean the same thing:
+
+* mesh atlas: points uniform by world area over the texel's pieces (UV
+  triangles clipped to the texel, lightmap.triangle_texel_pieces): a piece in
+  proportion to its world area, a fan triangle of it in proportion to area,
+  then a uniform point in that triangle (UV -> world is affine per triangle);
+* primitive: (u, v) uniform in the texel's chart cell, weighted by the world
+  area element J = |M dp/du x M dp/dv| and normalised by the sum of weights
+  (ratio estimator: exact for constant E, no quadrature mismatch).
+
+Samples of a texel are jittered on a k x k grid (k = floor(sqrt(n)); the rest
+are plain uniform) and use the counter-based RNG keyed by (seed, instance,
+surface slot, texel within its lightmap): results are deterministic and do not
+depend on which other lightmaps a scene allocates.
+
+Sides: photons reaching a surface from either side add into one texel, so the
+direct term sums both sides (n and -n) on open surfaces (mesh triangles, disks,
+quads). A closed solid's inside is lit only by a light inside it: its inner
+side is gathered only when some light may lie inside (see `_needs_inner_side`).
+
+Convention (`add_direct`): the direct irradiance is added to the photon
+lightmap as flux E_direct * area of each measured texel, then the lightmap is
+finalize()d again, so `irradiance` = direct + indirect with the usual dilation
+into empty texels (bilinear lookups and image borders behave as before).
+`hits` and `flux_sq` keep describing the photons only.
+"""
+import math
+import time
+
+import numpy as np
+from numba import njit, prange
+
+from . import lightmap as LM
+from . import primitives as P
+from .lights import AREA, EMISSIVE, POINT, SPOT
+from .raycast import STACK_WORDS
+from .renderer import direct_irradiance
+from .sampling import next_float, stream_state
+
+DEFAULT_SAMPLES = 16
+
+
+# --------------------------------------------------------------------------------------
+# Kernels
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _grid_side(n):
+    k = int(math.sqrt(n))
+    while (k + 1) * (k + 1) <= n:
+        k += 1
+    while k * k > n:
+        k -= 1
+    return k
+
+
+@njit(cache=True, inline="always")
+def _jitter(s, k, j1, j2):
+    """Sample s of a texel: jittered k x k grid, then plain uniform beyond k²."""
+    if s < k * k:
+        return (s % k + j1) / k, (s // k + j2) / k
+    return j1, j2
+
+
+@njit(cache=True, parallel=True)
+def _gather_mesh(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pnv, pb,
+                 n_samples, out):
+    K = out.shape[0]
+    nb = out.shape[1]
+    k = _grid_side(n_samples)
+    for it in prange(K):
+        stack = np.empty(STACK_WORDS, np.int32)
+        e = np.zeros(nb)
+        p0 = pstart[it]
+        p1 = pstart[it + 1]
+        total = 0.0
+        for p in range(p0, p1):
+            total += parea[p]
+        if not (total > 0.0):
+            for b in range(nb):
+                out[it, b] = 0.0
+            continue
+        xf = g.inst_xf[item_inst[it]]
+        state = stream_state(item_key[it], item_local[it])
+        for s in range(n_samples):
+            state, j1 = next_float(state)
+            state, j2 = next_float(state)
+            u1, u2 = _jitter(s, k, j1, j2)
+            # Piece by world area; u1 is rescaled inside the chosen interval so the
+            # jitter keeps stratifying what follows.
+            target = u1 * total
+            p = p0
+            acc = 0.0
+            while p < p1 - 1 and acc + parea[p] <= target:
+                acc += parea[p]
+                p += 1
+            u1 = min(max((target - acc) / parea[p], 0.0), 1.0) if parea[p] > 0.0 else 0.5
+            # Fan triangle (0, i, i+1) of the clipped polygon by area (affine: bary ∝ world).
+            nv = pnv[p]
+            ax, ay = pb[p, 0, 0], pb[p, 0, 1]
+            poly = 0.0
+            for i in range(1, nv - 1):
+                poly += abs((pb[p, i, 0] - ax) * (pb[p, i + 1, 1] - ay)
+                            - (pb[p, i + 1, 0] - ax) * (pb[p, i, 1] - ay))
+            fi = 1
+            if poly > 0.0:
+                target = u1 * poly
+                acc = 0.0
+                while fi < nv - 2:
+                    a = abs((pb[p, fi, 0] - ax) * (pb[p, fi + 1, 1] - ay)
+                            - (pb[p, fi + 1, 0] - ax) * (pb[p, fi, 1] - ay))
+                    if acc + a > target:
+                        break
+                    acc += a
+                    fi += 1
+                a = abs((pb[p, fi, 0] - ax) * (pb[p, fi + 1, 1] - ay)
+                        - (pb[p, fi + 1, 0] - ax) * (pb[p, fi, 1] - ay))
+                u1 = min(max((target - acc) / a, 0.0), 1.0) if a > 0.0 else 0.5
+            # Uniform point in the triangle (A, B, C) by the square-root warp.
+            su = math.sqrt(u1)
+            wa = 1.0 - su
+            wb = su * (1.0 - u2)
+            wc = su * u2
+            b1 = wa * ax + wb * pb[p, fi, 0] + wc * pb[p, fi + 1, 0]
+            b2 = wa * ay + wb * pb[p, fi, 1] + wc * pb[p, fi + 1, 1]
+            b0 = 1.0 - b1 - b2
+            t = ptri[p]
+            v = g.tri_p[t]
+            lx = b0 * v[0, 0] + b1 * v[1, 0] + b2 * v[2, 0]
+            ly = b0 * v[0, 1] + b1 * v[1, 1] + b2 * v[2, 1]
+            lz = b0 * v[0, 2] + b1 * v[1, 2] + b2 * v[2, 2]
+            px = xf[0, 0] * lx + xf[0, 1] * ly + xf[0, 2] * lz + xf[0, 3]
+            py = xf[1, 0] * lx + xf[1, 1] * ly + xf[1, 2] * lz + xf[1, 3]
+            pz = xf[2, 0] * lx + xf[2, 1] * ly + xf[2, 2] * lz + xf[2, 3]
+            # Geometric normal from the world-space edges (sign irrelevant: two-sided).
+            e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
+            e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
+            w1x = xf[0, 0] * e1x + xf[0, 1] * e1y + xf[0, 2] * e1z
+            w1y = xf[1, 0] * e1x + xf[1, 1] * e1y + xf[1, 2] * e1z
+            w1z = xf[2, 0] * e1x + xf[2, 1] * e1y + xf[2, 2] * e1z
+            w2x = xf[0, 0] * e2x + xf[0, 1] * e2y + xf[0, 2] * e2z
+            w2y = xf[1, 0] * e2x + xf[1, 1] * e2y + xf[1, 2] * e2z
+            w2z = xf[2, 0] * e2x + xf[2, 1] * e2y + xf[2, 2] * e2z
+            nx = w1y * w2z - w1z * w2y
+            ny = w1z * w2x - w1x * w2z
+            nz = w1x * w2y - w1y * w2x
+            ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+            if not (ln > 0.0):
+                continue   # zero-area triangle: it has no area share either
+            nx /= ln
+            ny /= ln
+            nz /= ln
+            state = direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, e)
+            state = direct_irradiance(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e)
+        inv = 1.0 / n_samples
+        for b in range(nb):
+            out[it, b] = e[b] * inv
+
+
+@njit(cache=True, parallel=True)
+def _gather_prim(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local,
+                 lm_kind, lm_params, lm_xf, lm_ncof, lm_res, lm_sides, n_samples, out):
+    K = out.shape[0]
+    nb = out.shape[1]
+    k = _grid_side(n_samples)
+    for it in prange(K):
+        stack = np.empty(STACK_WORDS, np.int32)
+        e = np.zeros(nb)
+        ew = np.zeros(nb)
+        l = item_lm[it]
+        kind = lm_kind[l]
+        params = lm_params[l]
+        xf = lm_xf[l]
+        cof = lm_ncof[l]
+        inv_r = 1.0 / lm_res[l]
+        face = item_face[it]
+        sides = lm_sides[l]
+        state = stream_state(item_key[it], item_local[it])
+        wsum = 0.0
+        for s in range(n_samples):
+            state, j1 = next_float(state)
+            state, j2 = next_float(state)
+            u1, u2 = _jitter(s, k, j1, j2)
+            r = P.prim_point(kind, params, face, (item_x[it] + u1) * inv_r, (item_y[it] + u2) * inv_r)
+            lx, ly, lz = r[0], r[1], r[2]
+            # World area element and outward normal: cof(M)(pu x pv), sign-corrected
+            # for mirroring transforms in lm_ncof.
+            cx = r[4] * r[8] - r[5] * r[7]
+            cy = r[5] * r[6] - r[3] * r[8]
+            cz = r[3] * r[7] - r[4] * r[6]
+            nx = cof[0, 0] * cx + cof[0, 1] * cy + cof[0, 2] * cz
+            ny = cof[1, 0] * cx + cof[1, 1] * cy + cof[1, 2] * cz
+            nz = cof[2, 0] * cx + cof[2, 1] * cy + cof[2, 2] * cz
+            jac = math.sqrt(nx * nx + ny * ny + nz * nz)
+            if not (jac > 0.0):
+                continue   # crease or apex: no area there
+            nx /= jac
+            ny /= jac
+            nz /= jac
+            px = xf[0, 0] * lx + xf[0, 1] * ly + xf[0, 2] * lz + xf[0, 3]
+            py = xf[1, 0] * lx + xf[1, 1] * ly + xf[1, 2] * lz + xf[1, 3]
+            pz = xf[2, 0] * lx + xf[2, 1] * ly + xf[2, 2] * lz + xf[2, 3]
+            for b in range(nb):
+                e[b] = 0.0
+            state = direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, e)
+            if sides == 2:
+                state = direct_irradiance(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e)
+            for b in range(nb):
+                ew[b] += jac * e[b]
+            wsum += jac
+        for b in range(nb):
+            out[it, b] = ew[b] / wsum if wsum > 0.0 else 0.0
+
+
+# --------------------------------------------------------------------------------------
+# Python side: which texels, which surface
+# --------------------------------------------------------------------------------------
+
+def _lightmap_owners(cs):
+    """lightmap id -> (instance, slot, ('mesh', tri rows) | ('prim', prim row))."""
+    from .compile import _prototype_surfaces
+    g = cs.geometry
+    surfaces = _prototype_surfaces(g)
+    owners = {}
+    for inst, ids in enumerate(cs.instance_lightmaps):
+        surf = surfaces[int(g.inst_proto[inst])]
+        for slot, lid in enumerate(ids):
+            owners[int(lid)] = (inst, slot, surf[slot])
+    return owners
+
+
+def _affine_compose(a, b):
+    """a ∘ b for 3x4 affine maps."""
+    out = np.empty((3, 4))
+    out[:, :3] = a[:, :3] @ b[:, :3]
+    out[:, 3] = a[:, :3] @ b[:, 3] + a[:, 3]
+    return out
+
+
+def _needs_inner_side(cs, kind, params, xf):
+    """Whether a closed solid's inside can see a light: some light lies inside it.
+
+    Point, spot and area lights are tested by their position; an emissive shape
+    could be anywhere, so any emissive light counts (conservative: extra shadow
+    rays, never missing light). Sun and environment never reach an inside.
+    """
+    ls = cs.lights
+    lin = xf[:, :3]
+    if abs(np.linalg.det(lin)) <= 0.0:
+        return True
+    inv = np.linalg.inv(lin)
+    for li in range(ls.kind.shape[0]):
+        k = int(ls.kind[li])
+        if k == EMISSIVE:
+            return True
+        if k in (POINT, SPOT, AREA):
+            q = inv @ (np.asarray(ls.pos[li], np.float64) - xf[:, 3])
+            if P.prim_inside(kind, params, float(q[0]), float(q[1]), float(q[2])):
+                return True
+    return False
+
+
+def _lightmap_key(seed, inst, slot):
+    # Keyed by instance and surface slot, not by texel offset: another allocation of
+    # lightmaps (e.g. fewer recording objects) gives the same samples.
+    return stream_state(np.uint64(int(seed) & 0xFFFFFFFFFFFFFFFF),
+                        np.uint64((int(inst) << 20) + int(slot)))
+
+
+def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAMPLES, seed=0):
+    """Direct irradiance averaged over each measured texel of the given lightmaps.
+
+    Returns (texel_ids int64[K], E float64[K, n_bands]): the global texel indices
+    (those finalize() computes: area above the sliver threshold) and their
+    direct irradiance in W/m² (both sides summed on open surfaces). Nothing in
+    `cs` changes; `add_direct` folds the result into the lightmaps.
+    lightmap_ids None: all lightmaps of the scene.
+    """
+    n = int(samples_per_texel)
+    if n < 1:
+        raise ValueError(f"samples_per_texel must be >= 1, got {samples_per_texel}")
+    t0 = time.perf_counter()
+    lm = cs.lightmaps
+    g = cs.geometry
+    nb = cs.n_bands
+    if lightmap_ids is None:
+        lightmap_ids = range(lm.offset.shape[0])
+    lightmap_ids = sorted({int(l) for l in lightmap_ids})
+    owners = _lightmap_owners(cs)
+    thr = LM.empty_thresholds(lm)
+
+    mesh = dict(texel=[], inst=[], key=[], local=[], start=[], tri=[], area=[], nv=[], bary=[])
+    n_pieces = 0
+    prim = dict(texel=[], lm=[], face=[], x=[], y=[], key=[], local=[])
+    pl = dict(kind=[], params=[], xf=[], ncof=[], res=[], sides=[])
+    for lid in lightmap_ids:
+        if lid not in owners:
+            raise ValueError(f"lightmap {lid} does not belong to any instance")
+        inst, slot, (skind, data) = owners[lid]
+        w, h, f = int(lm.width[lid]), int(lm.height[lid]), int(lm.tiles[lid])
+        measured = LM.is_measured(lm, lid, thr[lid])
+        local = np.flatnonzero(measured).astype(np.int64)
+        if local.size == 0:
+            continue
+        key = _lightmap_key(seed, inst, slot)
+        off = int(lm.offset[lid])
+        xf = g.inst_xf[inst]
+        if skind == "mesh":
+            rows = np.asarray(data, np.int64)
+            area3d = LM.triangle_world_areas(g.tri_p[rows], xf[:, :3])
+            pcs = LM.triangle_texel_pieces(g.tri_uv[rows], area3d, w, h)
+            cnt = pcs.start[local + 1] - pcs.start[local]
+            # Piece rows of the measured texels, in texel order (vectorised CSR gather).
+            sel = np.arange(int(cnt.sum())) + np.repeat(pcs.start[local] - (np.cumsum(cnt) - cnt), cnt)
+            mesh["texel"].append(off + local)
+            mesh["inst"].append(np.full(local.size, inst, np.int64))
+            mesh["key"].append(np.full(local.size, key, np.uint64))
+            mesh["local"].append(local)
+            mesh["start"].append(n_pieces + np.cumsum(cnt) - cnt)
+            mesh["tri"].append(rows[pcs.tri[sel]])
+            mesh["area"].append(pcs.area[sel])
+            mesh["nv"].append(pcs.nv[sel])
+            mesh["bary"].append(pcs.bary[sel])
+            n_pieces += int(sel.size)
+        else:
+            row = int(data)
+            pk = int(g.prim_kind[row])
+            params = np.zeros(4)
+            params[:] = g.prim_params[row][:4]
+            wxf = _affine_compose(xf, g.prim_xf[row])
+            det = float(np.linalg.det(wxf[:, :3]))
+            ncof = LM.cofactor(wxf) * (1.0 if det >= 0.0 else -1.0)
+            closed = pk not in (P.DISK, P.QUAD)
+            sides = 2 if (not closed or _needs_inner_side(cs, pk, params, wxf)) else 1
+            r = w // f
+            y, x = np.divmod(local, w)
+            prim["texel"].append(off + local)
+            prim["lm"].append(np.full(local.size, len(pl["kind"]), np.int64))
+            prim["face"].append(x // r)
+            prim["x"].append(x % r)
+            prim["y"].append(y)
+            prim["key"].append(np.full(local.size, key, np.uint64))
+            prim["local"].append(local)
+            pl["kind"].append(pk)
+            pl["params"].append(params)
+            pl["xf"].append(wxf)
+            pl["ncof"].append(ncof)
+            pl["res"].append(r)
+            pl["sides"].append(sides)
+
+    texels, values = [], []
+    if mesh["texel"]:
+        cat = {k: np.concatenate(v) for k, v in mesh.items()}
+        K = cat["texel"].size
+        start = np.empty(K + 1, np.int64)
+        start[:K] = cat["start"]
+        start[K] = n_pieces
+        out = np.zeros((K, nb))
+        _gather_mesh(g, cs.lights, cat["inst"], cat["key"], cat["local"], start,
+                     np.ascontiguousarray(cat["tri"], np.int64), np.ascontiguousarray(cat["area"]),
+                     np.ascontiguousarray(cat["nv"], np.int64), np.ascontiguousarray(cat["bary"]),
+                     n, out)
+        texels.append(cat["texel"])
+        values.append(out)
+    if prim["texel"]:
+        cat = {k: np.concatenate(v) for k, v in prim.items()}
+        K = cat["texel"].size
+        out = np.zeros((K, nb))
+        _gather_prim(g, cs.lights, cat["lm"], cat["face"].astype(np.int64),
+                     cat["x"].astype(np.int64), cat["y"].astype(np.int64), cat["key"], cat["local"],
+                     np.asarray(pl["kind"], np.int64), np.stack(pl["params"]), np.stack(pl["xf"]),
+                     np.stack(pl["ncof"]), np.asarray(pl["res"], np.int64),
+                     np.asarray(pl["sides"], np.int64), n, out)
+        texels.append(cat["texel"])
+        values.append(out)
+    if texels:
+        ids = np.concatenate(texels)
+        E = np.concatenate(values)
+        order = np.argsort(ids, kind="stable")
+        ids, E = ids[order], E[order]
+    else:
+        ids, E = np.zeros(0, np.int64), np.zeros((0, nb))
+    cs.timings["direct_gather"] = time.perf_counter() - t0
+    return ids, E
+
+
+def add_direct(lm, texel_ids, E):
+    """Adds gathered direct irradiance to a photon lightmap and re-finalizes it.
+
+    flux[j] += E[j] * area[j] (the power first-hit photons would have left there
+    on average), then finalize(): irradiance = direct + indirect, dilated into
+    empty texels as usual. Call after the photon pass (which finalizes too).
+    """
+    ids = np.asarray(texel_ids, np.int64).reshape(-1)
+    E = np.asarray(E, np.float64).reshape(ids.size, -1)
+    if ids.size:
+        lm.flux[ids] += E * lm.area[ids][:, None]
+    LM.finalize(lm)
+
+
+def bake_texels(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAMPLES, seed=0):
+    """direct_texel_irradiance + add_direct on the given lightmaps; returns seconds taken."""
+    t0 = time.perf_counter()
+    ids, E = direct_texel_irradiance(cs, lightmap_ids, samples_per_texel, seed)
+    add_direct(cs.lightmaps, ids, E)
+    return time.perf_counter() - t0

@@ -119,12 +119,27 @@ class Primitive:
     name: str = "primitive"
 
 
+CSG_OPS = ("union", "intersection", "difference")
+
+
+@dataclass
+class CSGNode:
+    """A Boolean of two solids (thesis 4.1): children are CSGNode, Primitive or a
+    closed TriangleMesh. Transforms live on the leaves (pushed down by the
+    exporter), so a ray is mapped into each primitive's space once."""
+    op: str                         # one of CSG_OPS
+    left: object
+    right: object
+    name: str = "csg"
+
+
 @dataclass
 class Prototype:
     """Object-space geometry stored once and shared by all its instances."""
     name: str = "prototype"
     meshes: list = field(default_factory=list)
     primitives: list = field(default_factory=list)
+    csg: list = field(default_factory=list)   # CSGNode roots, each one solid
 
 
 @dataclass

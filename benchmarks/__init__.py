@@ -1,0 +1,1 @@
+"""Speed-against-accuracy benchmarks: photon lightmaps, a photon map and Cycles."""

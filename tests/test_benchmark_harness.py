@@ -1,0 +1,70 @@
+"""The speed-against-accuracy harness (benchmarks/run_all.py) end to end, tiny knobs.
+
+Runs `python -m benchmarks.run_all --quick` in a subprocess (it resets Blender's
+scene, which must not leak into other tests) on the Cornell room, then checks
+that the JSON holds every method and that error falls as effort rises. Not a
+timing test: seconds are recorded, never asserted.
+"""
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+pytest.importorskip("bpy")
+pytest.importorskip("scipy")
+pytest.importorskip("matplotlib")
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+METHODS = {"ours_bake", "photon_map", "cycles_bake", "ours_render_constant", "ours_render_bilinear",
+           "cycles_render"}
+FIELDS = {"method", "knob", "seconds", "rel_rmse", "mean_error", "memory_bytes"}
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    env = dict(os.environ)
+    env.setdefault("NUMBA_CACHE_DIR", str(ROOT / ".numba_cache"))
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.run_all", "--quick", "--out", str(out)],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    with open(out / "results.json") as f:
+        return json.load(f), out, proc.stdout
+
+
+def test_json_has_every_method_with_all_fields(quick_run):
+    res, _, _ = quick_run
+    pts = res["points"]
+    assert {p["method"] for p in pts} >= METHODS
+    for p in pts:
+        assert FIELDS <= set(p), p
+        assert p["seconds"] > 0 and p["rel_rmse"] >= 0
+    for m in ("ours_bake", "photon_map"):
+        assert all(p["memory_bytes"] > 0 and p["memory_compact_bytes"] > 0 for p in pts if p["method"] == m)
+
+
+def test_error_falls_as_effort_rises(quick_run):
+    res, _, _ = quick_run
+    for m in METHODS:
+        c = sorted((p for p in res["points"] if p["method"] == m), key=lambda p: p["knob"])
+        assert len(c) >= 2, m
+        errs = [p["rel_rmse"] for p in c]
+        # Overall: the most effort beats the least by a clear margin.
+        assert errs[-1] < 0.8 * errs[0], (m, errs)
+        # Step by step: never clearly worse (Monte Carlo noise allowed).
+        for a, b in zip(errs, errs[1:]):
+            assert b < 1.25 * a + 0.01, (m, errs)
+
+
+def test_headlines_and_charts(quick_run):
+    res, out, stdout = quick_run
+    h = res["headlines"]["cornell"]
+    assert h["speedup_vs_cycles_bake"]["ratio"] > 0
+    assert -0.8 < h["error_vs_photons"]["slope_low_photons"] < -0.3
+    assert "Headline ratios" in stdout
+    charts = {p.name for p in (out / "charts").glob("*.png")}
+    assert {"cornell_error_vs_time.png", "cornell_error_map.png", "memory_vs_error.png",
+            "error_vs_photons.png", "failure_cases.png"} <= charts

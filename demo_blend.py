@@ -146,15 +146,39 @@ def _finish(scene, path, width, height, engine, photons, samples):
     return scene
 
 
+def add_csg_solid(scene, material=None, *, location=(0.5, 0.55, 0.25), radius=0.25, segments=64):
+    """A bowl: an exact CSG cylinder minus a sphere through a Boolean modifier (thesis 4.1).
+
+    Both are tagged CSG primitives (operators/csg_primitives.py); the sphere is
+    the usual cutter, hidden from render. The exporter turns the stack into one
+    CSG tree; Cycles and EEVEE show Blender's Exact Boolean of the display meshes.
+    Returns the solid (the cylinder object).
+    """
+    from .operators.csg_primitives import new_primitive_object
+    x, y, z = location
+    solid = new_primitive_object("cylinder", "csg_bowl", location=location, size=radius,
+                                 segments=segments, material=material, collection=scene.collection)
+    cutter = new_primitive_object("sphere", "csg_bowl_cutter", location=(x, y, z + 1.4 * radius),
+                                  size=1.2 * radius, segments=segments, collection=scene.collection)
+    cutter.hide_render = True
+    cutter.display_type = "WIRE"
+    mod = solid.modifiers.new("bowl", "BOOLEAN")
+    mod.operation = "DIFFERENCE"
+    mod.solver = "EXACT"
+    mod.object = cutter
+    return solid
+
+
 def build_cornell_blend(path=None, *, light_type="AREA", power=None, width=128, height=128, box=True,
-                        spheres=False, engine=ENGINE_ID, photons=None, samples=None):
+                        spheres=False, csg=False, engine=ENGINE_ID, photons=None, samples=None):
     """The Cornell-like room of engine/demo_scenes.cornell_box, built in bpy.
 
     A 2 m room (Z up, open towards the camera at -Y), red left and green right
     walls, each wall a quad with a 'Lightmap' UV layer, a tall white box (left
     without lightmap UVs, so the engine unwraps it), a 0.5 m square area light
     of 25 W under the ceiling, a 50 mm camera at (0, -3.9, 1). `spheres` adds
-    the mirror and glass balls. Saves to `path` when given; returns the scene.
+    the mirror and glass balls, `csg` the exact-CSG bowl of add_csg_solid. Saves
+    to `path` when given; returns the scene.
     """
     scene = _reset()
     white = principled("white", (0.73, 0.73, 0.73))
@@ -192,6 +216,8 @@ def build_cornell_blend(path=None, *, light_type="AREA", power=None, width=128, 
             ob = bpy.data.objects.new(name, me)
             ob.location = loc
             scene.collection.objects.link(ob)
+    if csg:
+        add_csg_solid(scene, white)
     if light_type == "AREA":
         add_light(scene, "AREA", "ceiling_light", power=power, location=(0, 0, 1.98))
     elif light_type in ("POINT", "SPOT"):

@@ -13,6 +13,14 @@ conventions are converted here, once:
 * materials: the Principled BSDF (plus Diffuse, Glossy, Glass and Emission
   shaders) mapped to diffuse/specular/transmission/emission weights.
 * lights, camera and a constant world in Cycles' units (see engine/lights.py).
+* exact CSG (csg_export.py): an object with enabled Boolean modifiers becomes a
+  prototype holding one CSG tree built from the *original* objects (tagged
+  CSG primitives stay exact analytic surfaces), not Blender's tessellated
+  Boolean result; a tagged CSG primitive without Booleans becomes a Primitive.
+  Boolean operands are part of the solid they cut and are never exported as
+  standalone geometry (ExportMap.csg_operands). Trees that cannot be exact
+  (open operand meshes, other modifiers in the stack) fall back to the
+  evaluated mesh, with a warning.
 
 Per-object settings (`Object.photon_lightmaps`): `exclude` keeps the object in
 the scene (it still casts shadows and reflects light) but gives it no lightmap,
@@ -30,8 +38,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .engine.scene import (Camera, Instance, Light, Material, Prototype, Scene, SceneError,
-                           TriangleMesh)
+from . import csg_export
+from .engine.scene import (Camera, CSGNode, Instance, Light, Material, Primitive, Prototype, Scene,
+                           SceneError, TriangleMesh)
 
 LIGHTMAP_UV = "Lightmap"
 # Blender's surface when a slot has no material: grey diffuse.
@@ -53,7 +62,7 @@ class InstanceRecord:
 class PrototypeRecord:
     mesh_name: str
     n_triangles: int          # Blender loop_triangles, in that order
-    uv_source: str            # "Lightmap" or "xatlas"
+    uv_source: str            # "Lightmap" or "xatlas"; "csg" for a CSG tree (no single UV atlas)
 
 
 @dataclass
@@ -63,6 +72,8 @@ class ExportMap:
     materials: list = field(default_factory=list)    # Blender material name per engine material
     lights: list = field(default_factory=list)       # Blender object name per engine Light
     warnings: list = field(default_factory=list)
+    csg_operands: dict = field(default_factory=dict)  # operand object name -> solid it belongs to
+    csg_solids: dict = field(default_factory=dict)    # object name -> "csg" | "primitive" | "fallback"
 
     def object_instances(self, name):
         """Engine instance ids holding object `name`'s own (non-instanced) geometry."""
@@ -113,6 +124,8 @@ class _Exporter:
         self.material_index = {}     # original material pointer (0: no material) -> engine index
         self.prototype_index = {}    # (mesh pointer, material indices) -> engine prototype
         self.image_average = {}      # image pointer -> linear RGBA mean
+        self.csg_index = {}          # original object pointer -> engine prototype (None: plain mesh)
+        self.csg = csg_export.CSGBuilder(depsgraph, self._first_material, self._leaf_mesh, self.report)
 
     # -- colours ---------------------------------------------------------------------------
     def bands(self, rgb):
@@ -323,6 +336,78 @@ class _Exporter:
         return TriangleMesh(pos.reshape(nv, 3).astype(np.float64), vi.reshape(nt, 3).astype(np.int64),
                             material=int(mat_ids[0]), material_ids=mat_ids, uvs=uvs, name=mesh.name)
 
+    # -- exact CSG (csg_export.py) -------------------------------------------------------------------
+    def _first_material(self, ob):
+        slots = [sl.material for sl in ob.material_slots]
+        if not slots and ob.type == "MESH":
+            slots = list(ob.data.materials)
+        return self.material(slots[0] if slots else None)
+
+    def _leaf_mesh(self, mesh, ob):
+        return self._triangle_mesh(mesh, (self._first_material(ob),), ob)
+
+    def csg_prototype(self, ob):
+        """Prototype index of an object's exact CSG solid or tagged primitive; None: export its mesh."""
+        original = ob.original if ob.original is not None else ob
+        key = original.as_pointer()
+        if key in self.csg_index:
+            return self.csg_index[key]
+        name = original.name
+        self.csg_index[key] = None
+        try:
+            tag = csg_export.primitive_tag(original)
+        except ValueError as exc:
+            self.report("WARNING", f"{exc}; its display mesh is exported instead")
+            tag = None
+            if not csg_export.boolean_modifiers(original):
+                return None
+        if not csg_export.boolean_modifiers(original):
+            if tag is None:
+                return None
+            others = csg_export.other_modifiers(original)
+            if others:
+                self.report("WARNING", f"object '{name}': modifiers {', '.join(repr(m.name) for m in others)} "
+                                       "change the CSG primitive's display mesh, so that mesh is exported "
+                                       "instead of the exact surface")
+                return None
+        try:
+            solid = self.csg.build(original)
+        except csg_export.CSGFallback as exc:
+            self.report("WARNING", f"{exc}; object '{name}' is exported as its evaluated Boolean result "
+                                   "mesh instead of exact CSG")
+            self.map.csg_solids[name] = "fallback"
+            return None
+        root = solid.root
+        if isinstance(root, CSGNode):
+            proto, kind = Prototype(name=name, csg=[root]), "csg"
+        elif isinstance(root, Primitive):
+            proto, kind = Prototype(name=name, primitives=[root]), "primitive"
+        else:
+            return None   # every Boolean modifier was skipped: the plain mesh is the result
+        self.scene.prototypes.append(proto)
+        # A lone primitive's display mesh carries the engine's chart atlas as its Lightmap layer.
+        self.map.prototypes.append(PrototypeRecord(name, 0, LIGHTMAP_UV if kind == "primitive" else "csg"))
+        self.map.csg_solids[name] = kind
+        idx = len(self.scene.prototypes) - 1
+        self.csg_index[key] = idx
+        return idx
+
+    def csg_operands(self):
+        """{original operand object: name of the solid} for every solid this export may meet."""
+        viewport = self.dg.mode == "VIEWPORT"
+        out = {}
+        for ob in self.dg.objects:
+            original = ob.original if ob.original is not None else ob
+            if viewport and original.hide_render:
+                continue
+            cands = [original]
+            if original.instance_type == "COLLECTION" and original.instance_collection is not None:
+                cands += list(original.instance_collection.all_objects)
+            for c in cands:
+                if c.type == "MESH" and csg_export.boolean_modifiers(c):
+                    csg_export.collect_operands(c, out)
+        return out
+
     # -- lights ------------------------------------------------------------------------------------
     def light(self, ob, xf):
         lt = ob.data
@@ -440,6 +525,8 @@ class _Exporter:
             self.scene.texel_density = float(settings.texel_density)
         viewport = dg.mode == "VIEWPORT"
         skipped_types = set()
+        operands = self.csg_operands()
+        self.map.csg_operands = {o.name: solid for o, solid in operands.items()}
         for inst in dg.object_instances:
             ob = inst.object
             if ob.type not in ("MESH", "LIGHT"):
@@ -452,11 +539,21 @@ class _Exporter:
                 continue
             if not inst.is_instance and not inst.show_self:
                 continue
+            if original in operands:
+                # Visible in render or not, an operand is geometry of the solid it cuts.
+                self.report("INFO", f"object '{original.name}' is a Boolean operand of "
+                                    f"'{operands[original]}': part of that solid, not exported on its own")
+                continue
             xf = _matrix(inst.matrix_world)
             if ob.type == "LIGHT":
                 self.light(ob, xf)
                 continue
-            proto = self.prototype(ob, ob.data)
+            # Instances a geometry-nodes instancer makes of its own geometry are not the
+            # original object's solid; real objects (even instanced ones) are.
+            own_geometry = parent is None or parent.original is None or parent.original != original
+            proto = self.csg_prototype(ob) if own_geometry else None
+            if proto is None:
+                proto = self.prototype(ob, ob.data)
             if proto < 0:
                 continue
             name = original.name if original is not None else ob.name

@@ -1,5 +1,6 @@
-"""Operators (operators/bake.py) and where the user finds them: the Render menu, the
-Object menu, and a Bake panel in Render Properties.
+"""Operators (operators/bake.py, operators/csg_primitives.py) and where the user finds
+them: the Render menu, the Object menu, a Bake panel in Render Properties, and
+Add > Photon CSG Primitive in the 3D viewport.
 
 The panel exists because Blender's own Bake panel belongs to Cycles (it is shown
 for Cycles only); with this engine active it offers Blender's Bake button, which
@@ -8,7 +9,7 @@ lands in the engine's BakeMixin.bake, next to our lightmap bake.
 import bpy
 
 from .. import bake as _bake
-from . import bake
+from . import bake, csg_primitives
 
 ENGINE_ID = "PHOTON_LIGHTMAPS"
 
@@ -68,7 +69,7 @@ _MENUS = ("TOPBAR_MT_render", "VIEW3D_MT_object")
 # The photon pass kept for Blender's own Bake button is freed when that bake ends.
 _HANDLERS = ("object_bake_complete", "object_bake_cancel")
 
-classes = bake.classes + (PHOTON_LIGHTMAPS_PT_bake,)
+classes = bake.classes + csg_primitives.classes + (PHOTON_LIGHTMAPS_PT_bake,)
 
 
 @bpy.app.handlers.persistent
@@ -81,6 +82,7 @@ def register():
         bpy.utils.register_class(cls)
     for name in _MENUS:
         getattr(bpy.types, name).append(_menu)
+    bpy.types.VIEW3D_MT_add.append(csg_primitives.menu_add)
     for h in _HANDLERS:
         handlers = getattr(bpy.app.handlers, h)
         if _free_bake_cache not in handlers:
@@ -92,6 +94,7 @@ def unregister():
         handlers = getattr(bpy.app.handlers, h)
         if _free_bake_cache in handlers:
             handlers.remove(_free_bake_cache)
+    bpy.types.VIEW3D_MT_add.remove(csg_primitives.menu_add)
     for name in _MENUS:
         getattr(bpy.types, name).remove(_menu)
     for cls in reversed(classes):

@@ -72,6 +72,31 @@ class PHOTON_LIGHTMAPS_PT_object(_EnginePanel, bpy.types.Panel):
             has_uv = ob.data.uv_layers.get("Lightmap") is not None
             sub.label(text="UVs: 'Lightmap' layer" if has_uv else "UVs: automatic (no 'Lightmap' UV layer)",
                       icon='UV' if has_uv else 'INFO')
+            _draw_csg(layout, ob)
+
+
+def _draw_csg(layout, ob):
+    """What the exporter makes of a CSG primitive or a Boolean stack (csg_export.py)."""
+    from .. import csg_export
+    box = None
+    try:
+        tag = csg_export.primitive_tag(ob)
+    except ValueError as exc:
+        layout.label(text=str(exc), icon='ERROR')
+        tag = None
+    if tag is not None:
+        box = layout.box()
+        kind, params = tag
+        box.label(text=f"Exact {kind} (display mesh only)", icon='MESH_UVSPHERE')
+        if kind == "torus":
+            box.label(text=f"Minor radius {params[0]:.4g} (major radius 1)")
+        dims = tuple(round(s, 4) for s in ob.scale)
+        box.label(text=f"Scale {dims[0]:g}, {dims[1]:g}, {dims[2]:g} (primitive = object transform)")
+    bools = csg_export.boolean_modifiers(ob)
+    if bools:
+        box = box or layout.box()
+        box.label(text=f"Exact CSG from {len(bools)} Boolean modifier{'s' if len(bools) != 1 else ''}",
+                  icon='MOD_BOOLEAN')
 
 
 class PHOTON_LIGHTMAPS_PT_material_slots(_EnginePanel, bpy.types.Panel):

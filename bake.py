@@ -893,7 +893,13 @@ class BakeMixin:
         if want_light and not lit:
             raise ValueError(f"object '{name}' is excluded from lightmaps (Object > Photon Lightmaps)")
         inst = lit[0] if lit else ids[0]
-        tm = scene.prototypes[emap.instances[inst].prototype].meshes[0]
+        proto = scene.prototypes[emap.instances[inst].prototype]
+        if not proto.meshes:
+            # Exact primitives and CSG solids have analytic charts, not the bake
+            # mesh's triangles: Blender's per-triangle bake cannot address them.
+            raise ValueError(f"object '{name}' is an exact primitive or CSG solid; use "
+                             "Render > Bake Photon Lightmaps, which bakes its analytic charts")
+        tm = proto.meshes[0]
 
         prim_id = raw[:, 2].view(np.int32)
         ok = prim_id >= 0

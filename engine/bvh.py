@@ -24,14 +24,13 @@ N_BINS = 16
 MAX_LEAF = 4
 # Hard bound on the depth of a leaf below the root. A SAH split is taken only
 # if both sides can still be finished by median halving within the bound, so
-# pathological inputs cannot overflow the fixed traversal stacks (two levels
-# stay within 64 stack entries).
+# pathological inputs cannot make trees deeper than the traversal stacks
+# allow (see STACK_BUDGET).
 MAX_DEPTH = 30
-# SAH constants: cost of visiting a node relative to intersecting one item.
+# SAH: cost of visiting a node relative to intersecting one item.
 C_TRAV = 1.0
-C_ISECT = 1.0
-PACK_WIDTH = 32   # words per packed 4-wide record (two cache lines)
-PACK_LEAF = 2     # subtrees with this many items or fewer become one packed leaf
+REC_WORDS = 32    # words (float32 / int32) per packed 4-wide record: two cache lines
+PACK_LEAF = 4     # subtrees with this many items or fewer become one packed leaf (one packet)
 # Stack entries one BVH level may need. Packing keeps every traversal within
 # it (the binary depth bound MAX_DEPTH <= STACK_BUDGET makes that possible),
 # so two levels fit a 128-word stack (two words per entry).
@@ -65,7 +64,7 @@ def _halving_levels(count, max_leaf):
 
 
 @njit(cache=True)
-def _build(lo, hi, max_leaf, n_bins):
+def _build(lo, hi, max_leaf, n_bins, c_trav):
     n = lo.shape[0]
     cap = max(2 * n - 1, 1)
     nmin = np.empty((cap, 3))
@@ -212,8 +211,8 @@ def _build(lo, hi, max_leaf, n_bins):
 
         area = _half_area(bx0, by0, bz0, bx1, by1, bz1)
         if best_axis >= 0:
-            split_cost = C_TRAV * area + C_ISECT * best_cost
-            if count <= max_leaf and C_ISECT * count * area <= split_cost:
+            split_cost = c_trav * area + best_cost
+            if count <= max_leaf and count * area <= split_cost:
                 na[i] = start
                 nc[i] = count
                 continue
@@ -273,7 +272,8 @@ def _build(lo, hi, max_leaf, n_bins):
 def round_down_f32(x):
     """float64 -> float32 rounded toward -inf (so boxes stay conservative)."""
     x = np.asarray(x, dtype=np.float64)
-    f = x.astype(np.float32)
+    with np.errstate(over="ignore"):          # beyond float32 range: +-inf is conservative
+        f = x.astype(np.float32)
     low = f.astype(np.float64) > x
     return np.where(low, np.nextafter(f, np.float32(-np.inf)), f).astype(np.float32)
 
@@ -281,7 +281,8 @@ def round_down_f32(x):
 def round_up_f32(x):
     """float64 -> float32 rounded toward +inf."""
     x = np.asarray(x, dtype=np.float64)
-    f = x.astype(np.float32)
+    with np.errstate(over="ignore"):
+        f = x.astype(np.float32)
     high = f.astype(np.float64) < x
     return np.where(high, np.nextafter(f, np.float32(np.inf)), f).astype(np.float32)
 
@@ -303,7 +304,7 @@ class BVH:
         return self.node_a.shape[0]
 
 
-def build_bvh(lo, hi, max_leaf=MAX_LEAF, n_bins=N_BINS):
+def build_bvh(lo, hi, max_leaf=MAX_LEAF, n_bins=N_BINS, c_trav=C_TRAV):
     """Binned-SAH BVH over boxes lo[n,3] .. hi[n,3] (float64, finite)."""
     lo = np.ascontiguousarray(lo, dtype=np.float64).reshape(-1, 3)
     hi = np.ascontiguousarray(hi, dtype=np.float64).reshape(-1, 3)
@@ -311,7 +312,8 @@ def build_bvh(lo, hi, max_leaf=MAX_LEAF, n_bins=N_BINS):
         raise ValueError("build_bvh: lo and hi differ in shape")
     if not (2 <= n_bins <= 256):
         raise ValueError("build_bvh: n_bins out of range")
-    nmin, nmax, na, nc, idx, _, depth = _build(lo, hi, int(max(1, max_leaf)), int(n_bins))
+    nmin, nmax, na, nc, idx, _, depth = _build(lo, hi, int(max(1, max_leaf)), int(n_bins),
+                                             float(c_trav))
     return BVH(round_down_f32(nmin), round_up_f32(nmax),
                np.ascontiguousarray(na), np.ascontiguousarray(nc), idx, int(depth))
 
@@ -433,7 +435,7 @@ def _pack4(node_min, node_max, node_a, node_count, leaf_max, budget, pf, pi):
                 pf[b + 16 + k] = np.inf
                 pf[b + 20 + k] = -np.inf
                 pi[b + 24 + k] = 0
-                pi[b + 28 + k] = 0
+                pi[b + 28 + k] = -1
         need = max(need, acc + m - 1)
     return nrec, need
 
@@ -461,8 +463,8 @@ def pack_bvh(node_min, node_max, node_a, node_count, leaf_max=PACK_LEAF, budget=
     traversal can hold, never more than `budget`.
     """
     n = node_a.shape[0]
-    pf = aligned_empty(max(n, 1) * 32, np.float32)
+    pf = aligned_empty(max(n, 1) * REC_WORDS, np.float32)
     pi = pf.view(np.int32)
     nrec, need = _pack4(node_min, node_max, node_a, node_count, int(leaf_max), int(budget), pf, pi)
-    pf = pf[:nrec * 32]
+    pf = pf[:nrec * REC_WORDS]
     return pf, pf.view(np.int32), int(nrec), int(need)

@@ -10,15 +10,22 @@ Within a prototype, shapes are renumbered into BVH leaf order, so the shapes
 and `blas_items` is the identity, which the traversal relies on: a leaf's
 item positions are its shape ids.
 
-Besides the layout of docs/architecture.md the namedtuple carries the packed
-traversal records of both BVHs (see engine/bvh.py `pack_bvh`).
+Besides the layout of docs/architecture.md the namedtuple carries `trace`,
+one 64-byte aligned byte buffer with everything the traversal reads (see
+`TRACE_*` below): the 4-wide records of both BVHs (engine/bvh.py
+`pack_bvh`), triangles as 4-lane packets, and the few per-shape, primitive
+and instance arrays it needs. The traversal core takes this one array
+instead of the whole namedtuple: passing ~40 arrays through a call costs
+about 100 ns per ray, the single buffer almost nothing.
 """
+import mmap
 import time
 from collections import namedtuple
 
 import numpy as np
+from numba import njit
 
-from .bvh import STACK_BUDGET, aligned_empty, build_bvh, pack_bvh
+from .bvh import REC_WORDS, STACK_BUDGET, aligned_empty, build_bvh, pack_bvh
 from .primitives import KIND_IDS, prim_local_bounds
 from .scene import SceneError, _affine
 
@@ -26,24 +33,160 @@ Geometry = namedtuple("Geometry", [
     # shapes (prototype space)
     "shape_kind", "shape_index", "shape_material", "shape_surface",
     "shape_proto",                   # owning prototype of each shape
-    "shape_ref",                     # traversal: triangle row, or -1 - primitive row
     "tri_p", "tri_uv",
     "prim_kind", "prim_params", "prim_xf", "prim_inv",
     # bottom level: all prototypes' nodes in one array set
     "blas_min", "blas_max", "blas_a", "blas_count", "blas_items",
-    "blas_pf", "blas_pi",            # packed 4-wide records (float32 / int32 views of one buffer)
+    "blas_pf", "blas_pi",            # packed 4-wide records (float32 / int32 views into trace)
     "proto_root", "proto_slot",      # root node (blas_*) and root record (blas_pf) of prototype p
     "proto_n_surfaces",
     "proto_shape_start", "proto_shape_count",   # shapes of prototype p are contiguous
     # instances and top level
     "inst_proto", "inst_xf", "inst_inv", "inst_lm_base",
     "tlas_min", "tlas_max", "tlas_a", "tlas_count", "tlas_items",
-    "tlas_pf", "tlas_pi",            # packed records; the root is record 0
+    "tlas_pf", "tlas_pi",            # packed records (views into trace); the root is record 0
+    "trace",                         # uint8 buffer read by engine/raycast.py (layout: TRACE_*)
+    "trace_i64", "trace_f32", "trace_i32", "trace_f64",   # typed views of the same bytes
 ])
+
+# Count flag of a packed BLAS leaf made only of triangles: its ref is then the
+# first of `count - TRI_LEAF` consecutive packets, each holding up to four
+# triangles side by side, which the traversal tests as one vector. Other
+# leaves keep (first shape, count) and go through the per-shape references.
+TRI_LEAF = 1 << 24
+
+# Layout of the trace buffer: a header of int64 words, then four sections,
+# each 64-byte aligned: records (float32/int32, TLAS first), int32 data,
+# float64 data. The header holds byte offsets of the sections and element
+# offsets of the arrays inside them.
+TRACE_HEADER = 32
+H_REC, H_REC_END, H_I32, H_I32_END, H_F64, H_F64_END = 0, 1, 2, 3, 4, 5
+H_BLAS_REC = 6        # record index of the first BLAS record
+H_SHAPE_REF = 7       # int32[S]: packet code 4*pk+lane of a triangle, or -1 - primitive row
+H_LANE_SHAPE = 8      # int32[4P]: shape id of each packet lane (-1 unused)
+H_PROTO_SLOT = 9      # int32[NP]: root record of each prototype (absolute)
+H_INST_PROTO = 10     # int32[I]
+H_TLAS_ITEMS = 11     # int32[..]: instance ids in TLAS leaf order
+H_PRIM_KIND = 12      # int32[P]
+H_TRI4 = 13           # float64[P*36]: packet pk, vertex v, axis k, lane q at 36pk+12v+4k+q
+H_INST_INV = 14       # float64[I*12]: 3x4 row-major
+H_PRIM_INV = 15       # float64[P*12]
+H_PRIM_PARAMS = 16    # float64[P*4]
+H_INST_IDENT = 17     # int32[I]: 1 if the instance transform is the identity
+H_SINGLE = 18         # the only instance in the TLAS, or -1 (then the TLAS is walked)
+# word 19 is reserved for engine/csg.py (H_CSG: its blob's offset in the float64 section)
 
 # Stack words a two-level traversal may need: two int32 words per entry,
 # at most STACK_BUDGET entries per level (guaranteed by bvh.pack_bvh).
 STACK_WORDS = 2 * 2 * STACK_BUDGET
+
+
+@njit(cache=True)
+def _fill_packets(first, count, pk_first, shape_kind, shape_index, tri_p,
+                  tri4, lane_shape, shape_ref):
+    """Puts the triangles of each leaf (shapes first[i]..+count[i]) into its
+    packets and records where every shape went."""
+    for i in range(first.shape[0]):
+        q = 0
+        for s in range(first[i], first[i] + count[i]):
+            if shape_kind[s] != 0:
+                shape_ref[s] = -1 - shape_index[s]
+                continue
+            pk = pk_first[i] + q // 4
+            lane = q % 4
+            q += 1
+            code = 4 * pk + lane
+            shape_ref[s] = code
+            lane_shape[code] = s
+            j = shape_index[s]
+            for v in range(3):
+                for k in range(3):
+                    tri4[36 * pk + 12 * v + 4 * k + lane] = tri_p[j, v, k]
+
+
+def _huge_buffer(nbytes):
+    """Zeroed byte array, 2 MiB aligned and advised to use transparent huge
+    pages where the OS offers them (Linux 'madvise' mode): rays wander over
+    megabytes of records and triangles, and with 4 KiB pages they also miss
+    the TLB."""
+    huge = 1 << 21
+    if nbytes < huge:
+        buf = aligned_empty(nbytes, np.uint8)
+        buf[:] = 0
+        return buf
+    size = (nbytes + 2 * huge - 1) // huge * huge
+    m = mmap.mmap(-1, size)                      # anonymous, zero-filled
+    if hasattr(mmap, "MADV_HUGEPAGE"):
+        try:
+            m.madvise(mmap.MADV_HUGEPAGE)
+        except OSError:
+            pass
+    raw = np.frombuffer(m, dtype=np.uint8)
+    off = (-raw.ctypes.data) % huge
+    return raw[off:off + nbytes]
+
+
+def _build_trace(records, rec_tlas, i32_parts, f64_parts, extra=()):
+    """Assembles the trace buffer from record words and named array parts."""
+    def up64(n):
+        return (n + 63) // 64 * 64
+    hdr = np.zeros(TRACE_HEADER, np.int64)
+    rec0 = up64(TRACE_HEADER * 8)
+    i320 = up64(rec0 + records.nbytes)
+    off, i32 = {}, []
+    n = 0
+    for key, a in i32_parts:
+        off[key] = n
+        i32.append(np.asarray(a, np.int32).reshape(-1))
+        n += i32[-1].size
+    i32 = np.concatenate(i32) if i32 else np.zeros(0, np.int32)
+    f640 = up64(i320 + i32.nbytes)
+    f64 = []
+    n = 0
+    for key, a in f64_parts:
+        off[key] = n
+        f64.append(np.asarray(a, np.float64).reshape(-1))
+        n += f64[-1].size
+    f64 = np.concatenate(f64) if f64 else np.zeros(0)
+    total = up64(f640 + f64.nbytes)
+    buf = _huge_buffer(total)
+    hdr[[H_REC, H_REC_END, H_I32, H_I32_END, H_F64, H_F64_END]] = (
+        rec0, rec0 + records.nbytes, i320, i320 + i32.nbytes, f640, f640 + f64.nbytes)
+    hdr[H_BLAS_REC] = rec_tlas
+    for key, value in extra:
+        hdr[key] = value
+    for key, o in off.items():
+        hdr[key] = o
+    buf[:TRACE_HEADER * 8] = hdr.view(np.uint8)
+    buf[rec0:rec0 + records.nbytes] = records.view(np.uint8)
+    buf[i320:i320 + i32.nbytes] = i32.view(np.uint8)
+    buf[f640:f640 + f64.nbytes] = f64.view(np.uint8)
+    return buf
+
+
+def trace_arrays_raw(buf):
+    """(tlas_pf, blas_pf, tlas_pi, blas_pi): record views into a trace buffer."""
+    hdr = buf[:TRACE_HEADER * 8].view(np.int64)
+    recf = buf[hdr[H_REC]:hdr[H_REC_END]].view(np.float32)
+    reci = recf.view(np.int32)
+    k = int(hdr[H_BLAS_REC]) * REC_WORDS
+    return recf[:k], recf[k:], reci[:k], reci[k:]
+
+
+def trace_arrays(g):
+    """Named views of the trace buffer (for tests and debugging)."""
+    buf = g.trace
+    hdr = buf[:TRACE_HEADER * 8].view(np.int64)
+    rec = buf[hdr[H_REC]:hdr[H_REC_END]].view(np.int32)
+    i32 = buf[hdr[H_I32]:hdr[H_I32_END]].view(np.int32)
+    f64 = buf[hdr[H_F64]:hdr[H_F64_END]].view(np.float64)
+    n_pk = (hdr[H_INST_INV] - hdr[H_TRI4]) // 36
+    return {
+        "records": rec.reshape(-1, REC_WORDS), "blas_record0": int(hdr[H_BLAS_REC]),
+        "shape_ref": i32[hdr[H_SHAPE_REF]:hdr[H_LANE_SHAPE]],
+        "lane_shape": i32[hdr[H_LANE_SHAPE]:hdr[H_PROTO_SLOT]],
+        "tri4": f64[hdr[H_TRI4]:hdr[H_INST_INV]].reshape(n_pk, 3, 3, 4),
+    }
 
 
 def _fail(what, msg):
@@ -76,8 +219,8 @@ def _pad(lo, hi):
 
 
 def _unwrap_uvs(vertices, triangles, what):
-    # TODO(lightmap): the uv_atlas module is being written; until it exists
-    # meshes without a lightmap UV layer get zero UVs here.
+    # TODO: engine/uv_atlas.py was written alongside this module; while it may
+    # be missing, meshes without a lightmap UV layer fall back to zero UVs.
     try:
         from .uv_atlas import unwrap
     except ImportError:
@@ -275,8 +418,6 @@ def compile_geometry(scene):
     shape_material = cat(sh_mat, 0, np.int32)
     shape_surface = cat(sh_surf, 0, np.int32)
     shape_proto = cat(sh_proto, 0, np.int32)
-    # one load tells the traversal both kind and row of a shape
-    shape_ref = np.where(shape_kind == 0, shape_index, -1 - shape_index).astype(np.int32)
     tri_p_a = cat(tri_p, (0, 3, 3), np.float64)
     tri_uv_a = cat(tri_uv, (0, 3, 2), np.float64)
     prim_kind = np.array(pr_kind, np.int32).reshape(-1)
@@ -292,7 +433,10 @@ def compile_geometry(scene):
     proto_n_surfaces = np.array(proto_n_surf, np.int32).reshape(-1)
 
     # 4-wide traversal records, packed per prototype then concatenated
-    pf_parts = []
+    non_tri_before = np.concatenate([[0], np.cumsum(shape_kind != 0)])
+    leaf_first, leaf_count, leaf_pk = [], [], []
+    n_packets = 0
+    rec_parts = []
     proto_slot = np.zeros(len(scene.prototypes), np.int32)
     n_rec = 0
     blas_need = 0
@@ -302,19 +446,35 @@ def compile_geometry(scene):
         cnt = blas_count[r0:r1]
         a_local = blas_a[r0:r1].copy()
         a_local[cnt == 0] -= r0               # interior children: local node index
-        pf, pi, m, need = pack_bvh(blas_min[r0:r1], blas_max[r0:r1], a_local, cnt)
-        pi = pi.reshape(m, 32).copy()
+        _, pi, m, need = pack_bvh(blas_min[r0:r1], blas_max[r0:r1], a_local, cnt)
+        pi = pi.reshape(m, REC_WORDS).copy()
         refs = pi[:, 24:28]
-        refs[pi[:, 28:32] == 0] += n_rec      # child records become absolute
-        pf_parts.append(pi.view(np.float32).reshape(-1))
+        cnts = pi[:, 28:32]
+        refs[cnts == 0] += n_rec              # child records become absolute
+        leaf = cnts > 0
+        first = refs[leaf].astype(np.int64)
+        c = cnts[leaf].astype(np.int64)
+        n_tri = c - (non_tri_before[first + c] - non_tri_before[first])
+        n_pk = (n_tri + 3) // 4
+        pk_first = n_packets + np.concatenate([[0], np.cumsum(n_pk)[:-1]]).astype(np.int64)
+        n_packets += int(n_pk.sum())
+        leaf_first.append(first)
+        leaf_count.append(c)
+        leaf_pk.append(pk_first)
+        pure = n_tri == c
+        refs[leaf] = np.where(pure, pk_first, first)
+        cnts[leaf] = np.where(pure, n_pk + TRI_LEAF, c)
+        rec_parts.append(pi)
         proto_slot[p] = n_rec
         n_rec += m
         blas_need = max(blas_need, need)
-    blas_pf = aligned_empty(max(n_rec, 1) * 32, np.float32)
-    blas_pf[:] = 0.0
-    if pf_parts:
-        blas_pf[:n_rec * 32] = np.concatenate(pf_parts)
-    blas_pi = blas_pf.view(np.int32)
+    tri4 = np.full(n_packets * 36, np.nan)    # unused lanes are NaN: they never hit
+    lane_shape = np.full(n_packets * 4, -1, np.int32)
+    shape_ref = np.zeros(n_shapes, np.int32)
+    if leaf_first:
+        _fill_packets(np.concatenate(leaf_first), np.concatenate(leaf_count),
+                      np.concatenate(leaf_pk), shape_kind, shape_index, tri_p_a,
+                      tri4, lane_shape, shape_ref)
 
     # instances
     n_inst = len(scene.instances)
@@ -351,21 +511,45 @@ def compile_geometry(scene):
     live_ids = np.nonzero(live)[0].astype(np.int32)
     tl = build_bvh(t_lo[live_ids], t_hi[live_ids])
     tlas_items = live_ids[tl.items] if live_ids.size else np.zeros(0, np.int32)
-    tlas_pf, tlas_pi, _, tlas_need = pack_bvh(tl.node_min, tl.node_max, tl.node_a, tl.node_count)
+    _, tlas_pi, n_tlas_rec, tlas_need = pack_bvh(tl.node_min, tl.node_max, tl.node_a,
+                                                 tl.node_count)
+    # TLAS records first, then the BLAS records (their child refs shift by that)
+    blas_rec = (np.concatenate(rec_parts) if rec_parts else np.zeros((0, REC_WORDS), np.int32))
+    blas_rec = blas_rec.copy()
+    inner = blas_rec[:, 28:32] == 0
+    blas_rec[:, 24:28][inner] += n_tlas_rec
+    records = np.concatenate([tlas_pi.reshape(-1, REC_WORDS), blas_rec]).reshape(-1)
+    # identity instances let the traversal reuse the world ray's setup; a
+    # single instance needs no TLAS walk at all (its root box test repeats
+    # the BLAS one)
+    ident = np.array([np.array_equal(x, np.eye(4)[:3]) for x in inst_xf], np.int32).reshape(-1)
+    trace = _build_trace(
+        records, n_tlas_rec,
+        [(H_SHAPE_REF, shape_ref), (H_LANE_SHAPE, lane_shape),
+         (H_PROTO_SLOT, proto_slot + n_tlas_rec), (H_INST_PROTO, inst_proto),
+         (H_TLAS_ITEMS, tlas_items), (H_PRIM_KIND, prim_kind), (H_INST_IDENT, ident)],
+        [(H_TRI4, tri4), (H_INST_INV, inst_inv), (H_PRIM_INV, prim_inv),
+         (H_PRIM_PARAMS, prim_params)],
+        extra=[(H_SINGLE, int(tlas_items[0]) if len(tlas_items) == 1 else -1)])
+    t_arr = trace_arrays_raw(trace)
 
     g = Geometry(
         shape_kind=shape_kind, shape_index=shape_index, shape_material=shape_material,
-        shape_surface=shape_surface, shape_proto=shape_proto, shape_ref=shape_ref, tri_p=tri_p_a, tri_uv=tri_uv_a,
+        shape_surface=shape_surface, shape_proto=shape_proto, tri_p=tri_p_a, tri_uv=tri_uv_a,
         prim_kind=prim_kind, prim_params=prim_params, prim_xf=prim_xf, prim_inv=prim_inv,
         blas_min=blas_min, blas_max=blas_max, blas_a=blas_a, blas_count=blas_count,
-        blas_items=blas_items, blas_pf=blas_pf, blas_pi=blas_pi,
+        blas_items=blas_items, blas_pf=t_arr[1], blas_pi=t_arr[3],
         proto_root=proto_root_a, proto_slot=proto_slot, proto_n_surfaces=proto_n_surfaces,
         proto_shape_start=np.array(proto_start, np.int32).reshape(-1),
         proto_shape_count=np.array(proto_count, np.int32).reshape(-1),
         inst_proto=inst_proto, inst_xf=inst_xf, inst_inv=inst_inv, inst_lm_base=inst_lm_base,
         tlas_min=tl.node_min, tlas_max=tl.node_max, tlas_a=tl.node_a, tlas_count=tl.node_count,
         tlas_items=np.ascontiguousarray(tlas_items, dtype=np.int32),
-        tlas_pf=tlas_pf, tlas_pi=tlas_pi,
+        tlas_pf=t_arr[0], tlas_pi=t_arr[2], trace=trace,
+        # views made here, once: numba repeats its size and alignment checks
+        # for a view made inside a kernel on every call
+        trace_i64=trace.view(np.int64), trace_f32=trace.view(np.float32),
+        trace_i32=trace.view(np.int32), trace_f64=trace.view(np.float64),
     )
     info = {
         "n_shapes": n_shapes,
@@ -381,6 +565,8 @@ def compile_geometry(scene):
         "blas_depth": max(proto_depth) if proto_depth else 0,
         "tlas_depth": tl.depth,
         "stack_entries": tlas_need + blas_need,   # worst case of one traversal
+        "n_packets": n_packets,
+        "trace_bytes": int(trace.nbytes),
         "build_seconds": time.perf_counter() - t0,
     }
     return g, info

@@ -6,22 +6,28 @@ t is shared by both spaces) and walks that prototype's BLAS; a primitive
 maps it once more into its local space.
 
 Both levels run on the 4-wide records of engine/bvh.py `pack_bvh`. A step
-tests the four child boxes of a record, intersects hit leaf children at
-once, descends into the nearest hit interior child and pushes the others
-with their entry distances; popped entries beyond the closest hit so far are
-skipped. The packer bounds the pushes per level, so two levels fit a
+tests the four child boxes of a record as one vector, intersects hit leaf
+children at once, descends into the nearest hit interior child and pushes
+the others with their entry distances; popped entries beyond the closest
+hit so far are skipped. Triangles sit in 4-lane packets and are tested four
+at a time. The packer bounds the pushes per level, so two levels fit a
 128-word int32 stack (`STACK_WORDS`, `new_stack()`), which the caller
 allocates once per thread and reuses for every ray.
 
 Robustness: boxes are float32 rounded outward and the slab test widens its
-exit distance by a few ulps (Ize 2013), and triangles use the watertight
-test, so rays through shared edges and vertices of closed meshes always hit.
+exit distance by a few ulps (Ize 2013); triangles use the watertight test
+(engine/triangle.py), so rays through shared edges and vertices of closed
+meshes always hit.
 
-Performance notes: the whole traversal is inlined into each entry point
-(`inline="always"`), because a call that passes the Geometry namedtuple
-moves ~300 machine words; entry points are compiled without the NRT
-(`_nrt=False`), so no reference counts are touched per ray (atomic updates
-of shared counters would also serialise threads).
+Calling convention: the kernels read only the trace buffer of engine/
+geometry.py, as the tuple `buf` of its four typed views (g.trace_i64,
+g.trace_f32, g.trace_i32, g.trace_f64), so a call passes a few dozen machine
+words instead of the ~300 of the Geometry namedtuple, which measurably cost
+~100 ns per call. The public entry points (`intersect_closest`, `occluded`,
+`closest_hit`, `hit_surface`) are inlined wrappers that forward these views
+to the compiled cores; the cores are compiled without the NRT (`_nrt=False`),
+so no reference counts are touched per ray (atomic updates of counters
+shared by all threads would also serialise them).
 """
 import math
 
@@ -30,7 +36,8 @@ from llvmlite import ir
 from numba import njit, prange, types
 from numba.extending import intrinsic
 
-from .geometry import STACK_WORDS, new_stack  # noqa: F401  (re-exported for callers)
+from . import geometry as G
+from .geometry import STACK_WORDS, TRI_LEAF, new_stack  # noqa: F401  (re-exported)
 from .primitives import prim_hits, prim_surface
 from .triangle import pick, triangle_normal, woop_setup, woop_test
 
@@ -39,108 +46,214 @@ _ROBUST = 1.0 + 1e-15
 # Stored entry distances are lowered by this relative amount so the float32
 # copy never exceeds the true value (culling stays conservative).
 _LOWER = 2.0 ** -22
-_BIG = 1e300
 _CHUNK = 256
 
 _INLINE = dict(cache=True, error_model="numpy", inline="always")
-_ENTRY = dict(cache=True, error_model="numpy", _nrt=False)
-
-
-@njit(**_INLINE)
-def _inv(d):
-    # zero components give a huge finite reciprocal instead of inf, so that
-    # (plane - o) * inv is never 0 * inf = NaN
-    r = 1.0 / d
-    if abs(r) < _BIG:
-        return r
-    return math.copysign(_BIG, r)
-
-
-@njit(**_INLINE)
-def _xform_ray(m, i, ox, oy, oz, dx, dy, dz):
-    """Ray through affine m[i] (3x4): point and vector."""
-    return (m[i, 0, 0] * ox + m[i, 0, 1] * oy + m[i, 0, 2] * oz + m[i, 0, 3],
-            m[i, 1, 0] * ox + m[i, 1, 1] * oy + m[i, 1, 2] * oz + m[i, 1, 3],
-            m[i, 2, 0] * ox + m[i, 2, 1] * oy + m[i, 2, 2] * oz + m[i, 2, 3],
-            m[i, 0, 0] * dx + m[i, 0, 1] * dy + m[i, 0, 2] * dz,
-            m[i, 1, 0] * dx + m[i, 1, 1] * dy + m[i, 1, 2] * dz,
-            m[i, 2, 0] * dx + m[i, 2, 1] * dy + m[i, 2, 2] * dz)
-
-
-@njit(**_INLINE)
-def _normal_through(m, i, nx, ny, nz):
-    """Normal through the inverse-transpose, given the inverse m[i]: m^T n."""
-    return (m[i, 0, 0] * nx + m[i, 1, 0] * ny + m[i, 2, 0] * nz,
-            m[i, 0, 1] * nx + m[i, 1, 1] * ny + m[i, 2, 1] * nz,
-            m[i, 0, 2] * nx + m[i, 1, 2] * ny + m[i, 2, 2] * nz)
-
+_CORE = dict(cache=True, error_model="numpy", _nrt=False)
 
 _V4F = ir.VectorType(ir.FloatType(), 4)
 _V4D = ir.VectorType(ir.DoubleType(), 4)
 
 
-@intrinsic
-def _slab4(typingctx, pf, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo, tmin, tmax):
-    """Slab test of the four child boxes of the record at word b, as one
-    4-wide vector computation (numba would emit it as 24 scalar min/max).
+# ------------------------------------------------------------- vector kernels
 
-    Returns (mask, near0..near3): bit k of mask is set if the ray enters
-    child k within [tmin, tmax]. nxo, nyo, nzo are the word offsets of the
-    near planes (chosen by the direction signs); the far planes of an axis
-    sit at the other offset of its pair (x: 0/4, y: 8/12, z: 16/20).
-    Box bounds are float32 and widened exactly to float64; the exit is
-    scaled by _ROBUST so rounding never loses a hit (Ize 2013).
+def _splat(builder, x):
+    i32 = ir.IntType(32)
+    v = builder.insert_element(ir.Constant(_V4D, ir.Undefined), x, ir.Constant(i32, 0))
+    return builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(i32, 4), [0, 0, 0, 0]))
+
+
+def _load4(builder, data, index, vec):
+    ptr = builder.gep(data, [index], inbounds=True)
+    return builder.load(builder.bitcast(ptr, vec.as_pointer()), align=16)
+
+
+def _mask4(builder, cond):
+    return builder.zext(builder.bitcast(cond, ir.IntType(4)), ir.IntType(64))
+
+
+@intrinsic
+def _slab4(typingctx, rec, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo, tmin, tmax):
+    """Slab test of the four child boxes of the record at word b of `rec`
+    (float32), as one 4-wide vector computation.
+
+    Returns (mask, leaves, near0..near3): bit k of mask is set if the ray
+    enters child k within [tmin, tmax]; bit k of leaves if child k is a leaf
+    (count word > 0), so the traversal can sort children without branching
+    on each of them. nxo, nyo, nzo are the word offsets of the
+    near planes (chosen by the direction signs); the far plane of an axis is
+    the other offset of its pair (x: 0/4, y: 8/12, z: 16/20). The float32
+    bounds widen exactly to float64 and the exit is scaled by _ROBUST.
     """
     f64 = types.float64
-    sig = types.Tuple((types.int64, f64, f64, f64, f64))(
-        pf, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo, tmin, tmax)
+    sig = types.Tuple((types.int64, types.int64, f64, f64, f64, f64))(
+        rec, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo, tmin, tmax)
 
     def codegen(context, builder, signature, args):
-        pf_, b_, ox_, oy_, oz_, ix_, iy_, iz_, nxo_, nyo_, nzo_, tmin_, tmax_ = args
-        data = context.make_array(signature.args[0])(context, builder, pf_).data
-        i32 = ir.IntType(32)
+        rec_, b_, ox_, oy_, oz_, ix_, iy_, iz_, nxo_, nyo_, nzo_, tmin_, tmax_ = args
+        data = context.make_array(signature.args[0])(context, builder, rec_).data
         i64 = ir.IntType(64)
 
-        def splat(x):
-            v = builder.insert_element(ir.Constant(_V4D, ir.Undefined), x, ir.Constant(i32, 0))
-            return builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(i32, 4), [0, 0, 0, 0]))
-
         def plane(off, o, inv):
-            ptr = builder.gep(data, [builder.add(b_, off)], inbounds=True)
-            v = builder.load(builder.bitcast(ptr, _V4F.as_pointer()), align=16)
-            return builder.fmul(builder.fsub(builder.fpext(v, _V4D), splat(o)), splat(inv))
+            v = builder.fpext(_load4(builder, data, builder.add(b_, off), _V4F), _V4D)
+            return builder.fmul(builder.fsub(v, _splat(builder, o)), _splat(builder, inv))
 
-        # same NaN behaviour as numba's scalar max/min: keep the first operand
+        # max/min that keep the accumulator `a` when c is NaN (one vmaxpd /
+        # vminpd). 0 * inf = NaN means the ray runs in that plane, which must
+        # not limit the slab (inside, boundary included): accumulating from
+        # tmin / +inf makes every NaN drop out.
         def vmax(a, c):
             return builder.select(builder.fcmp_ordered(">", c, a), c, a)
 
         def vmin(a, c):
             return builder.select(builder.fcmp_ordered("<", c, a), c, a)
 
-        near = vmax(vmax(plane(nxo_, ox_, ix_), plane(nyo_, oy_, iy_)),
-                    vmax(plane(nzo_, oz_, iz_), splat(tmin_)))
-        far = vmin(vmin(plane(builder.sub(ir.Constant(i64, 4), nxo_), ox_, ix_),
+        near = vmax(vmax(vmax(_splat(builder, tmin_), plane(nxo_, ox_, ix_)),
+                         plane(nyo_, oy_, iy_)), plane(nzo_, oz_, iz_))
+        far = vmin(vmin(vmin(ir.Constant(_V4D, [math.inf] * 4),
+                             plane(builder.sub(ir.Constant(i64, 4), nxo_), ox_, ix_)),
                         plane(builder.sub(ir.Constant(i64, 20), nyo_), oy_, iy_)),
                    plane(builder.sub(ir.Constant(i64, 36), nzo_), oz_, iz_))
-        far = vmin(builder.fmul(far, splat(ir.Constant(ir.DoubleType(), _ROBUST))), splat(tmax_))
-        hit = builder.fcmp_ordered("<=", near, far)
-        mask = builder.zext(builder.bitcast(hit, ir.IntType(4)), i64)
-        out = [mask] + [builder.extract_element(near, ir.Constant(i32, k)) for k in range(4)]
+        far = builder.fmul(far, _splat(builder, ir.Constant(ir.DoubleType(), _ROBUST)))
+        far = vmin(far, _splat(builder, tmax_))
+        mask = _mask4(builder, builder.fcmp_ordered("<=", near, far))
+        v4i = ir.VectorType(ir.IntType(32), 4)
+        counts = builder.bitcast(_load4(builder, data, builder.add(b_, ir.Constant(i64, 28)), _V4F), v4i)
+        leaves = _mask4(builder, builder.icmp_signed(">", counts, ir.Constant(v4i, [0] * 4)))
+        out = [mask, leaves] + [builder.extract_element(near, ir.Constant(ir.IntType(32), k))
+                                for k in range(4)]
         return context.make_tuple(builder, signature.return_type, out)
 
     return sig, codegen
 
 
+@intrinsic
+def _woop4(typingctx, f64a, base, kx, ky, kz, sx, sy, sz, okx, oky, okz, tmin, tmax):
+    """engine/triangle.py `woop_test` on the four lanes of the packet at
+    element `base` of `f64a` (vertex v, axis k, lane q at base+12v+4k+q), as
+    4-wide vector code with the same operations in the same order, so a lane
+    gives the bit-identical t of the scalar test. Returns (mask, t0..t3):
+    bit q set if lane q is hit in (tmin, tmax). NaN lanes never hit."""
+    f64 = types.float64
+    sig = types.Tuple((types.int64, f64, f64, f64, f64))(
+        f64a, base, kx, ky, kz, sx, sy, sz, okx, oky, okz, tmin, tmax)
+
+    def codegen(context, builder, signature, args):
+        a_, base_, kx_, ky_, kz_, sx_, sy_, sz_, okx_, oky_, okz_, tmin_, tmax_ = args
+        data = context.make_array(signature.args[0])(context, builder, a_).data
+        i64 = ir.IntType(64)
+
+        def row(vtx, axis, o):
+            off = builder.add(base_, builder.add(ir.Constant(i64, 12 * vtx),
+                                                 builder.shl(axis, ir.Constant(i64, 2))))
+            return builder.fsub(_load4(builder, data, off, _V4D), _splat(builder, o))
+
+        def lt(a, c):
+            return builder.fcmp_ordered("<", a, c)
+
+        ax, ay, az = row(0, kx_, okx_), row(0, ky_, oky_), row(0, kz_, okz_)
+        bx, by, bz = row(1, kx_, okx_), row(1, ky_, oky_), row(1, kz_, okz_)
+        cx, cy, cz = row(2, kx_, okx_), row(2, ky_, oky_), row(2, kz_, okz_)
+        vsx, vsy, vsz = (_splat(builder, x) for x in (sx_, sy_, sz_))
+        fsub, fmul = builder.fsub, builder.fmul
+        px = fsub(ax, fmul(vsx, az))
+        py = fsub(ay, fmul(vsy, az))
+        qx = fsub(bx, fmul(vsx, bz))
+        qy = fsub(by, fmul(vsy, bz))
+        rx = fsub(cx, fmul(vsx, cz))
+        ry = fsub(cy, fmul(vsy, cz))
+        u = fsub(fmul(rx, qy), fmul(ry, qx))
+        v = fsub(fmul(px, ry), fmul(py, rx))
+        w = fsub(fmul(qx, py), fmul(qy, px))
+        zero = ir.Constant(_V4D, [0.0] * 4)
+        neg = builder.or_(builder.or_(lt(u, zero), lt(v, zero)), lt(w, zero))
+        pos = builder.or_(builder.or_(lt(zero, u), lt(zero, v)), lt(zero, w))
+        inv = builder.fdiv(ir.Constant(_V4D, [1.0] * 4), builder.fadd(builder.fadd(u, v), w))
+        num = builder.fadd(builder.fadd(fmul(u, az), fmul(v, bz)), fmul(w, cz))
+        t = fmul(fmul(num, vsz), inv)
+        ok = builder.and_(builder.not_(builder.and_(neg, pos)),
+                          builder.and_(lt(_splat(builder, tmin_), t), lt(t, _splat(builder, tmax_))))
+        out = [_mask4(builder, ok)] + [builder.extract_element(t, ir.Constant(ir.IntType(32), k))
+                                       for k in range(4)]
+        return context.make_tuple(builder, signature.return_type, out)
+
+    return sig, codegen
+
+
+# ------------------------------------------------------------- scalar helpers
+
 @njit(**_INLINE)
-def _lowest(m, n0, n1, n2, n3):
-    """Index and entry distance of the lowest set bit of a 4-bit mask."""
+def _inv(d):
+    # d = +-0 gives +-inf; _slab4 reads the 0 * inf of a ray lying in a
+    # box plane as "no limit"
+    return 1.0 / d
+
+
+@njit(**_INLINE)
+def _valid_ray(ox, oy, oz, dx, dy, dz):
+    """Finite origin, finite non-zero direction. (A NaN ray would enter every
+    box, since NaN slab distances read as "no limit".)"""
+    s = ox + oy + oz + dx + dy + dz
+    return (s - s == 0.0) and (dx != 0.0 or dy != 0.0 or dz != 0.0)
+
+
+@njit(**_INLINE)
+def _xform(f, m, ox, oy, oz, dx, dy, dz):
+    """Ray through the 3x4 row-major affine at f[m:m+12]: point and vector."""
+    return (f[m] * ox + f[m + 1] * oy + f[m + 2] * oz + f[m + 3],
+            f[m + 4] * ox + f[m + 5] * oy + f[m + 6] * oz + f[m + 7],
+            f[m + 8] * ox + f[m + 9] * oy + f[m + 10] * oz + f[m + 11],
+            f[m] * dx + f[m + 1] * dy + f[m + 2] * dz,
+            f[m + 4] * dx + f[m + 5] * dy + f[m + 6] * dz,
+            f[m + 8] * dx + f[m + 9] * dy + f[m + 10] * dz)
+
+
+@njit(**_INLINE)
+def _normal_through(f, m, nx, ny, nz):
+    """Normal through the inverse-transpose, given the inverse at f[m:m+12]."""
+    return (f[m] * nx + f[m + 4] * ny + f[m + 8] * nz,
+            f[m + 1] * nx + f[m + 5] * ny + f[m + 9] * nz,
+            f[m + 2] * nx + f[m + 6] * ny + f[m + 10] * nz)
+
+
+@intrinsic
+def _ctz(typingctx, x):
+    """Index of the lowest set bit (x != 0)."""
+    sig = types.int64(types.int64)
+
+    def codegen(context, builder, signature, args):
+        i64 = ir.IntType(64)
+        fnty = ir.FunctionType(i64, [i64, ir.IntType(1)])
+        fn = builder.module.declare_intrinsic("llvm.cttz", [i64], fnty)
+        return builder.call(fn, [args[0], ir.Constant(ir.IntType(1), 1)])
+
+    return sig, codegen
+
+
+@njit(**_INLINE)
+def _pick4(k, a0, a1, a2, a3):
+    # a select chain (no memory, no branches)
+    return a0 if k == 0 else (a1 if k == 1 else (a2 if k == 2 else a3))
+
+
+@njit(**_INLINE)
+def _nearest_lane(m, t0, t1, t2, t3):
+    """Lane and t of the smallest t among the set bits of m (m != 0)."""
+    lane = -1
+    t = math.inf
     if m & 1:
-        return 0, n0
-    if m & 2:
-        return 1, n1
-    if m & 4:
-        return 2, n2
-    return 3, n3
+        lane = 0
+        t = t0
+    if m & 2 and (lane < 0 or t1 < t):
+        lane = 1
+        t = t1
+    if m & 4 and (lane < 0 or t2 < t):
+        lane = 2
+        t = t2
+    if m & 8 and (lane < 0 or t3 < t):
+        lane = 3
+        t = t3
+    return lane, t
 
 
 @njit(**_INLINE)
@@ -167,12 +280,33 @@ def _sort_top(stack, fstack, lo, sp):
 
 
 @njit(**_INLINE)
-def _prim_first(g, j, ox, oy, oz, dx, dy, dz, tmin, tmax):
+def _lane_test(f64, base, q, kx, ky, kz, sx, sy, sz, okx, oky, okz, tmin, tmax):
+    """Scalar watertight test of lane q of the packet at f64[base:]."""
+    return woop_test(f64[base + 4 * kx + q] - okx, f64[base + 4 * ky + q] - oky,
+                     f64[base + 4 * kz + q] - okz,
+                     f64[base + 12 + 4 * kx + q] - okx, f64[base + 12 + 4 * ky + q] - oky,
+                     f64[base + 12 + 4 * kz + q] - okz,
+                     f64[base + 24 + 4 * kx + q] - okx, f64[base + 24 + 4 * ky + q] - oky,
+                     f64[base + 24 + 4 * kz + q] - okz,
+                     sx, sy, sz, tmin, tmax)
+
+
+@njit(**_INLINE)
+def _layout(buf):
+    """The trace views (see geometry.trace_views) and the element offsets of
+    the records, int32 and float64 sections."""
+    i64, f32, i32, f64 = buf
+    return (i64, f32, i32, f64, i64[G.H_REC] >> 2, i64[G.H_I32] >> 2, i64[G.H_F64] >> 3)
+
+
+@njit(**_INLINE)
+def _prim_first(i32, f64, ib, fb, i64, j, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Nearest crossing of primitive row j in (tmin, tmax), prototype-space ray; inf if none."""
-    lox, loy, loz, ldx, ldy, ldz = _xform_ray(g.prim_inv, j, ox, oy, oz, dx, dy, dz)
-    pp = g.prim_params
-    # parameters as a tuple: an array row would be a view object
-    n, t0, t1, t2, t3 = prim_hits(g.prim_kind[j], (pp[j, 0], pp[j, 1], pp[j, 2], pp[j, 3]),
+    m = fb + i64[G.H_PRIM_INV] + 12 * j
+    lox, loy, loz, ldx, ldy, ldz = _xform(f64, m, ox, oy, oz, dx, dy, dz)
+    pp = fb + i64[G.H_PRIM_PARAMS] + 4 * j
+    n, t0, t1, t2, t3 = prim_hits(i32[ib + i64[G.H_PRIM_KIND] + j],
+                                  (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3]),
                                   lox, loy, loz, ldx, ldy, ldz)
     if n > 0 and t0 > tmin and t0 < tmax:
         return t0
@@ -185,273 +319,377 @@ def _prim_first(g, j, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return math.inf
 
 
-@njit(**_INLINE)
-def _tri(tp, j, kx, ky, kz, sx, sy, sz, okx, oky, okz, tmin, tmax):
-    return woop_test(tp[j, 0, kx] - okx, tp[j, 0, ky] - oky, tp[j, 0, kz] - okz,
-                     tp[j, 1, kx] - okx, tp[j, 1, ky] - oky, tp[j, 1, kz] - okz,
-                     tp[j, 2, kx] - okx, tp[j, 2, ky] - oky, tp[j, 2, kz] - okz,
-                     sx, sy, sz, tmin, tmax)
-
+# ------------------------------------------------------------------ traversal
 
 @njit(**_INLINE)
-def _blas_closest(g, stack, fstack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tbest,
-                  shape, b1, b2):
-    """Closest hit in prototype p for a prototype-space ray, improving on
-    (tbest, shape, b1, b2); uses the stack above sp0."""
-    ix = _inv(dx)
-    iy = _inv(dy)
-    iz = _inv(dz)
+def _woop(ox, oy, oz, dx, dy, dz):
+    """Per-ray (and per-space) constants of the triangle test."""
     kx, ky, kz, sx, sy, sz = woop_setup(dx, dy, dz)
-    okx = pick(kx, ox, oy, oz)
-    oky = pick(ky, ox, oy, oz)
-    okz = pick(kz, ox, oy, oz)
-    nxo = 4 if ix < 0.0 else 0
-    nyo = 12 if iy < 0.0 else 8
-    nzo = 20 if iz < 0.0 else 16
-    pf = g.blas_pf
-    pi = g.blas_pi
-    tp = g.tri_p
-    node = g.proto_slot[p]
-    sp = sp0
-    while True:
-        b = node * 32
-        m, n0, n1, n2, n3 = _slab4(pf, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo, tmin, tbest)
-        best = -1
-        bt = 0.0
-        lo = sp
-        while m != 0:
-            k, near = _lowest(m, n0, n1, n2, n3)
-            m &= m - 1
-            if near > tbest:          # a leaf processed before got closer
-                continue
-            a = pi[b + 24 + k]
-            c = pi[b + 28 + k]
-            if c > 0:
-                # blas_items is the identity: positions are shape ids
-                for s in range(a, a + c):
-                    j = g.shape_ref[s]
-                    if j >= 0:
-                        h, t, u, v = _tri(tp, j, kx, ky, kz, sx, sy, sz, okx, oky, okz,
-                                          tmin, tbest)
-                        if h:
-                            tbest = t
-                            shape = s
-                            b1 = u
-                            b2 = v
-                    else:
-                        t = _prim_first(g, -1 - j, ox, oy, oz, dx, dy, dz, tmin, tbest)
-                        if t < tbest:
-                            tbest = t
-                            shape = s
-                            b1 = 0.0
-                            b2 = 0.0
-            elif best < 0:
-                best = a
-                bt = near
-            elif near < bt:
-                sp = _push(stack, fstack, sp, best, bt)
-                best = a
-                bt = near
-            else:
-                sp = _push(stack, fstack, sp, a, near)
-        if sp - lo > 2:
-            _sort_top(stack, fstack, lo, sp)
-        if best >= 0 and bt <= tbest:
-            node = best
-        else:
-            node = -1
-            while sp > sp0:
-                sp -= 2
-                if fstack[sp + 1] <= tbest:
-                    node = stack[sp]
-                    break
-            if node < 0:
-                break
-    return tbest, shape, b1, b2
+    return (kx, ky, kz, sx, sy, sz,
+            pick(kx, ox, oy, oz), pick(ky, ox, oy, oz), pick(kz, ox, oy, oz))
 
 
 @njit(**_INLINE)
-def _closest(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """(t, inst, shape, b1, b2) of the closest hit in (tmin, tmax); shape -1: none."""
-    fstack = stack.view(np.float32)
-    tbest = tmax
-    inst = -1
-    shape = -1
-    b1 = 0.0
-    b2 = 0.0
+def _descend(stack, fstack, sp, rec_i, b, mi, n0, n1, n2, n3, tbest):
+    """Next record among the hit interior children `mi` of the record at b:
+    the nearest; the others are pushed, nearest on top. Returns (node, sp),
+    node -1 if there is none (the caller pops)."""
+    if mi == 0:
+        return -1, sp
+    k = _ctz(mi)
+    mi &= mi - 1
+    node = rec_i[b + 24 + k]
+    if mi == 0:                                   # the common case: one child
+        return node, sp
+    near = _pick4(k, n0, n1, n2, n3)
+    lo = sp
+    while mi != 0:
+        k = _ctz(mi)
+        mi &= mi - 1
+        other = rec_i[b + 24 + k]
+        d = _pick4(k, n0, n1, n2, n3)
+        if d < near:
+            sp = _push(stack, fstack, sp, node, near)
+            node = other
+            near = d
+        else:
+            sp = _push(stack, fstack, sp, other, d)
+    if sp - lo > 2:
+        _sort_top(stack, fstack, lo, sp)
+    return node, sp
+
+
+@njit(**_INLINE)
+def _pop(stack, fstack, sp, sp0, tbest):
+    """Top entry not beyond tbest, or -1 when the stack (above sp0) runs out."""
+    while sp > sp0:
+        sp -= 2
+        if fstack[sp + 1] <= tbest:
+            return stack[sp], sp
+    return -1, sp
+
+
+@njit(**_INLINE)
+def _drop_far(mi, n0, n1, n2, n3, tbest):
+    """Clears children of mask mi whose entry lies beyond tbest."""
+    if n0 > tbest:
+        mi &= 14
+    if n1 > tbest:
+        mi &= 13
+    if n2 > tbest:
+        mi &= 11
+    if n3 > tbest:
+        mi &= 7
+    return mi
+
+
+@njit(**_INLINE)
+def _blas_closest(buf, stack, fstack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tbest,
+                  code, b1, b2):
+    """Closest hit in prototype p for a prototype-space ray, improving on
+    (tbest, code, b1, b2); code is 4*packet+lane for triangles and -1-shape
+    for other shapes (-1: none). Uses the stack above sp0."""
+    i64, f32, i32, f64, rb, ib, fb = _layout(buf)
+    tri4 = fb + i64[G.H_TRI4]
+    sref = ib + i64[G.H_SHAPE_REF]
     ix = _inv(dx)
     iy = _inv(dy)
     iz = _inv(dz)
+    # the triangle test's setup waits for the first leaf: many rays never get there
+    kx, ky, kz, sx, sy, sz, okx, oky, okz = 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    woop = False
     nxo = 4 if ix < 0.0 else 0
     nyo = 12 if iy < 0.0 else 8
     nzo = 20 if iz < 0.0 else 16
-    pf = g.tlas_pf
-    pi = g.tlas_pi
-    node = 0
-    sp = 0
+    node = i32[ib + i64[G.H_PROTO_SLOT] + p]
+    sp = sp0
+    t_start = tbest
     while True:
-        b = node * 32
-        m, n0, n1, n2, n3 = _slab4(pf, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo, tmin, tbest)
-        best = -1
-        bt = 0.0
-        lo = sp
-        while m != 0:
-            k, near = _lowest(m, n0, n1, n2, n3)
-            m &= m - 1
-            if near > tbest:
-                continue
-            a = pi[b + 24 + k]
-            c = pi[b + 28 + k]
-            if c > 0:
-                for q in range(a, a + c):
-                    i = g.tlas_items[q]
-                    lox, loy, loz, ldx, ldy, ldz = _xform_ray(g.inst_inv, i, ox, oy, oz,
-                                                              dx, dy, dz)
-                    s0 = shape
-                    tbest, shape, b1, b2 = _blas_closest(
-                        g, stack, fstack, sp, g.inst_proto[i], lox, loy, loz,
-                        ldx, ldy, ldz, tmin, tbest, shape, b1, b2)
-                    if shape != s0:
-                        inst = i
-            elif best < 0:
-                best = a
-                bt = near
-            elif near < bt:
-                sp = _push(stack, fstack, sp, best, bt)
-                best = a
-                bt = near
-            else:
-                sp = _push(stack, fstack, sp, a, near)
-        if sp - lo > 2:
-            _sort_top(stack, fstack, lo, sp)
-        if best >= 0 and bt <= tbest:
-            node = best
-        else:
-            node = -1
-            while sp > 0:
-                sp -= 2
-                if fstack[sp + 1] <= tbest:
-                    node = stack[sp]
-                    break
+        b = rb + node * 32
+        m, lm, n0, n1, n2, n3 = _slab4(f32, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo,
+                                       tmin, tbest)
+        ml = m & lm
+        mi = m & ~lm
+        if ml != 0:
+            if not woop:
+                kx, ky, kz, sx, sy, sz, okx, oky, okz = _woop(ox, oy, oz, dx, dy, dz)
+                woop = True
+            t_in = tbest
+            while ml != 0:
+                k = _ctz(ml)
+                ml &= ml - 1
+                a = i32[b + 24 + k]
+                c = i32[b + 28 + k]
+                if c >= TRI_LEAF:
+                    for pk in range(a, a + c - TRI_LEAF):
+                        base = tri4 + 36 * pk
+                        hm, t0, t1, t2, t3 = _woop4(f64, base, kx, ky, kz, sx, sy, sz,
+                                                    okx, oky, okz, tmin, tbest)
+                        if hm != 0:
+                            q, tbest = _nearest_lane(hm, t0, t1, t2, t3)
+                            code = 4 * pk + q     # barycentrics once, on the way out
+                else:
+                    # a leaf mixing primitives and triangles: shapes a .. a+c-1
+                    for s in range(a, a + c):
+                        r = i32[sref + s]
+                        if r >= 0:
+                            base = tri4 + 36 * (r >> 2)
+                            h, t, u, v = _lane_test(f64, base, r & 3, kx, ky, kz, sx, sy, sz,
+                                                    okx, oky, okz, tmin, tbest)
+                            if h:
+                                tbest = t
+                                code = r
+                        else:
+                            t = _prim_first(i32, f64, ib, fb, i64, -1 - r, ox, oy, oz,
+                                            dx, dy, dz, tmin, tbest)
+                            if t < tbest:
+                                tbest = t
+                                code = -1 - s
+            if tbest < t_in:
+                mi = _drop_far(mi, n0, n1, n2, n3, tbest)
+        node, sp = _descend(stack, fstack, sp, i32, b, mi, n0, n1, n2, n3, tbest)
+        if node < 0:
+            node, sp = _pop(stack, fstack, sp, sp0, tbest)
             if node < 0:
                 break
+    if tbest < t_start:
+        # hit in this prototype: barycentrics from the scalar test of that
+        # lane (the same arithmetic as the packet test, so the same t)
+        if code >= 0:
+            h, t, b1, b2 = _lane_test(f64, tri4 + 36 * (code >> 2), code & 3, kx, ky, kz,
+                                      sx, sy, sz, okx, oky, okz, tmin, math.inf)
+        else:
+            b1 = 0.0
+            b2 = 0.0
+    return tbest, code, b1, b2
+
+
+@njit(**_CORE)
+def _instance_closest(buf, stack, sp, i, ox, oy, oz, dx, dy, dz, tmin, tbest,
+                      inst, code, b1, b2):
+    """Instance i against the world ray. A real call (not inlined): it keeps
+    one copy of the BLAS traversal in the binary for a few dozen words of
+    arguments per instance visited."""
+    i64, f32, i32, f64, rb, ib, fb = _layout(buf)
+    p = i32[ib + i64[G.H_INST_PROTO] + i]
+    if i32[ib + i64[G.H_INST_IDENT] + i] == 0:
+        ox, oy, oz, dx, dy, dz = _xform(f64, fb + i64[G.H_INST_INV] + 12 * i,
+                                        ox, oy, oz, dx, dy, dz)
+    t0 = tbest
+    tbest, code, b1, b2 = _blas_closest(buf, stack, stack.view(np.float32), sp, p,
+                                        ox, oy, oz, dx, dy, dz, tmin, tbest, code, b1, b2)
+    if tbest < t0:                       # hits only ever shorten tbest
+        inst = i
+    return tbest, inst, code, b1, b2
+
+
+@njit(**_CORE)
+def _instance_any(buf, stack, sp, i, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    i64, f32, i32, f64, rb, ib, fb = _layout(buf)
+    p = i32[ib + i64[G.H_INST_PROTO] + i]
+    if i32[ib + i64[G.H_INST_IDENT] + i] == 0:
+        ox, oy, oz, dx, dy, dz = _xform(f64, fb + i64[G.H_INST_INV] + 12 * i,
+                                        ox, oy, oz, dx, dy, dz)
+    return _blas_any(buf, stack, sp, p, ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(**_INLINE)
+def _resolve(i64, i32, ib, tbest, inst, code, b1, b2):
+    """Final (t, inst, shape, b1, b2) from a traversal's packet/shape code."""
+    if inst < 0:
+        return tbest, -1, -1, 0.0, 0.0
+    if code >= 0:
+        shape = i32[ib + i64[G.H_LANE_SHAPE] + code]
+    else:
+        shape = -1 - code
     return tbest, inst, shape, b1, b2
 
 
-@njit(**_INLINE)
-def _blas_any(g, stack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
+@njit(**_CORE)
+def closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Closest hit in (tmin, tmax) on a trace buffer: (t, inst, shape, b1, b2);
+    inst = shape = -1 on a miss. b1, b2: triangle barycentrics (0 otherwise)."""
+    if not _valid_ray(ox, oy, oz, dx, dy, dz):
+        return tmax, -1, -1, 0.0, 0.0
+    i64, f32, i32, f64, rb, ib, fb = _layout(buf)
+    fstack = stack.view(np.float32)
+    items = ib + i64[G.H_TLAS_ITEMS]
+    tbest = tmax
+    inst = -1
+    code = -1
+    b1 = 0.0
+    b2 = 0.0
+    single = i64[G.H_SINGLE]
+    if single >= 0:
+        tbest, inst, code, b1, b2 = _instance_closest(buf, stack, 0, single, ox, oy, oz,
+                                                      dx, dy, dz, tmin, tbest, inst, code,
+                                                      b1, b2)
+        return _resolve(i64, i32, ib, tbest, inst, code, b1, b2)
+    node = 0
     ix = _inv(dx)
     iy = _inv(dy)
     iz = _inv(dz)
-    kx, ky, kz, sx, sy, sz = woop_setup(dx, dy, dz)
-    okx = pick(kx, ox, oy, oz)
-    oky = pick(ky, ox, oy, oz)
-    okz = pick(kz, ox, oy, oz)
     nxo = 4 if ix < 0.0 else 0
     nyo = 12 if iy < 0.0 else 8
     nzo = 20 if iz < 0.0 else 16
-    pf = g.blas_pf
-    pi = g.blas_pi
-    tp = g.tri_p
-    node = g.proto_slot[p]
+    sp = 0
+    while True:
+        b = rb + node * 32
+        m, lm, n0, n1, n2, n3 = _slab4(f32, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo,
+                                       tmin, tbest)
+        ml = m & lm
+        mi = m & ~lm
+        if ml != 0:
+            t_in = tbest
+            while ml != 0:
+                k = _ctz(ml)
+                ml &= ml - 1
+                a = i32[b + 24 + k]
+                for q in range(a, a + i32[b + 28 + k]):
+                    tbest, inst, code, b1, b2 = _instance_closest(
+                        buf, stack, sp, i32[items + q], ox, oy, oz, dx, dy, dz,
+                        tmin, tbest, inst, code, b1, b2)
+            if tbest < t_in:
+                mi = _drop_far(mi, n0, n1, n2, n3, tbest)
+        node, sp = _descend(stack, fstack, sp, i32, b, mi, n0, n1, n2, n3, tbest)
+        if node < 0:
+            node, sp = _pop(stack, fstack, sp, 0, tbest)
+            if node < 0:
+                break
+    return _resolve(i64, i32, ib, tbest, inst, code, b1, b2)
+
+
+@njit(**_INLINE)
+def _any_next(stack, sp, sp0, rec_i, b, mi):
+    """Occlusion needs no order: descend into the first hit interior child,
+    push the rest; pop when there is none. Returns (node, sp), -1: done."""
+    if mi == 0:
+        if sp > sp0:
+            return stack[sp - 2], sp - 2
+        return -1, sp
+    k = _ctz(mi)
+    mi &= mi - 1
+    node = rec_i[b + 24 + k]
+    while mi != 0:
+        k = _ctz(mi)
+        mi &= mi - 1
+        stack[sp] = rec_i[b + 24 + k]
+        sp += 2
+    return node, sp
+
+
+@njit(**_INLINE)
+def _blas_any(buf, stack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    i64, f32, i32, f64, rb, ib, fb = _layout(buf)
+    tri4 = fb + i64[G.H_TRI4]
+    sref = ib + i64[G.H_SHAPE_REF]
+    ix = _inv(dx)
+    iy = _inv(dy)
+    iz = _inv(dz)
+    kx, ky, kz, sx, sy, sz, okx, oky, okz = 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    woop = False
+    nxo = 4 if ix < 0.0 else 0
+    nyo = 12 if iy < 0.0 else 8
+    nzo = 20 if iz < 0.0 else 16
+    node = i32[ib + i64[G.H_PROTO_SLOT] + p]
     sp = sp0
     while True:
-        b = node * 32
-        m, n0, n1, n2, n3 = _slab4(pf, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo, tmin, tmax)
-        best = -1
-        while m != 0:
-            k, near = _lowest(m, n0, n1, n2, n3)
-            m &= m - 1
-            a = pi[b + 24 + k]
-            c = pi[b + 28 + k]
-            if c > 0:
+        b = rb + node * 32
+        m, lm, n0, n1, n2, n3 = _slab4(f32, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo,
+                                       tmin, tmax)
+        ml = m & lm
+        if ml != 0 and not woop:
+            kx, ky, kz, sx, sy, sz, okx, oky, okz = _woop(ox, oy, oz, dx, dy, dz)
+            woop = True
+        while ml != 0:
+            k = _ctz(ml)
+            ml &= ml - 1
+            a = i32[b + 24 + k]
+            c = i32[b + 28 + k]
+            if c >= TRI_LEAF:
+                for pk in range(a, a + c - TRI_LEAF):
+                    hm, t0, t1, t2, t3 = _woop4(f64, tri4 + 36 * pk, kx, ky, kz, sx, sy, sz,
+                                                okx, oky, okz, tmin, tmax)
+                    if hm != 0:
+                        return True
+            else:
                 for s in range(a, a + c):
-                    j = g.shape_ref[s]
-                    if j >= 0:
-                        h, t, u, v = _tri(tp, j, kx, ky, kz, sx, sy, sz, okx, oky, okz,
-                                          tmin, tmax)
+                    r = i32[sref + s]
+                    if r >= 0:
+                        h, t, u, v = _lane_test(f64, tri4 + 36 * (r >> 2), r & 3, kx, ky, kz,
+                                                sx, sy, sz, okx, oky, okz, tmin, tmax)
                         if h:
                             return True
-                    elif _prim_first(g, -1 - j, ox, oy, oz, dx, dy, dz, tmin, tmax) < tmax:
+                    elif _prim_first(i32, f64, ib, fb, i64, -1 - r, ox, oy, oz,
+                                     dx, dy, dz, tmin, tmax) < tmax:
                         return True
-            elif best < 0:
-                best = a
-            else:
-                stack[sp] = a
-                sp += 2
-        if best >= 0:
-            node = best
-        elif sp > sp0:
-            sp -= 2
-            node = stack[sp]
-        else:
+        node, sp = _any_next(stack, sp, sp0, i32, b, m & ~lm)
+        if node < 0:
             return False
 
 
-@njit(**_INLINE)
-def _occluded(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
+@njit(**_CORE)
+def occluded_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """True if anything lies on the ray strictly between tmin and tmax."""
+    if not _valid_ray(ox, oy, oz, dx, dy, dz):
+        return False
+    i64, f32, i32, f64, rb, ib, fb = _layout(buf)
+    items = ib + i64[G.H_TLAS_ITEMS]
+    single = i64[G.H_SINGLE]
+    if single >= 0:
+        return _instance_any(buf, stack, 0, single, ox, oy, oz, dx, dy, dz, tmin, tmax)
     ix = _inv(dx)
     iy = _inv(dy)
     iz = _inv(dz)
     nxo = 4 if ix < 0.0 else 0
     nyo = 12 if iy < 0.0 else 8
     nzo = 20 if iz < 0.0 else 16
-    pf = g.tlas_pf
-    pi = g.tlas_pi
     node = 0
     sp = 0
     while True:
-        b = node * 32
-        m, n0, n1, n2, n3 = _slab4(pf, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo, tmin, tmax)
-        best = -1
-        while m != 0:
-            k, near = _lowest(m, n0, n1, n2, n3)
-            m &= m - 1
-            a = pi[b + 24 + k]
-            c = pi[b + 28 + k]
-            if c > 0:
-                for q in range(a, a + c):
-                    i = g.tlas_items[q]
-                    lox, loy, loz, ldx, ldy, ldz = _xform_ray(g.inst_inv, i, ox, oy, oz,
-                                                              dx, dy, dz)
-                    if _blas_any(g, stack, sp, g.inst_proto[i], lox, loy, loz,
-                                 ldx, ldy, ldz, tmin, tmax):
-                        return True
-            elif best < 0:
-                best = a
-            else:
-                stack[sp] = a
-                sp += 2
-        if best >= 0:
-            node = best
-        elif sp > 0:
-            sp -= 2
-            node = stack[sp]
-        else:
+        b = rb + node * 32
+        m, lm, n0, n1, n2, n3 = _slab4(f32, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo,
+                                       tmin, tmax)
+        ml = m & lm
+        while ml != 0:
+            k = _ctz(ml)
+            ml &= ml - 1
+            a = i32[b + 24 + k]
+            for q in range(a, a + i32[b + 28 + k]):
+                if _instance_any(buf, stack, sp, i32[items + q], ox, oy, oz, dx, dy, dz,
+                                 tmin, tmax):
+                    return True
+        node, sp = _any_next(stack, sp, 0, i32, b, m & ~lm)
+        if node < 0:
             return False
 
 
-@njit(**_INLINE)
-def _surface(g, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
-    ux, uy, uz, vx, vy, vz = _xform_ray(g.inst_inv, inst, ox, oy, oz, dx, dy, dz)
-    j = g.shape_index[shape]
-    if g.shape_kind[shape] == 0:
-        tp = g.tri_p
-        px, py, pz = triangle_normal(tp[j, 0, 0], tp[j, 0, 1], tp[j, 0, 2],
-                                     tp[j, 1, 0], tp[j, 1, 1], tp[j, 1, 2],
-                                     tp[j, 2, 0], tp[j, 2, 1], tp[j, 2, 2])
+@njit(**_CORE)
+def surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
+    """(face, u, v, nx, ny, nz) of a hit from `closest_core`, world unit normal."""
+    i64, f32, i32, f64, rb, ib, fb = _layout(buf)
+    m_inst = fb + i64[G.H_INST_INV] + 12 * inst
+    r = i32[ib + i64[G.H_SHAPE_REF] + shape]
+    if r >= 0:
+        base = fb + i64[G.H_TRI4] + 36 * (r >> 2) + (r & 3)
+        px, py, pz = triangle_normal(f64[base], f64[base + 4], f64[base + 8],
+                                     f64[base + 12], f64[base + 16], f64[base + 20],
+                                     f64[base + 24], f64[base + 28], f64[base + 32])
         face = 0
         u = b1
         v = b2
     else:
+        j = -1 - r
         # the same local ray as in the traversal, so the point is the hit point
-        lox, loy, loz, ldx, ldy, ldz = _xform_ray(g.prim_inv, j, ux, uy, uz, vx, vy, vz)
-        pp = g.prim_params
+        ux, uy, uz, vx, vy, vz = _xform(f64, m_inst, ox, oy, oz, dx, dy, dz)
+        m_prim = fb + i64[G.H_PRIM_INV] + 12 * j
+        lox, loy, loz, ldx, ldy, ldz = _xform(f64, m_prim, ux, uy, uz, vx, vy, vz)
+        pp = fb + i64[G.H_PRIM_PARAMS] + 4 * j
         face, u, v, lnx, lny, lnz = prim_surface(
-            g.prim_kind[j], (pp[j, 0], pp[j, 1], pp[j, 2], pp[j, 3]),
+            i32[ib + i64[G.H_PRIM_KIND] + j], (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3]),
             lox + t * ldx, loy + t * ldy, loz + t * ldz)
-        px, py, pz = _normal_through(g.prim_inv, j, lnx, lny, lnz)
-    nx, ny, nz = _normal_through(g.inst_inv, inst, px, py, pz)
+        px, py, pz = _normal_through(f64, m_prim, lnx, lny, lnz)
+    nx, ny, nz = _normal_through(f64, m_inst, px, py, pz)
     ln = math.sqrt(nx * nx + ny * ny + nz * nz)
     if ln > 0.0:
         nx /= ln
@@ -460,25 +698,40 @@ def _surface(g, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
     return face, u, v, nx, ny, nz
 
 
-# ------------------------------------------------------------------ entry points
+@njit(**_CORE)
+def intersect_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    t, inst, shape, b1, b2 = closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    if shape < 0:
+        return False, math.inf, -1, -1, -1, 0.0, 0.0, 0.0, 0.0, 0.0
+    face, u, v, nx, ny, nz = surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz)
+    return True, t, inst, shape, face, u, v, nx, ny, nz
 
-@njit(**_ENTRY)
+
+# -------------------------------------------------------------- entry points
+# Thin wrappers inlined into the caller: only the trace views cross the call.
+
+@njit(**_INLINE)
+def _buf(g):
+    return (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)
+
+
+@njit(**_INLINE)
 def closest_hit(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit in (tmin, tmax): (t, inst, shape, b1, b2); inst = shape = -1 on a miss.
 
     b1, b2 are the triangle barycentrics (0 for primitives). `stack`: int32
     array of at least STACK_WORDS words, reused across calls of one thread.
     """
-    return _closest(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    return closest_core(_buf(g), stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
-@njit(**_ENTRY)
+@njit(**_INLINE)
 def hit_surface(g, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
     """Surface data of a hit from `closest_hit`: (face, u, v, nx, ny, nz), world unit normal."""
-    return _surface(g, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz)
+    return surface_core(_buf(g), t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz)
 
 
-@njit(**_ENTRY)
+@njit(**_INLINE)
 def intersect_closest(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit in (tmin, tmax): (hit, t, inst, shape, face, u, v, nx, ny, nz).
 
@@ -488,43 +741,41 @@ def intersect_closest(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     are (0, b1, b2) for triangles and the primitive's chart otherwise.
     On a miss: (False, inf, -1, -1, -1, 0, 0, 0, 0, 0).
     """
-    t, inst, shape, b1, b2 = _closest(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
-    if shape < 0:
-        return False, math.inf, -1, -1, -1, 0.0, 0.0, 0.0, 0.0, 0.0
-    face, u, v, nx, ny, nz = _surface(g, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz)
-    return True, t, inst, shape, face, u, v, nx, ny, nz
+    return intersect_core(_buf(g), stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
-@njit(**_ENTRY)
+@njit(**_INLINE)
 def occluded(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """True if anything lies on the ray strictly between tmin and tmax (any hit)."""
-    return _occluded(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    return occluded_core(_buf(g), stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
 @njit(cache=True, error_model="numpy", parallel=True, _nrt=False)
-def _closest_batch(g, origins, dirs, tmax, stacks, t_out, inst_out, shape_out):
+def _closest_batch(i64, f32, i32, f64, origins, dirs, tmax, stacks, t_out, inst_out, shape_out):
+    buf = (i64, f32, i32, f64)
     n = origins.shape[0]
     n_chunks = (n + _CHUNK - 1) // _CHUNK
     for c in prange(n_chunks):
         stack = stacks[c]
         for i in range(c * _CHUNK, min(n, (c + 1) * _CHUNK)):
-            t, inst, shape, b1, b2 = _closest(g, stack, origins[i, 0], origins[i, 1],
-                                              origins[i, 2], dirs[i, 0], dirs[i, 1],
-                                              dirs[i, 2], 0.0, tmax)
+            t, inst, shape, b1, b2 = closest_core(buf, stack, origins[i, 0], origins[i, 1],
+                                                  origins[i, 2], dirs[i, 0], dirs[i, 1],
+                                                  dirs[i, 2], 0.0, tmax)
             t_out[i] = t if shape >= 0 else math.inf
             inst_out[i] = inst
             shape_out[i] = shape
 
 
 @njit(cache=True, error_model="numpy", parallel=True, _nrt=False)
-def _occluded_batch(g, origins, dirs, tmax, stacks, out):
+def _occluded_batch(i64, f32, i32, f64, origins, dirs, tmax, stacks, out):
+    buf = (i64, f32, i32, f64)
     n = origins.shape[0]
     n_chunks = (n + _CHUNK - 1) // _CHUNK
     for c in prange(n_chunks):
         stack = stacks[c]
         for i in range(c * _CHUNK, min(n, (c + 1) * _CHUNK)):
-            out[i] = _occluded(g, stack, origins[i, 0], origins[i, 1], origins[i, 2],
-                               dirs[i, 0], dirs[i, 1], dirs[i, 2], 0.0, tmax)
+            out[i] = occluded_core(buf, stack, origins[i, 0], origins[i, 1], origins[i, 2],
+                                   dirs[i, 0], dirs[i, 1], dirs[i, 2], 0.0, tmax)
 
 
 def _rays(origins, dirs):
@@ -536,16 +787,19 @@ def _rays(origins, dirs):
 
 
 def trace_closest_batch(g, origins, dirs, tmax=math.inf):
-    """Closest hits of N rays with t in (0, tmax): (t (N,) inf on a miss, inst (N,), shape (N,))."""
+    """Closest hits of N rays with t in (0, tmax): (t (N,) inf on a miss, inst (N,), shape (N,)).
+
+    Runs in parallel on numba's threads (numba.set_num_threads)."""
     o, d = _rays(origins, dirs)
     n = o.shape[0]
     t = np.empty(n)
     inst = np.empty(n, np.int32)
     shape = np.empty(n, np.int32)
-    # one stack per chunk of rays: no allocation inside the kernel
+    # one stack per chunk of rays: nothing is allocated inside the kernel
     stacks = np.empty(((n + _CHUNK - 1) // _CHUNK, STACK_WORDS), np.int32)
     if n:
-        _closest_batch(g, o, d, float(tmax), stacks, t, inst, shape)
+        _closest_batch(g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, o, d, float(tmax),
+                       stacks, t, inst, shape)
     return t, inst, shape
 
 
@@ -556,5 +810,6 @@ def occluded_batch(g, origins, dirs, tmax=math.inf):
     out = np.zeros(n, np.bool_)
     stacks = np.empty(((n + _CHUNK - 1) // _CHUNK, STACK_WORDS), np.int32)
     if n:
-        _occluded_batch(g, o, d, float(tmax), stacks, out)
+        _occluded_batch(g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, o, d, float(tmax),
+                        stacks, out)
     return out

@@ -20,7 +20,7 @@ def demo_main(args):
     t0 = time.perf_counter()
     headless.ensure_registered()
     blend = os.path.join(out, "demo.blend")
-    demo_blend.build_cornell_blend(blend, width=256, height=256, spheres=True)
+    demo_blend.build_cornell_blend(blend, width=256, height=256, spheres=True, csg=True)
     common = dict(blend=blend, photons=args.photons, seed=args.seed)
     render_json = os.path.join(out, "render.json")
     bake_json = os.path.join(out, "bake.json")

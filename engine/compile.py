@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import csg as CSG
 from . import lightmap as LM
 from . import primitives as P
 from .geometry import compile_geometry
@@ -37,7 +38,8 @@ class CompiledScene:
     def lightmap_bytes(self):
         lm = self.lightmaps
         return int(sum(a.nbytes for a in (lm.area, lm.coverage, lm.flux, lm.flux_sq, lm.hits,
-                                          lm.irradiance, lm.state)))
+                                          lm.irradiance, lm.state, lm.split, lm.split_first,
+                                          lm.split_cell)))
 
     def reset_lightmaps(self):
         """Clears recorded photons (areas stay) so a new photon pass starts from zero."""
@@ -49,10 +51,13 @@ class CompiledScene:
 def _prototype_surfaces(geom):
     """For each prototype: list over surface slots of ('mesh', triangle rows) or ('prim', row)."""
     out = []
-    for p in range(len(geom.proto_shape_start)):
-        s0, s1 = int(geom.proto_shape_start[p]), int(geom.proto_shape_start[p] + geom.proto_shape_count[p])
+    # shapes by prototype, including CSG leaves (which sit outside the BVH ranges)
+    n_p = len(geom.proto_shape_start)
+    by_proto = np.split(np.argsort(geom.shape_proto, kind="stable"),
+                        np.cumsum(np.bincount(geom.shape_proto, minlength=n_p))[:-1])
+    for p in range(n_p):
         slots = {}
-        for s in range(s0, s1):
+        for s in by_proto[p]:
             slot = int(geom.shape_surface[s])
             if slot < 0:
                 continue
@@ -65,8 +70,14 @@ def _prototype_surfaces(geom):
     return out
 
 
-def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024):
-    """One lightmap per (recording instance, surface slot), sized by texel density."""
+def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None, csg_split=True,
+                       info=None):
+    """One lightmap per (recording instance, surface slot), sized by texel density.
+
+    csg: the geometry's CSG layout; the lightmaps of CSG leaf primitives then
+    count only the surface left on the solid, and texels cut into disjoint
+    regions get sub-texels (csg_split=False: plain primitive lightmaps).
+    Split statistics go into `info`."""
     surfaces = _prototype_surfaces(geom)
     layouts, fills, per_instance = [], [], []
     for i, inst in enumerate(scene.instances):
@@ -90,16 +101,26 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024):
                     fills.append(("prim", data, M3))
                 ids.append(len(layouts) - 1)
         per_instance.append(ids)
+    plan, n_sub, t_plan = CSG.plan_csg_lightmaps(csg if csg_split else None, fills, layouts)
+    extra_lid = None
+    if n_sub:
+        layouts.append((n_sub, 1, 1))           # the sub-texel rows
+        extra_lid = len(layouts) - 1
     lm = LM.allocate(layouts, scene.n_bands)
     for lid, (kind, data, extra) in enumerate(fills):
         if kind == "mesh":
             LM.set_triangle_areas(lm, lid, geom.tri_uv[data], extra)
         else:
             LM.set_primitive_areas(lm, lid, int(geom.prim_kind[data]), geom.prim_params[data], extra)
+    if plan:
+        lm, st = CSG.apply_csg_lightmaps(lm, plan, fills, csg["flat"], extra_lid)
+        st["csg_setup_seconds"] = t_plan + st.pop("csg_apply_seconds")
+        if info is not None:
+            info.update(st)
     return lm, per_instance
 
 
-def compile_scene(scene, texel_density=None, max_resolution=1024):
+def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True):
     t0 = time.perf_counter()
     if int(scene.n_bands) < 1:
         raise SceneError(f"n_bands must be >= 1, got {scene.n_bands}")
@@ -112,8 +133,13 @@ def compile_scene(scene, texel_density=None, max_resolution=1024):
     if geom.shape_material.size and (geom.shape_material.max() >= n_mat or geom.shape_material.min() < 0):
         bad = int(geom.shape_material.max())
         raise SceneError(f"a shape uses material {bad}, but the scene has {len(scene.materials)} materials")
+    csg = info.pop("csg_layout", None)
+    if csg is not None:
+        CSG.check_not_emissive(csg, materials)
     t_geo = time.perf_counter()
-    lightmaps, per_instance = allocate_lightmaps(scene, geom, density, max_resolution)
+    info = dict(info)
+    lightmaps, per_instance = allocate_lightmaps(scene, geom, density, max_resolution, csg,
+                                                 csg_split, info)
     t_lm = time.perf_counter()
     if geom.tlas_min.shape[0] > 0:
         bounds = (geom.tlas_min[0].astype(np.float64), geom.tlas_max[0].astype(np.float64))
@@ -122,7 +148,6 @@ def compile_scene(scene, texel_density=None, max_resolution=1024):
     lights = compile_lights(scene, geom, materials, bounds)
     camera = compile_camera(scene.camera)
     env = _bands(scene.environment, scene.n_bands, "environment")
-    info = dict(info)
     info.update(lightmaps=int(lightmaps.offset.shape[0]), texels=int(lightmaps.area.shape[0]),
                 lights=int(lights.kind.shape[0]))
     cs = CompiledScene(scene.name, int(scene.n_bands), geom, materials, lights, lightmaps, camera,

@@ -26,6 +26,7 @@ import numpy as np
 from numba import njit
 
 from .bvh import REC_WORDS, STACK_BUDGET, aligned_empty, build_bvh, pack_bvh
+from .csg import CSG, CSG_SCRATCH_WORDS, H_CSG, MESH, flatten_csg, pack_blob
 from .primitives import KIND_IDS, prim_local_bounds
 from .scene import SceneError, _affine
 
@@ -77,8 +78,12 @@ H_SINGLE = 18         # the only instance in the TLAS, or -1 (then the TLAS is w
 # word 19 is reserved for engine/csg.py (H_CSG: its blob's offset in the float64 section)
 
 # Stack words a two-level traversal may need: two int32 words per entry,
-# at most STACK_BUDGET entries per level (guaranteed by bvh.pack_bvh).
-STACK_WORDS = 2 * 2 * STACK_BUDGET
+# at most STACK_BUDGET entries per level (guaranteed by bvh.pack_bvh). The
+# ray-CSG kernel's interval lists follow (engine/csg.py), so no ray allocates.
+TRAV_WORDS = 2 * 2 * STACK_BUDGET
+STACK_WORDS = TRAV_WORDS + CSG_SCRATCH_WORDS
+# shape_ref of a CSG solid: CSG_REF - root node (far below any -1 - primitive row)
+CSG_REF = -(1 << 30)
 
 
 @njit(cache=True)
@@ -218,6 +223,35 @@ def _pad(lo, hi):
     return lo - eps, hi + eps
 
 
+def _instance_transforms(instances, n_protos, inst_proto, inst_xf, inst_inv):
+    """Validates and inverts all instance transforms at once (10^6 instances
+    must not cost a Python-level matrix inverse each); a bad one is re-checked
+    alone so the error names the instance."""
+    for i, inst in enumerate(instances):
+        p = inst.prototype
+        if isinstance(p, (bool, np.bool_)) or not isinstance(p, (int, np.integer)) or not 0 <= p < n_protos:
+            _fail(f"instance '{inst.name}'",
+                  f"refers to prototype {p!r}, which does not exist (scene has {n_protos})")
+        inst_proto[i] = p
+        m = np.asarray(inst.transform, dtype=np.float64)
+        inst_xf[i] = m[:3] if m.shape in ((4, 4), (3, 4)) else np.nan
+    if not len(instances):
+        return
+    lin = inst_xf[:, :, :3]
+    with np.errstate(all="ignore"):
+        det = np.linalg.det(lin)
+        scale = np.maximum(np.abs(lin).max(axis=(1, 2)), 1e-300)
+        ok = np.all(np.isfinite(inst_xf), axis=(1, 2)) & (np.abs(det) > 1e-12 * scale ** 3)
+    for i in np.nonzero(~ok)[0]:
+        _affine(instances[i].transform, f"instance '{instances[i].name}'")  # raises with a reason
+    r = np.linalg.inv(lin)
+    inst_inv[:, :, :3] = r
+    inst_inv[:, :, 3] = -np.einsum("ijk,ik->ij", r, inst_xf[:, :, 3])
+    bad = ~np.all(np.isfinite(inst_inv), axis=(1, 2))
+    if bad.any():
+        _fail(f"instance '{instances[int(np.argmax(bad))].name}'", "transform cannot be inverted")
+
+
 def _unwrap_uvs(vertices, triangles, what):
     # TODO: engine/uv_atlas.py was written alongside this module; while it may
     # be missing, meshes without a lightmap UV layer fall back to zero UVs.
@@ -318,6 +352,14 @@ def compile_geometry(scene):
     n_shapes = n_tris = n_prims = n_nodes = 0
     degenerate = {}
     surfaces = []
+    # all CSG solids at once: node ids are global, one blob for the trace
+    csg = flatten_csg([(r, f"prototype '{p.name}'") for p in scene.prototypes for r in p.csg],
+                      n_materials, mesh_uvs=lambda m, w: _check_mesh(m, w, n_materials)[:3])
+    n_leaves = csg.leaf_kind.shape[0]
+    leaf_slot = np.zeros(n_leaves, np.int64)
+    leaf_proto = np.zeros(n_leaves, np.int64)
+    leaf_root = np.zeros(n_leaves, np.int64)
+    n_csg = 0
 
     for pi_, proto in enumerate(scene.prototypes):
         pname = f"prototype '{proto.name}'"
@@ -356,6 +398,27 @@ def compile_geometry(scene):
             k_lo.append(lo[None])
             k_hi.append(hi[None])
             k_prim.append((kid, params, xf, inv))
+        # a CSG solid is one shape over its root box (after the primitives, so
+        # their rows are unchanged); its leaves get surface slots of their own
+        csg_roots = []
+        for _ in proto.csg:
+            root = int(csg.roots[n_csg])
+            leaves = csg.root_leaves[n_csg]
+            n_csg += 1
+            lo, hi = csg.node_box[root, :3], csg.node_box[root, 3:]
+            if np.any(lo > hi):                  # provably empty (disjoint intersection)
+                lo = hi = 0.5 * (lo + hi)
+            k_kind.append(np.array([CSG], np.int32))
+            k_mat.append(np.array([csg.leaf_material[leaves[0]]], np.int32))
+            k_surf.append(np.array([-1], np.int32))
+            k_lo.append(lo[None])
+            k_hi.append(hi[None])
+            csg_roots.append(root)
+            for k in leaves:
+                leaf_slot[k] = len(surf)
+                leaf_proto[k] = pi_
+                leaf_root[k] = root
+                surf.append(("mesh" if csg.leaf_kind[k] == MESH else "csg", csg.leaf_name[k]))
         surfaces.append(surf)
 
         kinds = np.concatenate(k_kind) if k_kind else np.zeros(0, np.int32)
@@ -373,11 +436,17 @@ def compile_geometry(scene):
         bvh = build_bvh(lo, hi)
         order = bvh.items.astype(np.int64)           # BVH leaf order of the shapes
         kinds_o = kinds[order]
+        is_csg = kinds_o == CSG
         tri_rows = row[order][kinds_o == 0]
-        prim_rows = row[order][kinds_o != 0]
+        prim_rows = row[order][(kinds_o != 0) & ~is_csg]
         new_index = np.empty(S, np.int32)
         new_index[kinds_o == 0] = n_tris + np.arange(tri_rows.size)
-        new_index[kinds_o != 0] = n_prims + np.arange(prim_rows.size)
+        new_index[(kinds_o != 0) & ~is_csg] = n_prims + np.arange(prim_rows.size)
+        # CSG shapes are the last shapes of the input order; their index is the root node
+        csg_root_in = np.full(S, -1, np.int64)
+        if csg_roots:
+            csg_root_in[S - len(csg_roots):] = csg_roots
+        new_index[is_csg] = csg_root_in[order][is_csg]
         sh_kind.append(kinds_o)
         sh_index.append(new_index)
         sh_mat.append(mats[order])
@@ -410,6 +479,36 @@ def compile_geometry(scene):
         sh_proto.append(np.full(S, pi_, np.int32))
         n_nodes += bvh.n_nodes
         n_shapes += S
+
+    # Virtual shapes: one per CSG primitive leaf, one per CSG mesh triangle,
+    # after all BVH shapes (outside every BVH). A CSG hit reports one, so the
+    # owning leaf's material and lightmap slot apply (thesis 5.2.1).
+    vs0 = n_shapes
+    prim_row_leaf = {}
+    for k in range(n_leaves):
+        kid = int(csg.leaf_kind[k])
+        if kid == MESH:
+            t0, nt = int(csg.leaf_tri0[k]), int(csg.leaf_ntri[k])
+            sh_kind.append(np.zeros(nt, np.int32))
+            sh_index.append(n_tris + np.arange(nt, dtype=np.int32))
+            sh_mat.append(csg.mtri_material[t0:t0 + nt].astype(np.int32))
+            tri_p.append(csg.mtri[t0:t0 + nt].reshape(-1, 3, 3))
+            tri_uv.append(csg.mtri_uv[t0:t0 + nt])
+            n_tris += nt
+        else:
+            nt = 1
+            sh_kind.append(np.array([kid], np.int32))
+            sh_index.append(np.array([n_prims], np.int32))
+            sh_mat.append(csg.leaf_material[k:k + 1].astype(np.int32))
+            pr_kind.append(kid)
+            pr_params.append(csg.leaf_params[k])
+            pr_xf.append(csg.leaf_xf[k])
+            pr_inv.append(csg.leaf_inv[k])
+            prim_row_leaf[n_prims] = k
+            n_prims += 1
+        sh_surf.append(np.full(nt, leaf_slot[k], np.int32))
+        sh_proto.append(np.full(nt, leaf_proto[k], np.int32))
+    csg_blob = pack_blob(csg, vs0)
 
     cat = lambda lst, shape, dt: (np.ascontiguousarray(np.concatenate(lst).astype(dt))
                                   if lst else np.zeros(shape, dt))
@@ -475,6 +574,8 @@ def compile_geometry(scene):
         _fill_packets(np.concatenate(leaf_first), np.concatenate(leaf_count),
                       np.concatenate(leaf_pk), shape_kind, shape_index, tri_p_a,
                       tri4, lane_shape, shape_ref)
+    is_csg = shape_kind[:n_shapes] == CSG
+    shape_ref[is_csg] = CSG_REF - shape_index[:n_shapes][is_csg]
 
     # instances
     n_inst = len(scene.instances)
@@ -485,29 +586,23 @@ def compile_geometry(scene):
     n_lightmaps = 0
     t_lo = np.zeros((n_inst, 3))
     t_hi = np.zeros((n_inst, 3))
-    live = np.zeros(n_inst, bool)
     n_protos = len(scene.prototypes)
+    _instance_transforms(scene.instances, n_protos, inst_proto, inst_xf, inst_inv)
     for i, inst in enumerate(scene.instances):
-        what = f"instance '{inst.name}'"
-        p = inst.prototype
-        if isinstance(p, (bool, np.bool_)) or not isinstance(p, (int, np.integer)) or not 0 <= p < n_protos:
-            _fail(what, f"refers to prototype {p!r}, which does not exist (scene has {n_protos})")
-        xf = _affine(inst.transform, what)
-        inst_proto[i] = p
-        inst_xf[i] = xf
-        inst_inv[i] = _inverse(xf)
-        if not np.all(np.isfinite(inst_inv[i])):
-            _fail(what, "transform cannot be inverted")
         if inst.lightmap:
             inst_lm_base[i] = n_lightmaps
-            n_lightmaps += int(proto_n_surfaces[p])
-        r = proto_root[p]
-        lo = blas_min[r].astype(np.float64)
-        hi = blas_max[r].astype(np.float64)
-        if np.all(lo <= hi):
-            wlo, whi = _box_corners_through(lo, hi, xf)
-            t_lo[i], t_hi[i] = _pad(wlo, whi)
-            live[i] = True
+            n_lightmaps += int(proto_n_surfaces[inst_proto[i]])
+    # World boxes: the 8 corners of each prototype's root box through its instance.
+    roots = np.asarray(proto_root, np.int64)[inst_proto] if n_inst else np.zeros(0, np.int64)
+    lo = blas_min[roots].astype(np.float64)
+    hi = blas_max[roots].astype(np.float64)
+    live = np.all(lo <= hi, axis=1)
+    sel = np.arange(8)
+    corners = np.stack([np.where(((sel >> k) & 1)[None, :], hi[:, None, k], lo[:, None, k])
+                        for k in range(3)], axis=-1)                       # (I, 8, 3)
+    world = np.einsum("ijk,ilk->ilj", inst_xf[:, :, :3], corners) + inst_xf[:, None, :, 3]
+    if n_inst:
+        t_lo[live], t_hi[live] = _pad(world.min(axis=1)[live], world.max(axis=1)[live])
     live_ids = np.nonzero(live)[0].astype(np.int32)
     tl = build_bvh(t_lo[live_ids], t_hi[live_ids])
     tlas_items = live_ids[tl.items] if live_ids.size else np.zeros(0, np.int32)
@@ -522,14 +617,14 @@ def compile_geometry(scene):
     # identity instances let the traversal reuse the world ray's setup; a
     # single instance needs no TLAS walk at all (its root box test repeats
     # the BLAS one)
-    ident = np.array([np.array_equal(x, np.eye(4)[:3]) for x in inst_xf], np.int32).reshape(-1)
+    ident = np.all(inst_xf == np.eye(4)[:3], axis=(1, 2)).astype(np.int32).reshape(-1)
     trace = _build_trace(
         records, n_tlas_rec,
         [(H_SHAPE_REF, shape_ref), (H_LANE_SHAPE, lane_shape),
          (H_PROTO_SLOT, proto_slot + n_tlas_rec), (H_INST_PROTO, inst_proto),
          (H_TLAS_ITEMS, tlas_items), (H_PRIM_KIND, prim_kind), (H_INST_IDENT, ident)],
         [(H_TRI4, tri4), (H_INST_INV, inst_inv), (H_PRIM_INV, prim_inv),
-         (H_PRIM_PARAMS, prim_params)],
+         (H_PRIM_PARAMS, prim_params), (H_CSG, csg_blob)],
         extra=[(H_SINGLE, int(tlas_items[0]) if len(tlas_items) == 1 else -1)])
     t_arr = trace_arrays_raw(trace)
 
@@ -569,6 +664,12 @@ def compile_geometry(scene):
         "trace_bytes": int(trace.nbytes),
         "build_seconds": time.perf_counter() - t0,
     }
+    info.update(csg.info)
+    if n_leaves:
+        # for compile.py (lightmaps of the leaves); not plain data, popped there
+        info["csg_layout"] = {"flat": csg, "prim_row_leaf": prim_row_leaf, "leaf_root": leaf_root,
+                              "vs0": vs0,
+                              "trace": (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)}
     return g, info
 
 

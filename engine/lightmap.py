@@ -53,6 +53,11 @@ Lightmaps = namedtuple("Lightmaps", [
     "hits",        # int64[N]
     "irradiance",  # float64[N, B] E = flux / area after finalize(), dilated into empty texels
     "state",       # int8[N]    STATE_EMPTY / STATE_MEASURED / STATE_DILATED
+    # CSG texel splitting (thesis 5.2.2, engine/csg.py): a texel cut into several
+    # disjoint visible regions keeps region 0 and gets sub-texel rows for the rest
+    "split",       # int32[N]   -1, or row k of the tables below
+    "split_first", # int64[K]   texel row of region 1 (regions 1.. are consecutive)
+    "split_cell",  # int8[K, 64] region of each cell of the texel's 8x8 sampling grid
 ])
 
 LightmapStats = namedtuple("LightmapStats", [
@@ -88,7 +93,8 @@ def allocate(layouts, n_bands):
         n += w * h
     return Lightmaps(offset, width, height, tiles,
                      np.zeros(n), np.zeros(n), np.zeros((n, n_bands)), np.zeros(n),
-                     np.zeros(n, np.int64), np.zeros((n, n_bands)), np.zeros(n, np.int8))
+                     np.zeros(n, np.int64), np.zeros((n, n_bands)), np.zeros(n, np.int8),
+                     np.full(n, -1, np.int32), np.zeros(0, np.int64), np.zeros((0, 64), np.int8))
 
 
 def n_texels(lm):
@@ -734,6 +740,28 @@ def texel_index(lm, lm_id, face, s, t):
     return lm.offset[lm_id] + y * w + f * r + x
 
 
+SPLIT_SUB = 8   # sampling grid of a split texel (engine/csg.py SPLIT_SUB)
+
+
+@njit(cache=True, inline="always")
+def record_index(lm, lm_id, face, s, t):
+    """Row that a hit at (s, t) of tile `face` records into: its texel, or for
+    a split texel the sub-texel of the sampling cell under the hit."""
+    i = texel_index(lm, lm_id, face, s, t)
+    k = lm.split[i]
+    if k < 0:
+        return i
+    r = np.int64(lm.width[lm_id]) // np.int64(lm.tiles[lm_id])
+    fx = min(max(s, 0.0), 1.0) * r
+    fy = min(max(t, 0.0), 1.0) * r
+    cx = min(max(np.int64((fx - min(math.floor(fx), r - 1)) * SPLIT_SUB), 0), SPLIT_SUB - 1)
+    cy = min(max(np.int64((fy - min(math.floor(fy), r - 1)) * SPLIT_SUB), 0), SPLIT_SUB - 1)
+    c = np.int64(lm.split_cell[k, cy * SPLIT_SUB + cx])
+    if c <= 0:
+        return i
+    return lm.split_first[k] + c - 1
+
+
 @njit(cache=True)
 def accumulate_kernel(lm, texel_ids, powers):
     """Serial, in record order: same input order -> bit-identical sums. Ids < 0 are skipped."""
@@ -963,6 +991,13 @@ def lookup_bilinear(lm, lm_id, face, s, t, out):
 
 @njit(cache=True)
 def lookup(lm, lm_id, face, s, t, mode, out):
+    i = texel_index(lm, lm_id, face, s, t)
+    if lm.split[i] >= 0:
+        # a split texel: its sub-texels do not blend across the cut
+        j = record_index(lm, lm_id, face, s, t)
+        for b in range(out.shape[0]):
+            out[b] = lm.irradiance[j, b]
+        return
     if mode == MODE_BILINEAR:
         lookup_bilinear(lm, lm_id, face, s, t, out)
     else:

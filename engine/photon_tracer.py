@@ -118,7 +118,7 @@ def _trace_chunk(g, ms, ls, lm, seed, first, n_total, max_bounces, record_from,
             if depth >= record_from and rec < n_rec:
                 lid, f, s, tt = lightmap_slot(g, lm, inst, shape, face, u, v)
                 if lid >= 0:
-                    rec_texel[i, rec] = LM.texel_index(lm, lid, f, s, tt)
+                    rec_texel[i, rec] = LM.record_index(lm, lid, f, s, tt)
                     for b in range(nb):
                         rec_power[i, rec, b] = power[b]
                     if rec_point.shape[0] > 0:

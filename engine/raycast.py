@@ -38,6 +38,7 @@ from numba.extending import intrinsic
 
 from . import geometry as G
 from .geometry import STACK_WORDS, TRI_LEAF, new_stack  # noqa: F401  (re-exported)
+from .csg import csg_closest_core, csg_surface_core, csg_vs0
 from .primitives import prim_hits, prim_surface
 from .triangle import pick, triangle_normal, woop_setup, woop_test
 
@@ -439,6 +440,14 @@ def _blas_closest(buf, stack, fstack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tbes
                             if h:
                                 tbest = t
                                 code = r
+                        elif r <= G.CSG_REF:
+                            # a CSG solid: the hit is reported on the owning
+                            # leaf's virtual shape
+                            t, vs = csg_closest_core(buf, stack, G.TRAV_WORDS, G.CSG_REF - r,
+                                                     ox, oy, oz, dx, dy, dz, tmin, tbest)
+                            if t < tbest:
+                                tbest = t
+                                code = -1 - vs
                         else:
                             t = _prim_first(i32, f64, ib, fb, i64, -1 - r, ox, oy, oz,
                                             dx, dy, dz, tmin, tbest)
@@ -620,6 +629,10 @@ def _blas_any(buf, stack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
                                                 sx, sy, sz, okx, oky, okz, tmin, tmax)
                         if h:
                             return True
+                    elif r <= G.CSG_REF:
+                        if csg_closest_core(buf, stack, G.TRAV_WORDS, G.CSG_REF - r, ox, oy, oz,
+                                            dx, dy, dz, tmin, tmax)[0] < tmax:
+                            return True
                     elif _prim_first(i32, f64, ib, fb, i64, -1 - r, ox, oy, oz,
                                      dx, dy, dz, tmin, tmax) < tmax:
                         return True
@@ -669,8 +682,13 @@ def surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
     """(face, u, v, nx, ny, nz) of a hit from `closest_core`, world unit normal."""
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
     m_inst = fb + i64[G.H_INST_INV] + 12 * inst
-    r = i32[ib + i64[G.H_SHAPE_REF] + shape]
-    if r >= 0:
+    is_csg = shape >= csg_vs0(buf)
+    r = 0 if is_csg else i32[ib + i64[G.H_SHAPE_REF] + shape]
+    if is_csg:
+        # CSG leaf hit: the owning primitive's chart, the solid's normal
+        ux, uy, uz, vx, vy, vz = _xform(f64, m_inst, ox, oy, oz, dx, dy, dz)
+        face, u, v, px, py, pz = csg_surface_core(buf, shape, ux, uy, uz, vx, vy, vz, t)
+    elif r >= 0:
         base = fb + i64[G.H_TRI4] + 36 * (r >> 2) + (r & 3)
         px, py, pz = triangle_normal(f64[base], f64[base + 4], f64[base + 8],
                                      f64[base + 12], f64[base + 16], f64[base + 20],

@@ -1,6 +1,6 @@
 # Photon Lightmaps: `make demo` (set up + demo scene), `make test`, `make bench`.
 PY := .venv/bin/python
-export NUMBA_CACHE_DIR ?= $(CURDIR)/.numba_cache
+export PHOTON_LIGHTMAPS_NUMBA_CACHE ?= $(CURDIR)/.numba_cache
 
 .PHONY: setup demo test bench clean
 setup: .venv/.stamp

@@ -18,8 +18,9 @@ import sys
 import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2]))
-os.environ.setdefault("NUMBA_CACHE_DIR", str(pathlib.Path(__file__).resolve().parents[1] / ".numba_cache"))
+os.environ.setdefault("PHOTON_LIGHTMAPS_NUMBA_CACHE", str(pathlib.Path(__file__).resolve().parents[1] / ".numba_cache"))
 
+import photon_lightmaps.engine  # noqa: E402,F401  (sets the numba cache before numba loads)
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 

@@ -22,14 +22,15 @@ import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-os.environ.setdefault("NUMBA_CACHE_DIR", str(ROOT / ".numba_cache"))
+os.environ.setdefault("PHOTON_LIGHTMAPS_NUMBA_CACHE", str(ROOT / ".numba_cache"))
 
+import photon_lightmaps.engine  # noqa: E402,F401  (sets the numba cache before numba loads)
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
-from engine import raycast as R  # noqa: E402
-from engine.geometry import compile_geometry  # noqa: E402
-from engine.scene import Scene, TriangleMesh  # noqa: E402
+from photon_lightmaps.engine import raycast as R  # noqa: E402
+from photon_lightmaps.engine.geometry import compile_geometry  # noqa: E402
+from photon_lightmaps.engine.scene import Scene, TriangleMesh  # noqa: E402
 
 
 def uv_sphere(n_lon, n_lat):

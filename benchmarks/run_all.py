@@ -23,7 +23,7 @@ if __package__ in (None, ""):
     # Run as a script: make `benchmarks` importable the same way -m does.
     sys.path.insert(0, str(ROOT))
     __package__ = "benchmarks"
-os.environ.setdefault("NUMBA_CACHE_DIR", str(ROOT / ".numba_cache"))
+os.environ.setdefault("PHOTON_LIGHTMAPS_NUMBA_CACHE", str(ROOT / ".numba_cache"))
 
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402

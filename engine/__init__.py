@@ -1,8 +1,23 @@
 """Photon-tracing core of Photon Lightmaps. Imports without Blender (no bpy here)."""
+import hashlib
 import os
 import pathlib
 
+
+def _source_digest():
+    """Hash of the engine's sources. numba's cache only tracks the file a kernel is
+    defined in, not the kernels it inlines from other modules, so after an
+    upgrade a stale cache entry can run old traversal code: keying the cache
+    folder by all sources makes every version compile into its own folder."""
+    h = hashlib.sha1()
+    for p in sorted(pathlib.Path(__file__).parent.glob("*.py")):
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()[:12]
+
+
 # numba reads NUMBA_CACHE_DIR when it is first imported: give it a writable
-# per-user folder so kernels compile once (Blender's install dir may be read-only).
-os.environ.setdefault("NUMBA_CACHE_DIR",
-                      str(pathlib.Path.home() / ".cache" / "photon_lightmaps" / "numba"))
+# per-user folder (Blender's install dir may be read-only).
+_base = os.environ.get("PHOTON_LIGHTMAPS_NUMBA_CACHE") or str(
+    pathlib.Path.home() / ".cache" / "photon_lightmaps" / "numba")
+os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(_base, _source_digest()))

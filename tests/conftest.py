@@ -1,5 +1,8 @@
 import os
 import pathlib
 
-# Compile numba kernels once per checkout, not once per test run.
-os.environ.setdefault("NUMBA_CACHE_DIR", str(pathlib.Path(__file__).resolve().parents[1] / ".numba_cache"))
+# Compile numba kernels once per checkout and engine version, not once per run
+# (the engine package keys the folder by a hash of its sources).
+os.environ.setdefault("PHOTON_LIGHTMAPS_NUMBA_CACHE",
+                      str(pathlib.Path(__file__).resolve().parents[1] / ".numba_cache"))
+import photon_lightmaps.engine  # noqa: E402,F401  (sets NUMBA_CACHE_DIR before numba loads)

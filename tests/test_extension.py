@@ -281,7 +281,7 @@ def test_install_render_reload_uninstall(linux_zip, tmp_path):
     with _user_resources() as resources:
         env = dict(os.environ, BLENDER_USER_RESOURCES=resources)
         # Kernels compile once per source change into the checkout's cache (conftest sets it).
-        env.setdefault("NUMBA_CACHE_DIR", os.path.join(ROOT, ".numba_cache"))
+        env.setdefault("PHOTON_LIGHTMAPS_NUMBA_CACHE", os.path.join(ROOT, ".numba_cache"))
         proc = subprocess.run([sys.executable, str(script), linux_zip, ROOT, str(tmp_path)],
                               capture_output=True, text=True, timeout=1500, env=env)
     log = proc.stdout[-6000:] + proc.stderr[-6000:]

@@ -51,9 +51,9 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit, prange
 
-from .engine import lightmap as LM
+from .engine import lightmap as LM  # first: the engine package picks numba's cache folder
+from numba import njit, prange  # noqa: E402
 from .engine.photon_tracer import Cancelled
 
 IMAGE_SUFFIX = "_Lightmap"

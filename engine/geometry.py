@@ -253,12 +253,8 @@ def _instance_transforms(instances, n_protos, inst_proto, inst_xf, inst_inv):
 
 
 def _unwrap_uvs(vertices, triangles, what):
-    # TODO: engine/uv_atlas.py was written alongside this module; while it may
-    # be missing, meshes without a lightmap UV layer fall back to zero UVs.
-    try:
-        from .uv_atlas import unwrap
-    except ImportError:
-        return np.zeros((triangles.shape[0], 3, 2))
+    """Lightmap UVs for a mesh that has none: an xatlas unwrap (cached on disk)."""
+    from .uv_atlas import unwrap  # imported late: xatlas is only needed for such meshes
     uv = np.asarray(unwrap(vertices, triangles), dtype=np.float64)
     if uv.shape != (triangles.shape[0], 3, 2):
         _fail(what, f"UV unwrap returned shape {uv.shape}")

@@ -23,14 +23,7 @@ from photon_lightmaps import demo_blend, registration, uv_layers  # noqa: E402
 from photon_lightmaps.engine.photon_tracer import Cancelled  # noqa: E402
 
 
-@pytest.fixture(scope="session", autouse=True)
-def addon():
-    ours = not registration.is_registered()
-    if ours:
-        photon_lightmaps.register()
-    yield
-    if ours:
-        photon_lightmaps.unregister()
+from blender_session import addon  # noqa: E402,F401  (session-wide registration)
 
 
 @pytest.fixture(autouse=True)

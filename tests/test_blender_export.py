@@ -16,14 +16,7 @@ from photon_lightmaps.engine.compile import compile_scene  # noqa: E402
 from photon_lightmaps.engine.renderer import compile_camera  # noqa: E402
 
 
-@pytest.fixture(scope="session", autouse=True)
-def addon():
-    owned = not registration.is_registered()
-    if owned:
-        photon_lightmaps.register()
-    yield
-    if owned:
-        photon_lightmaps.unregister()
+from blender_session import addon  # noqa: E402,F401  (session-wide registration)
 
 
 @pytest.fixture(autouse=True)

@@ -31,14 +31,7 @@ ENGINE = "PHOTON_LIGHTMAPS"
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(scope="session", autouse=True)
-def addon():
-    owned = not registration.is_registered()
-    if owned:
-        photon_lightmaps.register()
-    yield
-    if owned:
-        photon_lightmaps.unregister()
+from blender_session import addon  # noqa: E402,F401  (session-wide registration)
 
 
 @pytest.fixture(autouse=True)

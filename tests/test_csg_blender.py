@@ -21,14 +21,7 @@ from photon_lightmaps.engine.scene import CSGNode, Primitive, TriangleMesh  # no
 from photon_lightmaps.operators import csg_primitives  # noqa: E402
 
 
-@pytest.fixture(scope="session", autouse=True)
-def addon():
-    owned = not registration.is_registered()
-    if owned:
-        photon_lightmaps.register()
-    yield
-    if owned:
-        photon_lightmaps.unregister()
+from blender_session import addon  # noqa: E402,F401  (session-wide registration)
 
 
 @pytest.fixture(autouse=True)

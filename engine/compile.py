@@ -6,13 +6,15 @@ camera. The result is what the photon pass and the renderer share.
 """
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from . import csg as CSG
 from . import lightmap as LM
+from . import orientation_lightmap as OL
 from . import primitives as P
+from .area_estimation import estimate_areas
 from .geometry import compile_geometry
 from .lights import compile_lights
 from .materials import compile_materials
@@ -34,6 +36,8 @@ class CompiledScene:
     timings: dict = field(default_factory=dict)
     # instance_lightmaps[i] lists lightmap ids of instance i, in surface-slot order.
     instance_lightmaps: list = field(default_factory=list)
+    # orientation lightmaps: routing of instances to OLs and their lightmap ids
+    orientation: object = None
 
     def lightmap_bytes(self):
         lm = self.lightmaps
@@ -71,13 +75,15 @@ def _prototype_surfaces(geom):
 
 
 def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None, csg_split=True,
-                       info=None):
+                       info=None, ol_maps=None):
     """One lightmap per (recording instance, surface slot), sized by texel density.
 
     csg: the geometry's CSG layout; the lightmaps of CSG leaf primitives then
     count only the surface left on the solid, and texels cut into disjoint
     regions get sub-texels (csg_split=False: plain primitive lightmaps).
-    Split statistics go into `info`."""
+    Split statistics go into `info`. ol_maps (orientation_lightmap.plan):
+    each OL gets one R×R lightmap after the instances' ones, its bin areas
+    estimated stochastically; returns ol_maps with those lightmap ids."""
     surfaces = _prototype_surfaces(geom)
     layouts, fills, per_instance = [], [], []
     for i, inst in enumerate(scene.instances):
@@ -102,6 +108,11 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
                 ids.append(len(layouts) - 1)
         per_instance.append(ids)
     plan, n_sub, t_plan = CSG.plan_csg_lightmaps(csg if csg_split else None, fills, layouts)
+    ols = list(scene.orientation_lightmaps)
+    ol_lids = []
+    for ol in ols:
+        layouts.append((int(ol.resolution), int(ol.resolution), 1))
+        ol_lids.append(len(layouts) - 1)
     extra_lid = None
     if n_sub:
         layouts.append((n_sub, 1, 1))           # the sub-texel rows
@@ -117,7 +128,66 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
         st["csg_setup_seconds"] = t_plan + st.pop("csg_apply_seconds")
         if info is not None:
             info.update(st)
-    return lm, per_instance
+    if ols:
+        ol_maps = OL.with_lightmap_ids(ol_maps, ol_lids)
+        rows = _orientation_areas(ols, ol_maps, geom, lm)
+        if info is not None:
+            info["orientation_lightmaps"] = rows
+    return lm, per_instance, ol_maps
+
+
+def _orientation_areas(ols, maps, geom, lm):
+    """Estimates each OL's own instances, then sums each subtree bottom-up, so
+    a level's area covers exactly the instances whose hits it receives."""
+    K = len(ols)
+    own = []
+    for k, ol in enumerate(ols):
+        mine = np.flatnonzero(maps.inst_ol == k)
+        covered = OL.covered_instances(maps, k)
+        member = np.zeros(maps.inst_ol.shape[0], np.bool_)
+        member[covered] = True
+        own.append(estimate_areas(geom, mine, int(ol.resolution), int(ol.samples), int(ol.seed),
+                                  member=member))
+    area = [e.area.copy() for e in own]
+    var = [(e.area * np.where(np.isfinite(e.rel_error), e.rel_error, 0.0)) ** 2 for e in own]
+    weight = [e.total * e.openness for e in own]
+    total = [e.total for e in own]
+    secs = [e.seconds for e in own]
+    # children before parents: deeper levels first
+    depth = [len(_chain(maps, k)) for k in range(K)]
+    for k in sorted(range(K), key=lambda k: -depth[k]):
+        p = int(maps.parent[k])
+        if p >= 0:
+            area[p] += area[k]
+            var[p] += var[k]
+            weight[p] += weight[k]
+            total[p] += total[k]
+    rows = []
+    for k, ol in enumerate(ols):
+        LM.set_areas(lm, int(maps.lid[k]), area[k])
+        pos = area[k] > 0
+        rel = np.full(area[k].shape, np.inf)
+        rel[pos] = np.sqrt(var[k][pos]) / area[k][pos]
+        tot = float(area[k].sum())
+        rows.append(dict(
+            name=ol.name, resolution=int(ol.resolution), bins=int(area[k].size),
+            bins_with_area=int(pos.sum()), parent=int(maps.parent[k]), backup=bool(ol.backup),
+            instances=int(OL.covered_instances(maps, k).size), parts=int(own[k].parts),
+            samples=int(own[k].samples), area=tot,
+            area_rel_error=float(math.sqrt(var[k].sum()) / tot) if tot > 0 else math.inf,
+            bin_rel_error=rel,
+            openness=float(weight[k] / total[k]) if total[k] > 0 else 1.0,
+            area_seconds=float(secs[k])))
+        rows[-1]["warnings"] = OL.averaging_warnings(rows[-1], area[k])
+    return rows
+
+
+def _chain(maps, k):
+    out = []
+    while k >= 0:
+        out.append(k)
+        k = int(maps.parent[k])
+    return out
 
 
 def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True):
@@ -128,6 +198,12 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     if not (math.isfinite(density) and density > 0):
         raise SceneError(f"texel density must be positive, got {density}")
     materials = compile_materials(scene)
+    ol_maps = OL.plan(scene)
+    if ol_maps.lid.size:
+        # instances under a (non-backup) OL record there instead of on own lightmaps
+        scene = replace(scene, instances=[
+            replace(inst, lightmap=False) if ol_maps.inst_ol[i] >= 0 and not ol_maps.inst_keep[i]
+            else inst for i, inst in enumerate(scene.instances)])
     geom, info = compile_geometry(scene)
     n_mat = materials.diffuse.shape[0]
     if geom.shape_material.size and (geom.shape_material.max() >= n_mat or geom.shape_material.min() < 0):
@@ -138,8 +214,8 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
         CSG.check_not_emissive(csg, materials)
     t_geo = time.perf_counter()
     info = dict(info)
-    lightmaps, per_instance = allocate_lightmaps(scene, geom, density, max_resolution, csg,
-                                                 csg_split, info)
+    lightmaps, per_instance, ol_maps = allocate_lightmaps(scene, geom, density, max_resolution,
+                                                          csg, csg_split, info, ol_maps)
     t_lm = time.perf_counter()
     if geom.tlas_min.shape[0] > 0:
         bounds = (geom.tlas_min[0].astype(np.float64), geom.tlas_max[0].astype(np.float64))
@@ -151,7 +227,7 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     info.update(lightmaps=int(lightmaps.offset.shape[0]), texels=int(lightmaps.area.shape[0]),
                 lights=int(lights.kind.shape[0]))
     cs = CompiledScene(scene.name, int(scene.n_bands), geom, materials, lights, lightmaps, camera,
-                       env, info, instance_lightmaps=per_instance)
+                       env, info, instance_lightmaps=per_instance, orientation=ol_maps)
     cs.timings.update(geometry=t_geo - t0, lightmap_setup=t_lm - t_geo,
                       setup=time.perf_counter() - t0)
     return cs

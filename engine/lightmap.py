@@ -740,6 +740,23 @@ def texel_index(lm, lm_id, face, s, t):
     return lm.offset[lm_id] + y * w + f * r + x
 
 
+@njit(cache=True)
+def lightmap_slot(g, lm, inst, shape, face, u, v):
+    """(lightmap id, face, s, t) where hit (inst, shape, face, u, v) lands; id -1 if none."""
+    base = g.inst_lm_base[inst]
+    slot = g.shape_surface[shape]
+    if base < 0 or slot < 0:
+        return -1, 0, 0.0, 0.0
+    if g.shape_kind[shape] == 0:
+        # Triangle: interpolate the atlas UVs with the barycentrics.
+        uv = g.tri_uv[g.shape_index[shape]]
+        w0 = 1.0 - u - v
+        s = w0 * uv[0, 0] + u * uv[1, 0] + v * uv[2, 0]
+        t = w0 * uv[0, 1] + u * uv[1, 1] + v * uv[2, 1]
+        return base + slot, 0, s, t
+    return base + slot, face, u, v
+
+
 SPLIT_SUB = 8   # sampling grid of a split texel (engine/csg.py SPLIT_SUB)
 
 

@@ -20,6 +20,8 @@ import numpy as np
 from numba import njit, prange
 
 from . import lightmap as LM
+from . import orientation_lightmap as OL
+from .lightmap import lightmap_slot  # noqa: F401  (hosts import it from here)
 from .lights import emit_photon
 from .materials import DIFFUSE, SPECULAR, TRANSMIT, lobe_probabilities, scatter
 from .raycast import STACK_WORDS, intersect_closest
@@ -64,25 +66,8 @@ def ray_epsilon(px, py, pz):
     return 1e-7 * (1.0 + max(abs(px), abs(py), abs(pz)))
 
 
-@njit(cache=True)
-def lightmap_slot(g, lm, inst, shape, face, u, v):
-    """(lightmap id, face, s, t) where hit (inst, shape, face, u, v) lands; id -1 if none."""
-    base = g.inst_lm_base[inst]
-    slot = g.shape_surface[shape]
-    if base < 0 or slot < 0:
-        return -1, 0, 0.0, 0.0
-    if g.shape_kind[shape] == 0:
-        # Triangle: interpolate the atlas UVs with the barycentrics.
-        uv = g.tri_uv[g.shape_index[shape]]
-        w0 = 1.0 - u - v
-        s = w0 * uv[0, 0] + u * uv[1, 0] + v * uv[2, 0]
-        t = w0 * uv[0, 1] + u * uv[1, 1] + v * uv[2, 1]
-        return base + slot, 0, s, t
-    return base + slot, face, u, v
-
-
 @njit(cache=True, parallel=True)
-def _trace_chunk(g, ms, ls, lm, seed, first, n_total, max_bounces, record_from,
+def _trace_chunk(g, ms, ls, lm, ol, seed, first, n_total, max_bounces, record_from,
                  rec_texel, rec_power, rec_point, ledger, rays):
     count = rec_texel.shape[0]
     n_rec = rec_texel.shape[1]
@@ -115,9 +100,9 @@ def _trace_chunk(g, ms, ls, lm, seed, first, n_total, max_bounces, record_from,
                     ledger[i, 2, b] += power[b]
                 break
             px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-            if depth >= record_from and rec < n_rec:
+            if depth >= record_from:
                 lid, f, s, tt = lightmap_slot(g, lm, inst, shape, face, u, v)
-                if lid >= 0:
+                if lid >= 0 and rec < n_rec:
                     rec_texel[i, rec] = LM.record_index(lm, lid, f, s, tt)
                     for b in range(nb):
                         rec_power[i, rec, b] = power[b]
@@ -130,6 +115,14 @@ def _trace_chunk(g, ms, ls, lm, seed, first, n_total, max_bounces, record_from,
                         rec_point[i, rec, 4] = ny
                         rec_point[i, rec, 5] = nz
                     rec += 1
+                # the hit's normal bin in its OL and every level above (thesis 6.2)
+                k = ol.inst_ol[inst]
+                while k >= 0 and rec < n_rec:
+                    rec_texel[i, rec] = OL.bin_index(lm, ol, k, nx, ny, nz)
+                    for b in range(nb):
+                        rec_power[i, rec, b] = power[b]
+                    rec += 1
+                    k = ol.parent[k]
             if depth >= max_bounces:
                 for b in range(nb):
                     ledger[i, 3, b] += power[b]
@@ -189,7 +182,9 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     if n_photons == 0 or cs.lights.total_power <= 0.0:
         return stats
     t0 = time.perf_counter()
-    n_rec = int(max_bounces) + 1
+    ol = cs.orientation if cs.orientation is not None else OL.empty_maps(cs.geometry.inst_proto.shape[0])
+    # one record per hit on an own lightmap, plus one per OL level above the instance
+    n_rec = (int(max_bounces) + 1) * (1 + OL.levels(ol))
     chunk = chunk or max(4096, min(1 << 16, (1 << 21) // n_rec))
     rec_texel = np.empty((chunk, n_rec), np.int64)
     rec_power = np.empty((chunk, n_rec, nb))
@@ -201,7 +196,7 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     done = 0
     while done < n_photons:
         c = min(chunk, n_photons - done)
-        _trace_chunk(cs.geometry, cs.materials, cs.lights, lm, np.uint64(seed), done, n_photons,
+        _trace_chunk(cs.geometry, cs.materials, cs.lights, lm, ol, np.uint64(seed), done, n_photons,
                      int(max_bounces), 0 if record_direct else 1,
                      rec_texel[:c], rec_power[:c], rec_point[:c], ledger[:c], rays[:c])
         ids = rec_texel[:c].reshape(-1)

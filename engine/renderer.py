@@ -14,8 +14,9 @@ import numpy as np
 from numba import njit, prange
 
 from . import lightmap as LM
+from . import orientation_lightmap as OL
 from .lights import sample_light
-from .photon_tracer import Cancelled, lightmap_slot, ray_epsilon
+from .photon_tracer import Cancelled, ray_epsilon
 from .raycast import STACK_WORDS, intersect_closest, occluded
 from .sampling import next_float, stream_state
 from .materials import SPECULAR, TRANSMIT, scatter
@@ -114,7 +115,7 @@ def direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, out):
 
 
 @njit(cache=True, parallel=True)
-def _render_tile(g, ms, ls, lm, cam, env, x0, y0, tw, th, spp, seed, mode, max_depth, indirect,
+def _render_tile(g, ms, ls, lm, ol, cam, env, x0, y0, tw, th, spp, seed, mode, max_depth, indirect,
                  out):
     nb = out.shape[2]
     for idx in prange(tw * th):
@@ -156,12 +157,10 @@ def _render_tile(g, ms, ls, lm, cam, env, x0, y0, tw, th, spp, seed, mode, max_d
                     for b in range(nb):
                         e[b] = 0.0
                     state = direct_irradiance(g, ls, stack, px, py, pz, fx, fy, fz, state, e)
-                    if indirect:
-                        lid, f, su, sv = lightmap_slot(g, lm, inst, shape, face, u, v)
-                        if lid >= 0:
-                            LM.lookup(lm, lid, f, su, sv, mode, ind)
-                            for b in range(nb):
-                                e[b] += ind[b]
+                    if indirect and OL.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
+                                                          nx, ny, nz, mode, ind):
+                        for b in range(nb):
+                            e[b] += ind[b]
                     for b in range(nb):
                         acc[b] += tp[b] * ms.diffuse[m, b] * e[b] / math.pi
                 # Continue along a specular or transmitted lobe, chosen by probability.
@@ -207,12 +206,13 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
     cam = cs.camera
     img = np.zeros((cam.height, cam.width, cs.n_bands))
     env = np.ascontiguousarray(cs.environment, dtype=np.float64)
+    ol = cs.orientation if cs.orientation is not None else OL.empty_maps(cs.geometry.inst_proto.shape[0])
     t0 = time.perf_counter()
     for y0 in range(0, cam.height, tile):
         for x0 in range(0, cam.width, tile):
             tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
             out = np.zeros((th, tw, cs.n_bands))
-            _render_tile(cs.geometry, cs.materials, cs.lights, cs.lightmaps, cam, env,
+            _render_tile(cs.geometry, cs.materials, cs.lights, cs.lightmaps, ol, cam, env,
                          x0, y0, tw, th, int(samples), np.uint64(seed), int(mode), int(max_depth),
                          bool(indirect), out)
             img[y0:y0 + th, x0:x0 + tw] = out

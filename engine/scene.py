@@ -152,6 +152,25 @@ class Instance:
 
 
 @dataclass
+class OrientationLightmap:
+    """A normal-indexed lightmap shared by a group of instances (thesis ch. 6).
+
+    `instances` are the instances whose innermost OL this is; `parent` (an
+    index into Scene.orientation_lightmaps, -1 for none) also receives their
+    hits, so each level of a hierarchy holds its whole subtree (fig. 6.3).
+    backup=True: the instances keep their own lightmaps and this OL stands in
+    where a texel has too few photons (6.2.1)."""
+    name: str = "orientation lightmap"
+    instances: list = field(default_factory=list)
+    parent: int = -1
+    resolution: int = 16            # octahedral bins per side
+    samples: int = 20000            # area-estimation samples (6.3)
+    min_hits: int = 16              # a bin with fewer hits defers to the parent level
+    backup: bool = False
+    seed: int = 0
+
+
+@dataclass
 class Light:
     kind: str                       # point | spot | sun | area
     color: object = 1.0
@@ -189,6 +208,7 @@ class Scene:
     environment: object = 0.0       # constant world radiance per band
     texel_density: float = 16.0     # lightmap texels per metre
     name: str = "scene"
+    orientation_lightmaps: list = field(default_factory=list)  # OrientationLightmap
 
     # convenience builders -------------------------------------------------
     def add_material(self, material):

@@ -283,7 +283,7 @@ def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAM
     (those finalize() computes: area above the sliver threshold) and their
     direct irradiance in W/m² (both sides summed on open surfaces). Nothing in
     `cs` changes; `add_direct` folds the result into the lightmaps.
-    lightmap_ids None: all lightmaps of the scene.
+    lightmap_ids None: all instance lightmaps of the scene.
     """
     n = int(samples_per_texel)
     if n < 1:
@@ -292,10 +292,11 @@ def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAM
     lm = cs.lightmaps
     g = cs.geometry
     nb = cs.n_bands
-    if lightmap_ids is None:
-        lightmap_ids = range(lm.offset.shape[0])
-    lightmap_ids = sorted({int(l) for l in lightmap_ids})
     owners = _lightmap_owners(cs)
+    if lightmap_ids is None:
+        # every instance's own lightmaps (not OLs or CSG sub-texel rows)
+        lightmap_ids = owners.keys()
+    lightmap_ids = sorted({int(l) for l in lightmap_ids})
     thr = LM.empty_thresholds(lm)
 
     mesh = dict(texel=[], inst=[], key=[], local=[], start=[], tri=[], area=[], nv=[], bary=[])

@@ -39,6 +39,41 @@ so EEVEE and Material Preview show baked light while Cycles keeps rendering
 the material as it was. Every node we add is named "Photon Lightmap ..." and
 tagged; `remove_lightmap_hook` deletes exactly those nodes.
 
+Exact primitives and CSG solids. A tagged Photon CSG primitive is baked from its
+analytic charts: F faces give F tiles of R x R side by side, which is the layout
+of its display mesh's generated `Lightmap` layer. A CSG solid (an object with
+Boolean modifiers, exported as an exact CSG tree) gets ONE image,
+"<base object>_Lightmap", in which the lightmap of every primitive leaf (F·R x R
+texels) is a block of one atlas (engine/csg_bake.py: shelf packing, square
+texels, a 1-texel gutter repeating each block's border, alpha 0). A texel's
+alpha is the visible fraction of its surface (0 where the CSG operation removed
+all of it; RGB then holds the dilated neighbours). The direct light of leaf
+texels is gathered over their visible part only, with the solid's outward
+normal (inverted on subtracted operands). After the image is written, each
+leaf's `Lightmap` layer is moved into its block, (U, V) -> (x0 + sx U, y0 + sy V),
+and the rect is kept in the mesh property `uv_layers.TILE_PROP`; Blender's
+Boolean result carries the operands' UVs over, so the image shows on the
+evaluated mesh in EEVEE, and the hook goes into the base's materials and those
+the result takes from its operands. Re-baking first maps the layer back with
+the stored rect, so it never shrinks twice (an unchanged rect writes nothing);
+a stand-alone primitive whose layer was moved gets the chart layout back.
+A layer is only moved while it still *is* the generated layout (every vertex on
+the chart point of its UV, uv_layers.primitive_chart_uvs): an operand whose layer
+the user made or edited, a plain mesh operand, a mesh shared with other objects
+or an operand used twice is left out of the solid's image with a warning naming
+it, and its UVs are never touched. Operands passed as bake targets are skipped
+(they are part of their solid's image).
+
+Split texels. Where a CSG boundary cuts a texel into several visible regions,
+the engine keeps one sub-texel per region (engine/csg.py). An image texel holds
+one value, so it shows the region with the largest visible area (if that
+region holds no measurement, the texel's own dilated value). This is not enough
+where the other regions matter: thin slivers or slots narrower than a texel,
+and walls meeting at a cut, show the dominant side's light on both sides
+(light bleeds across the cut, e.g. a lit rim next to a dark groove). Bake at a
+higher resolution (Object > Photon Lightmaps > resolution, or the scene's texel
+density) until the features span several texels.
+
 `BakeMixin` gives the render engine Blender's bake API (see BakeMixin.bake).
 `bake_main` is the `python -m photon_lightmaps bake` command.
 """
@@ -88,6 +123,8 @@ class BakedMap:
     object_name: str
     rgba: np.ndarray
     lightmap_id: int
+    # CSG solids: leaf object name -> (x, y, width, height) of its block in texels
+    tiles: dict = None
 
     @property
     def width(self):
@@ -117,6 +154,9 @@ class BakeResult:
     seconds: dict = field(default_factory=dict)   # export, photon_pass, bake, total
     lightmap_bytes: int = 0
     uv_layers: dict = field(default_factory=dict)  # mesh name -> uv_layers.ensure_lightmap_uv status
+    # CSG solid name -> {"leaves": baked leaf names, "skipped": {leaf: why}, "split_texels",
+    # "boundary_texels", "atlas": (w, h)}
+    csg: dict = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------------------
@@ -229,6 +269,9 @@ class BakeJob:
     result: BakeResult
     t_start: float
     cs: object = None
+    # CSG solid name -> {leaf object name: None (bake it) or why it is skipped}
+    csg: dict = field(default_factory=dict)
+    primitives: set = field(default_factory=set)   # stand-alone tagged primitives among targets
 
 
 def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=None,
@@ -247,6 +290,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=Non
         raise ValueError(f"resolution must be a positive number of texels, got {resolution}")
     wanted = []
     seen = set()
+    operands = _csg_operands(depsgraph)
     for ob in objects:
         ob = _original(ob)
         if ob.name in seen:
@@ -256,6 +300,9 @@ def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=Non
             result.skipped[ob.name] = f"a {ob.type.lower()}, not a mesh"
         elif _is_excluded(ob):
             result.skipped[ob.name] = "excluded from lightmaps (Object > Photon Lightmaps)"
+        elif ob.name in operands:
+            result.skipped[ob.name] = (f"a Boolean operand of '{operands[ob.name]}': it is baked into "
+                                       "that solid's lightmap")
         else:
             wanted.append(ob)
     changed = False
@@ -275,6 +322,8 @@ def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=Non
     scene, emap = export_scene(depsgraph, report=lambda level, msg: None)
     warnings.extend(emap.warnings)
     targets = {}
+    csg = {}
+    primitives = set()
     for ob in wanted:
         ids = [i for i in emap.object_instances(ob.name) if emap.instances[i].lightmap]
         if not ids:
@@ -282,6 +331,13 @@ def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=Non
             continue
         i = ids[0]
         rec = emap.prototypes[emap.instances[i].prototype]
+        if rec.uv_source == "csg":
+            csg[ob.name] = _csg_leaf_plan(scene.prototypes[emap.instances[i].prototype], ob.name,
+                                          csg, warnings)
+            targets[ob.name] = i
+            continue
+        if emap.csg_solids.get(ob.name) == "primitive":
+            primitives.add(ob.name)
         if rec.uv_source != uv_layers.LAYER_NAME:
             result.skipped[ob.name] = (f"its UV layer '{uv_layers.LAYER_NAME}' leaves [0,1]², so the "
                                        "lightmap would not match it; fix or rename that layer")
@@ -296,7 +352,59 @@ def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=Non
     settings = _settings(bscene)
     settings.update(photons=int(photons), seed=int(seed))
     result.seconds["export"] = time.perf_counter() - t0
-    return BakeJob(scene, emap, targets, settings, not indirect_only, result, t0)
+    return BakeJob(scene, emap, targets, settings, not indirect_only, result, t0, csg=csg,
+                   primitives=primitives)
+
+
+def _csg_operands(depsgraph):
+    """{operand object name: solid it cuts} over the scene's Boolean stacks (as export.py finds them)."""
+    from . import csg_export
+    out = {}
+    for ob in depsgraph.objects:
+        ob = _original(ob)
+        if ob.type == "MESH" and not ob.hide_render and csg_export.boolean_modifiers(ob):
+            csg_export.collect_operands(ob, out)
+    return {o.name: solid for o, solid in out.items()}
+
+
+def _csg_leaf_plan(proto, solid, others, warnings):
+    """{leaf object name: None (baked into the solid's atlas) or why not} for one exported solid.
+
+    A leaf is baked when it is a tagged Photon CSG primitive whose `Lightmap` layer is
+    still the generated chart layout: only then can that layer be moved into the
+    leaf's atlas block without touching anything of the user's.
+    """
+    import bpy
+
+    from . import csg_export, uv_layers
+    from .engine.scene import Primitive
+    plan = {}
+    taken = {leaf for p in others.values() for leaf, why in p.items() if why is None}
+    for leaf in csg_export.tree_leaves(proto.csg[0]):
+        name = leaf.name
+        ob = bpy.data.objects.get(name)
+        why = None
+        if name in plan or name in taken:
+            warnings.append(f"CSG solid '{solid}': operand '{name}' is used more than once as a Boolean "
+                            f"operand; its '{uv_layers.LAYER_NAME}' layer can point at one atlas block "
+                            "only, so only its first use is baked")
+            plan.setdefault(name, "used more than once")
+            continue
+        elif ob is None or not isinstance(leaf, Primitive):
+            why = (f"'{name}' is a mesh operand, not a Photon CSG primitive: its own "
+                   f"'{uv_layers.LAYER_NAME}' UVs cannot share the solid's atlas without being rewritten")
+        elif sum(1 for o in bpy.data.objects if o.data == ob.data) > 1:
+            why = (f"'{name}' shares its mesh '{ob.data.name}' with other objects "
+                   "(Object > Relations > Make Single User to bake it)")
+        elif ob.library is not None or ob.data.library is not None:
+            why = f"'{name}' is linked from a library"
+        else:
+            why = uv_layers.primitive_chart_uvs(ob)[2]
+        if why is not None:
+            warnings.append(f"CSG solid '{solid}': operand {why}; its surface is left out of the "
+                            "solid's lightmap")
+        plan[name] = why
+    return plan
 
 
 def compute_bake(job, progress=None):
@@ -310,9 +418,13 @@ def compute_bake(job, progress=None):
     result.stats = stats
     result.lightmap_bytes = cs.lightmap_bytes()
     result.seconds["photon_pass"] = time.perf_counter() - t0
+    solids = {name: _solid_leaves(cs, job, name) for name in job.csg}
     if job.direct:
-        ids = [cs.instance_lightmaps[i][0] for i in job.targets.values()]
-        result.seconds["direct"] = _add_direct(cs, cs.lightmaps, job.settings, ids)
+        ids = [cs.instance_lightmaps[i][0] for n, i in job.targets.items() if n not in job.csg]
+        result.seconds["direct"] = _add_direct(cs, cs.lightmaps, job.settings, ids) if ids else 0.0
+        leaves = [(job.targets[n], d) for n, ls in solids.items() for d in ls]
+        if leaves:
+            result.seconds["direct"] += _add_direct_csg(cs, leaves, job.settings)
     if cs.lights.total_power <= 0.0:
         result.warnings.append("no photons were traced (no lights): lightmaps are black")
     elif stats.photons == 0:
@@ -320,11 +432,72 @@ def compute_bake(job, progress=None):
                                + ("direct light only" if job.direct else "no light"))
     t1 = time.perf_counter()
     for name, i in job.targets.items():
+        if name in job.csg:
+            bm = _csg_atlas(cs, job, name, solids[name])
+            if bm is not None:
+                result.maps[name] = bm
+            continue
         lm_id = cs.instance_lightmaps[i][0]
         result.maps[name] = BakedMap(name, lightmap_rgba(cs.lightmaps, lm_id), lm_id)
     result.seconds["extract"] = time.perf_counter() - t1
     job.cs = cs
     return job
+
+
+def _solid_leaves(cs, job, name):
+    """The leaves of CSG solid `name` that get a block in its atlas (engine/csg_bake.solid_leaves entries)."""
+    from .engine import csg_bake
+    plan = job.csg[name]
+    out, seen = [], set()
+    for d in csg_bake.solid_leaves(cs, job.targets[name]):
+        # a leaf used twice gets two engine lightmaps, but one UV layer: the first one
+        if d["kind"] == "prim" and plan.get(d["name"], "unknown") is None and d["name"] not in seen:
+            seen.add(d["name"])
+            out.append(d)
+    return out
+
+
+def _add_direct_csg(cs, leaves, settings):
+    """Direct light of CSG leaf texels over their visible part (engine/csg_bake.py); -> seconds."""
+    from .engine import csg_bake
+    from .engine import texel_gather as TG
+    t0 = time.perf_counter()
+    ids, E = csg_bake.direct_csg_texels(cs, leaves, DIRECT_SAMPLES, seed=settings["seed"])
+    TG.add_direct(cs.lightmaps, ids, E)
+    return time.perf_counter() - t0
+
+
+def _csg_atlas(cs, job, name, leaves):
+    """One image for CSG solid `name`: its leaves' lightmaps packed into one atlas (or None)."""
+    from .engine import csg_bake
+    lm = cs.lightmaps
+    inst = job.targets[name]
+    skipped = {k: v for k, v in job.csg[name].items() if v is not None}
+    info = dict(leaves=[d["name"] for d in leaves], skipped=skipped, split_texels=0,
+                boundary_texels=0, atlas=None)
+    job.result.csg[name] = info
+    if not leaves:
+        job.result.skipped[name] = ("a CSG solid none of whose operands can be baked "
+                                    "(see the warnings)")
+        return None
+    blocks = []
+    for d in leaves:
+        lid = d["lightmap"]
+        R = int(lm.height[lid])
+        full = csg_bake.full_primitive_areas(cs, inst, d["row"], R)
+        blocks.append(csg_bake.leaf_rgba(lm, lid, full))
+        sl = LM.texel_slice(lm, lid)
+        info["split_texels"] += int(np.count_nonzero(lm.split[sl] >= 0))
+        info["boundary_texels"] += int(np.count_nonzero((lm.area[sl] < full.reshape(-1) * (1 - 1e-9))
+                                                        & (lm.area[sl] > 0)))
+    W, H, origins = csg_bake.pack_atlas([(b.shape[1], b.shape[0]) for b in blocks])
+    atlas = np.zeros((H, W, 4), np.float32)
+    tiles = {}
+    for d, b, o in zip(leaves, blocks, origins):
+        csg_bake.blit(atlas, b, o)
+        tiles[d["name"]] = (o[0], o[1], b.shape[1], b.shape[0])
+    info["atlas"] = (W, H)
+    return BakedMap(name, atlas, leaves[0]["lightmap"], tiles)
 
 
 def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materials=False):
@@ -349,18 +522,78 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
             _save_exr(img, path, relative=True)
         result.images[name] = img.name
         result.paths[name] = path
+        if bm.tiles is not None:
+            _place_leaf_uvs(name, bm, result.warnings)
+        elif name in job.primitives:
+            _place_leaf_uvs(name, BakedMap(name, bm.rgba, bm.lightmap_id, {name: None}),
+                            result.warnings)
     if result.maps and not (save_dir or pack or blend_saved):
         result.warnings.append("the .blend is not saved yet: the lightmap images live only in memory "
                                "(save the .blend and bake again, or pack them)")
     if hook_materials and result.maps:
         baked = set(result.maps)
-        for name in result.maps:
+        for name, bm in result.maps.items():
             ob = bpy.data.objects[name]
+            parts = sorted(bm.tiles) if bm.tiles else ()
             result.hooked += add_lightmap_hook(ob, bpy.data.images[result.images[name]],
-                                               baked_objects=baked, warnings=result.warnings)
+                                               baked_objects=baked, warnings=result.warnings,
+                                               parts=parts, materials=_solid_materials(ob, parts))
     result.seconds["bake"] = result.seconds.get("extract", 0.0) + time.perf_counter() - t0
     result.seconds["total"] = time.perf_counter() - job.t_start
     return result
+
+
+def _place_leaf_uvs(solid, bm, warnings):
+    """Moves each baked leaf's generated `Lightmap` layer into its block of the solid's atlas.
+
+    bm.tiles: leaf name -> (x, y, w, h) texels, or None for the plain chart layout
+    (a stand-alone primitive whose layer an earlier CSG bake had moved).
+    The layer is checked again here (the user may have edited it during the bake).
+    """
+    import bpy
+    from . import uv_layers
+    for leaf, tile in bm.tiles.items():
+        ob = bpy.data.objects.get(leaf)
+        if ob is None:
+            continue
+        unit, applied, why = uv_layers.primitive_chart_uvs(ob)
+        if why is not None:
+            if tile is not None:
+                warnings.append(f"CSG solid '{solid}': {why}; that operand's part of the image is "
+                                "not shown on the solid")
+            continue
+        if tile is None:
+            rect = (0.0, 0.0, 1.0, 1.0)
+        else:
+            x, y, w, h = tile
+            rect = (x / bm.width, y / bm.height, w / bm.width, h / bm.height)
+        uv_layers.set_primitive_tile(ob, unit, applied, rect)
+
+
+def _solid_materials(ob, parts):
+    """Materials the evaluated object shows: its own slots, then (CSG solids) those the
+    Boolean result carries over from its baked operands (Exact solver, Transfer)."""
+    import bpy
+    mats = []
+
+    def add(m):
+        if m is not None and m not in mats:
+            mats.append(m)
+    for slot in ob.material_slots:
+        add(slot.material)
+    if parts:
+        try:
+            ev = ob.evaluated_get(bpy.context.evaluated_depsgraph_get())
+            for m in ev.data.materials:
+                add(getattr(m, "original", None) or m)
+        except Exception:  # noqa: BLE001  (no depsgraph in this context: the slots below suffice)
+            pass
+        for leaf in parts:
+            op = bpy.data.objects.get(leaf)
+            if op is not None and op is not ob:
+                for slot in op.material_slots:
+                    add(slot.material)
+    return mats
 
 
 def bake_objects(context_or_depsgraph, objects, *, photons, seed, resolution=None,
@@ -576,17 +809,22 @@ def remove_hook_nodes(mat):
     return len(ours)
 
 
-def add_lightmap_hook(ob, image, baked_objects=(), warnings=None):
-    """Adds (or refreshes) our hook in every material of `ob`; returns the material names."""
+def add_lightmap_hook(ob, image, baked_objects=(), warnings=None, parts=(), materials=None):
+    """Adds (or refreshes) our hook in every material of `ob`; returns the material names.
+
+    materials: the materials to hook instead of `ob`'s slots (a CSG solid's Boolean
+    result also shows its operands' materials); parts: objects whose surface is in
+    this image (a CSG solid's operands), so sharing a material with them is fine.
+    """
     import bpy
     warnings = warnings if warnings is not None else []
     from .uv_layers import LAYER_NAME
     ng = hook_group()
     done = []
     mats = []
-    for slot in ob.material_slots:
-        if slot.material is not None and slot.material not in mats:
-            mats.append(slot.material)
+    for m in (materials if materials is not None else [s.material for s in ob.material_slots]):
+        if m is not None and m not in mats:
+            mats.append(m)
     if not mats:
         warnings.append(f"object '{ob.name}' has no material: no lightmap hook added")
     for mat in mats:
@@ -595,7 +833,7 @@ def add_lightmap_hook(ob, image, baked_objects=(), warnings=None):
             warnings.append(f"material '{mat.name}' {why}: no lightmap hook added")
             continue
         users = sorted({o.name for o in bpy.data.objects
-                        if any(s.material == mat for s in o.material_slots)} - {ob.name})
+                        if any(s.material == mat for s in o.material_slots)} - {ob.name} - set(parts))
         others_baked = [u for u in users if u in baked_objects]
         others = [u for u in users if u not in baked_objects]
         if others:

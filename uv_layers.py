@@ -283,3 +283,84 @@ def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False):
     mesh[DIGEST_PROP] = _digest(read_uvs(mesh.uv_layers[LAYER_NAME]))
     mesh[MIN_RES_PROP] = int(min_res)
     return status
+
+
+# --------------------------------------------------------------------------------------
+# Tagged CSG primitives: their Lightmap layer placed in a solid's atlas (bake.py)
+# --------------------------------------------------------------------------------------
+
+# [x0, y0, sx, sy] on the mesh: its Lightmap layer holds the chart layout mapped
+# to (x0 + sx U, y0 + sy V), the block of its leaf in a CSG solid's atlas. With
+# it a bake can always go back to the chart layout, so re-baking never shrinks
+# the layer twice.
+TILE_PROP = "photon_lightmaps_csg_tile"
+# Largest distance (local units of the unit-size primitive) between a vertex and
+# the chart point of its UV for the layer to count as the generated one: float32
+# UVs in a small atlas block are off by ~1e-5, a user's edit by far more.
+CHART_TOL = 1e-3
+_UNIT = (0.0, 0.0, 1.0, 1.0)
+
+
+def _mesh_arrays(mesh):
+    co = np.empty(len(mesh.vertices) * 3, np.float32)
+    mesh.vertices.foreach_get("co", co)
+    lv = np.empty(len(mesh.loops), np.int32)
+    mesh.loops.foreach_get("vertex_index", lv)
+    ps = np.empty(len(mesh.polygons), np.int32)
+    pt = np.empty(len(mesh.polygons), np.int32)
+    mesh.polygons.foreach_get("loop_start", ps)
+    mesh.polygons.foreach_get("loop_total", pt)
+    return co.reshape(-1, 3).astype(np.float64), lv, ps, pt
+
+
+def primitive_chart_uvs(ob):
+    """(chart-layout UVs (L, 2) float64, tile rect now applied, None) of a tagged CSG
+    primitive's generated `Lightmap` layer, or (None, None, why not) for a layer that
+    is not (or no longer) the generated chart layout, i.e. the user's.
+
+    The test is geometric, so it needs no bookkeeping from when the mesh was made:
+    every vertex must sit on the engine's chart point of its UV (after undoing
+    the tile rect this add-on stored, if any).
+    """
+    from .csg_export import primitive_tag
+    from .engine.csg_bake import chart_uv_error
+
+    tag = primitive_tag(ob)
+    if tag is None:
+        return None, None, f"'{ob.name}' is not a tagged Photon CSG primitive"
+    mesh = ob.data
+    layer = mesh.uv_layers.get(LAYER_NAME)
+    if layer is None:
+        return None, None, f"'{ob.name}' has no '{LAYER_NAME}' UV layer"
+    co, lv, ps, pt = _mesh_arrays(mesh)
+    uv = read_uvs(layer).astype(np.float64)
+    rects = []
+    stored = mesh.get(TILE_PROP)
+    if stored is not None and len(stored) == 4 and float(stored[2]) > 0 and float(stored[3]) > 0:
+        rects.append(tuple(float(x) for x in stored))
+    rects.append(_UNIT)
+    for rect in rects:
+        unit = (uv - np.array(rect[:2])) / np.array(rect[2:])
+        if chart_uv_error(tag[0], tag[1], co, lv, unit, ps, pt) <= CHART_TOL:
+            return unit, rect, None
+    return None, None, (f"the '{LAYER_NAME}' UV layer of '{ob.name}' is not the generated chart "
+                        "layout (edited or made by the user), so it is left as it is")
+
+
+def set_primitive_tile(ob, unit_uv, applied, rect):
+    """Writes chart-layout UVs mapped into `rect` (x0, y0, sx, sy) to the `Lightmap` layer
+    and remembers the rect; the unit rect restores the plain chart layout.
+    unit_uv, applied: what primitive_chart_uvs found. -> whether the layer changed."""
+    mesh = ob.data
+    rect = tuple(float(x) for x in rect)
+    if tuple(applied) == rect:
+        return False      # already there: leave the layer bit for bit as it is
+    uv = np.asarray(unit_uv, np.float64) * np.array(rect[2:]) + np.array(rect[:2])
+    mesh.uv_layers[LAYER_NAME].uv.foreach_set("vector", uv.astype(np.float32).reshape(-1))
+    if rect == _UNIT:
+        if TILE_PROP in mesh:
+            del mesh[TILE_PROP]
+    else:
+        mesh[TILE_PROP] = list(rect)
+    mesh.update()
+    return True

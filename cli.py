@@ -41,6 +41,12 @@ def build_parser():
     b.add_argument("--resolution", type=int, default=None, metavar="R", help="force R x R lightmaps")
     b.add_argument("--indirect-only", action="store_true", help="leave direct light out of the maps")
     b.set_defaults(module="bake", func="bake_main")
+
+    o = sub.add_parser("bake-ol", help="bake the orientation lightmaps of a .blend to OpenEXR images")
+    o.add_argument("blend", metavar="FILE.blend")
+    o.add_argument("--out", required=True, metavar="DIR", help="folder for <empty name>.exr")
+    _add_common(o)
+    o.set_defaults(module="ol_bake", func="ol_bake_main")
     return p
 
 

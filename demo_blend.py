@@ -169,15 +169,59 @@ def add_csg_solid(scene, material=None, *, location=(0.5, 0.55, 0.25), radius=0.
     return solid
 
 
+def smooth_sphere(name, radius, location, material=None, *, collection=None, subdivisions=2):
+    """A smooth-shaded icosphere mesh object (no lightmap UVs)."""
+    me = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    bmesh.ops.create_icosphere(bm, subdivisions=subdivisions, radius=radius)
+    bm.to_mesh(me)
+    bm.free()
+    for poly in me.polygons:
+        poly.use_smooth = True
+    if material is not None:
+        me.materials.append(material)
+    ob = bpy.data.objects.new(name, me)
+    ob.location = location
+    (collection or bpy.context.scene.collection).objects.link(ob)
+    return ob
+
+
+def add_ol_cluster(scene, material=None, *, location=(0.62, -0.75, 0.0), radius=0.055, name="ol_cluster",
+                   subdivisions=3):
+    """A pyramid of 14 small spheres in collection `name` with an orientation lightmap (thesis ch. 6).
+
+    Many small objects are where per-object lightmaps get few photons per texel;
+    the OL stores one irradiance per normal for the whole group. The spheres
+    get their own material, so the EEVEE hook of the OL bake shows on them only.
+    Returns (collection, OL empty)."""
+    from .operators.orientation_lightmaps import add_orientation_lightmap
+    coll = bpy.data.collections.new(name)
+    scene.collection.children.link(coll)
+    mat = material or principled("cluster", (0.8, 0.7, 0.3))
+    x0, y0, z0 = location
+    d = 2.0 * radius
+    k = 0
+    for level, n in enumerate((3, 2, 1)):
+        off = 0.5 * (3 - n) * d
+        for i in range(n):
+            for j in range(n):
+                smooth_sphere(f"{name}_{k:02d}", radius,
+                              (x0 + off + (i - 1) * d, y0 + off + (j - 1) * d, z0 + radius * (1 + 1.6 * level)),
+                              mat, collection=coll, subdivisions=subdivisions)
+                k += 1
+    return coll, add_orientation_lightmap(scene, coll)
+
+
 def build_cornell_blend(path=None, *, light_type="AREA", power=None, width=128, height=128, box=True,
-                        spheres=False, csg=False, engine=ENGINE_ID, photons=None, samples=None):
+                        spheres=False, csg=False, ol=False, engine=ENGINE_ID, photons=None, samples=None):
     """The Cornell-like room of engine/demo_scenes.cornell_box, built in bpy.
 
     A 2 m room (Z up, open towards the camera at -Y), red left and green right
     walls, each wall a quad with a 'Lightmap' UV layer, a tall white box (left
     without lightmap UVs, so the engine unwraps it), a 0.5 m square area light
     of 25 W under the ceiling, a 50 mm camera at (0, -3.9, 1). `spheres` adds
-    the mirror and glass balls, `csg` the exact-CSG bowl of add_csg_solid. Saves
+    the mirror and glass balls, `csg` the exact-CSG bowl of add_csg_solid, `ol`
+    the sphere cluster with an orientation lightmap of add_ol_cluster. Saves
     to `path` when given; returns the scene.
     """
     scene = _reset()
@@ -218,6 +262,8 @@ def build_cornell_blend(path=None, *, light_type="AREA", power=None, width=128, 
             scene.collection.objects.link(ob)
     if csg:
         add_csg_solid(scene, white)
+    if ol:
+        add_ol_cluster(scene)
     if light_type == "AREA":
         add_light(scene, "AREA", "ceiling_light", power=power, location=(0, 0, 1.98))
     elif light_type in ("POINT", "SPOT"):

@@ -28,6 +28,12 @@ so it records no photons and renders with direct light only; this is the
 useful meaning for "leave this out of the bake" and never changes how other
 surfaces are lit. `lightmap_resolution` > 0 forces R x R texels per surface.
 
+Orientation lightmaps (thesis ch. 6): an Empty with `orientation_lightmap` set
+is an OL attached to the collection `ol_collection` (never geometry). Each
+exported instance goes to the innermost OL collection holding it (child
+collections included; collection-instance and particle duplis follow their
+instancer object); OLs nest as their collections do (fig. 6.3). See _OLRouter.
+
 Anything the exporter has to approximate is reported once per datablock
 through `report(level, message)` and collected in `ExportMap.warnings`.
 """
@@ -39,8 +45,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import csg_export
-from .engine.scene import (Camera, CSGNode, Instance, Light, Material, Primitive, Prototype, Scene,
-                           SceneError, TriangleMesh)
+from .engine.scene import (Camera, CSGNode, Instance, Light, Material, OrientationLightmap, Primitive,
+                           Prototype, Scene, SceneError, TriangleMesh)
 
 LIGHTMAP_UV = "Lightmap"
 # Blender's surface when a slot has no material: grey diffuse.
@@ -56,6 +62,7 @@ class InstanceRecord:
     persistent_id: tuple      # stable id of the instance within its instancer
     prototype: int
     lightmap: bool
+    orientation_lightmap: str | None = None   # name of the OL empty receiving its hits
 
 
 @dataclass
@@ -74,6 +81,8 @@ class ExportMap:
     warnings: list = field(default_factory=list)
     csg_operands: dict = field(default_factory=dict)  # operand object name -> solid it belongs to
     csg_solids: dict = field(default_factory=dict)    # object name -> "csg" | "primitive" | "fallback"
+    # per engine OrientationLightmap: {"empty", "collection", "parent" (empty name or None), "instances"}
+    orientation_lightmaps: list = field(default_factory=list)
 
     def object_instances(self, name):
         """Engine instance ids holding object `name`'s own (non-instanced) geometry."""
@@ -108,12 +117,119 @@ def _output_priority(node):
     return (node.target not in ("ALL", "CYCLES"), not node.is_active_output)
 
 
+def is_orientation_lightmap(ob):
+    """True for an Empty tagged as an orientation lightmap (properties.py)."""
+    props = getattr(ob, "photon_lightmaps", None) if ob is not None else None
+    return ob is not None and ob.type == "EMPTY" and props is not None and bool(props.orientation_lightmap)
+
+
+class _OLRouter:
+    """Which OL empty receives each instance's hits, following the collection tree.
+
+    Works on original datablocks keyed by pointer (names may repeat across
+    libraries). The innermost OL collection of an object is the one among
+    those holding it that the others all contain."""
+
+    def __init__(self, bscene, report):
+        self.report = report
+        scene = getattr(bscene, "original", None) or bscene
+        in_scene = {c.as_pointer() for c in scene.collection.children_recursive}
+        by_coll = {}
+        for ob in sorted(scene.objects, key=lambda o: o.name):
+            if not is_orientation_lightmap(ob):
+                continue
+            coll = ob.photon_lightmaps.ol_collection
+            if coll is None:
+                report("WARNING", f"orientation lightmap '{ob.name}' has no collection: it is ignored "
+                                  "(set one in its Photon Lightmap panel, or remove it)")
+                continue
+            if coll.as_pointer() not in in_scene:
+                report("WARNING", f"orientation lightmap '{ob.name}': collection '{coll.name}' is not "
+                                  f"in scene '{scene.name}', so it covers nothing here")
+                continue
+            by_coll.setdefault(coll.as_pointer(), []).append(ob)
+        self.colls = {}       # collection pointer -> (collection, OL empty)
+        for key, obs in by_coll.items():
+            if len(obs) > 1:
+                report("WARNING", f"collection '{obs[0].photon_lightmaps.ol_collection.name}' has "
+                                  f"{len(obs)} orientation lightmaps ({', '.join(repr(o.name) for o in obs)}): "
+                                  f"only '{obs[0].name}' is used; remove the others")
+            self.colls[key] = (obs[0].photon_lightmaps.ol_collection, obs[0])
+        # contains[a] = OL collections inside a (recursively); members[a] = its objects
+        self.members = {k: {o.as_pointer() for o in c.all_objects} for k, (c, _) in self.colls.items()}
+        self.inside = {k: {d.as_pointer() for d in c.children_recursive} & set(self.colls)
+                       for k, (c, _) in self.colls.items()}
+        self.depth = {k: sum(k in self.inside[a] for a in self.colls) for k in self.colls}
+        self.instances = {k: [] for k in self.colls}
+        self._cache = {}
+
+    def __bool__(self):
+        return bool(self.colls)
+
+    def route(self, owner):
+        """Collection pointer of the innermost OL holding object `owner` (original), or None."""
+        if owner is None or not self.colls:
+            return None
+        key = owner.as_pointer()
+        if key in self._cache:
+            return self._cache[key]
+        cands = [k for k in self.colls if key in self.members[k]]
+        best = None
+        if cands:
+            deepest = max(self.depth[k] for k in cands)
+            top = sorted((k for k in cands if self.depth[k] == deepest), key=lambda k: self.colls[k][1].name)
+            best = top[0]
+            if len(top) > 1:
+                self.report("WARNING", f"object '{owner.name}' is in unrelated orientation lightmap "
+                                       f"collections ({', '.join(repr(self.colls[k][0].name) for k in top)}): "
+                                       f"its hits go to '{self.colls[best][1].name}' only; nest them instead")
+        self._cache[key] = best
+        return best
+
+    def add(self, key, instance_id):
+        self.instances[key].append(instance_id)
+
+    def build(self, seed=0):
+        """Engine OrientationLightmaps (parents before children) and their ExportMap rows."""
+        parent = {}
+        for k in self.colls:
+            outer = [a for a in self.colls if k in self.inside[a]]
+            parent[k] = max(outer, key=lambda a: (self.depth[a], self.colls[a][1].name)) if outer else None
+        order = sorted(self.colls, key=lambda k: (self.depth[k], self.colls[k][1].name))
+        index, ols, rows = {}, [], []
+        for k in order:
+            coll, empty = self.colls[k]
+            s = empty.photon_lightmaps
+            p = parent[k]
+            res = int(s.ol_resolution)
+            if p is not None:
+                # A parent's bins are the sum of its children's, so a hierarchy shares one layout.
+                res = ols[index[p]].resolution
+                if res != int(s.ol_resolution):
+                    self.report("WARNING", f"orientation lightmap '{empty.name}' uses resolution {res} of "
+                                           f"its enclosing '{self.colls[p][1].name}' (its own setting "
+                                           f"{int(s.ol_resolution)} is ignored)")
+            if not self.instances[k] and not any(parent[c] == k for c in self.colls):
+                self.report("WARNING", f"orientation lightmap '{empty.name}': collection '{coll.name}' "
+                                       "holds no exported geometry, so it receives no photons")
+            index[k] = len(ols)
+            ols.append(OrientationLightmap(name=empty.name, instances=list(self.instances[k]),
+                                           parent=index[p] if p is not None else -1, resolution=res,
+                                           samples=int(s.ol_samples), min_hits=int(s.ol_min_hits),
+                                           backup=bool(s.ol_backup), seed=int(seed) + len(ols)))
+            rows.append({"empty": empty.name, "collection": coll.name,
+                         "parent": self.colls[p][1].name if p is not None else None,
+                         "instances": list(self.instances[k])})
+        return ols, rows
+
+
 def _srgb_to_linear(c):
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 class _Exporter:
-    def __init__(self, depsgraph, n_bands, report):
+    def __init__(self, depsgraph, n_bands, report, orientation_lightmaps=True):
+        self.use_ols = orientation_lightmaps
         if n_bands not in (1, 3):
             raise SceneError(f"the Blender exporter writes RGB (3 bands) or grey (1 band), not {n_bands}")
         self.dg = depsgraph
@@ -527,6 +643,7 @@ class _Exporter:
         skipped_types = set()
         operands = self.csg_operands()
         self.map.csg_operands = {o.name: solid for o, solid in operands.items()}
+        router = _OLRouter(bscene, self.report) if self.use_ols else None
         for inst in dg.object_instances:
             ob = inst.object
             if ob.type not in ("MESH", "LIGHT"):
@@ -567,14 +684,30 @@ class _Exporter:
                 p_exclude, p_res = self._object_settings(parent.original)
                 exclude = exclude or p_exclude
                 res = res or p_res
-            self.scene.instances.append(Instance(proto, xf, name=name, lightmap=not exclude,
+            ol_key = ol_name = None
+            if router and not exclude:
+                # Duplis (collection instances, particles) belong where their instancer is.
+                instancer = parent.original if parent is not None and parent.original is not None else None
+                ol_key = router.route(instancer if instancer is not None and instancer != original
+                                      else original)
+            own_lightmap = not exclude
+            if ol_key is not None:
+                router.add(ol_key, len(self.scene.instances))
+                ol_empty = router.colls[ol_key][1]
+                ol_name = ol_empty.name
+                # Under a non-backup OL the hits go to the OL only (compile_scene does the same).
+                own_lightmap = bool(ol_empty.photon_lightmaps.ol_backup)
+            self.scene.instances.append(Instance(proto, xf, name=name, lightmap=own_lightmap,
                                                  lightmap_resolution=res))
             self.map.instances.append(InstanceRecord(
                 name, bool(inst.is_instance),
                 (parent.original.name if parent is not None and parent.original is not None else None),
-                tuple(inst.persistent_id), proto, not exclude))
+                tuple(inst.persistent_id), proto, own_lightmap, ol_name))
         for t in sorted(skipped_types):
             self.report("WARNING", f"{t.lower()} objects are not supported and were skipped")
+        if router:
+            seed = int(settings.seed) if settings is not None else 0
+            self.scene.orientation_lightmaps, self.map.orientation_lightmaps = router.build(seed)
 
         r = bscene.render
         if resolution is None:
@@ -604,12 +737,14 @@ class _Exporter:
         return False
 
 
-def export_scene(depsgraph, *, n_bands=3, report=None, camera_override=None, resolution=None):
+def export_scene(depsgraph, *, n_bands=3, report=None, camera_override=None, resolution=None,
+                 orientation_lightmaps=True):
     """Exports the evaluated `depsgraph` to (engine Scene, ExportMap).
 
     report(level, message), level 'INFO' | 'WARNING', receives each
     approximation once. `camera_override` (an object) and `resolution`
     ((w, h) in pixels) replace the scene's camera and render size, as a
-    RenderEngine may ask.
+    RenderEngine may ask. orientation_lightmaps=False ignores OL empties (every
+    object keeps its own lightmap), as the OL planner needs.
     """
-    return _Exporter(depsgraph, n_bands, report).run(camera_override, resolution)
+    return _Exporter(depsgraph, n_bands, report, orientation_lightmaps).run(camera_override, resolution)

@@ -104,6 +104,9 @@ def render_main(args):
     report["seconds"].update(load=t_load - t0, pipeline=run.seconds["total"], total=t_end - t0)
     print(f"{out}: {run.width}x{run.height}, {run.photons:,} photons in {run.seconds['photon_pass']:.2f} s, "
           f"render {run.seconds['render']:.2f} s, total {t_end - t0:.2f} s")
+    for ol in run.orientation_lightmaps:
+        print(f"  orientation lightmap '{ol['name']}': {ol['photons']:,} photons, "
+              f"{ol['memory_bytes'] / 1024:.1f} KiB, area {ol['area']:.4g} m², {len(ol['warnings'])} warnings")
     if args.json:
         path = pathlib.Path(args.json)
         path.parent.mkdir(parents=True, exist_ok=True)

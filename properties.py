@@ -34,6 +34,32 @@ class PhotonLightmapsObjectSettings(bpy.types.PropertyGroup):
     lightmap_resolution: IntProperty(
         name="Lightmap Resolution", default=0, min=0, soft_max=4096,
         description="Texels per side of each lightmap of this object; 0 uses the scene's texel density")
+    # Orientation lightmap (thesis ch. 6), read on Empties only: an Empty is an OL
+    # exactly when `orientation_lightmap` is set (export.is_orientation_lightmap), so
+    # a stray pointer on some other object never turns it into one.
+    orientation_lightmap: BoolProperty(
+        name="Orientation Lightmap", default=False,
+        description="This Empty is an orientation lightmap: the objects of its collection record "
+                    "photons per surface normal here instead of on their own lightmaps")
+    ol_collection: PointerProperty(
+        name="Collection", type=bpy.types.Collection,
+        description="Collection whose objects (child collections included) this orientation "
+                    "lightmap covers; a child collection with its own one takes its objects")
+    ol_resolution: IntProperty(
+        name="Resolution", default=16, min=2, max=512,
+        description="Octahedral direction bins per side (R x R bins over the sphere of normals); "
+                    "nested orientation lightmaps use their outermost one's resolution")
+    ol_samples: IntProperty(
+        name="Area Samples", default=20000, min=1, soft_max=1_000_000,
+        description="Sample points for the stochastic estimate of the surface area per bin")
+    ol_min_hits: IntProperty(
+        name="Min Hits", default=16, min=1, soft_max=10000,
+        description="A bin with fewer photons than this reads the enclosing orientation lightmap "
+                    "(or, as a backup, stands in for noisier texels)")
+    ol_backup: BoolProperty(
+        name="Backup", default=False,
+        description="The objects keep their own lightmaps; this orientation lightmap is read only "
+                    "where their texels received too few photons")
 
 
 classes = (PhotonLightmapsSceneSettings, PhotonLightmapsObjectSettings)

@@ -50,6 +50,7 @@ class RenderRun:
     warnings: list = field(default_factory=list)
     cancelled: bool = False
     image: np.ndarray = None
+    orientation_lightmaps: list = field(default_factory=list)   # ol_bake.summarize rows
 
     def as_dict(self):
         return {"scene": self.scene, "width": self.width, "height": self.height,
@@ -58,7 +59,8 @@ class RenderRun:
                 "seconds": dict(self.seconds),
                 "memory": {"lightmap_bytes": self.lightmap_bytes, "peak_rss_bytes": peak_rss_bytes()},
                 "lightmaps": self.lightmaps, "texels": self.texels,
-                "warnings": list(self.warnings), "cancelled": self.cancelled}
+                "warnings": list(self.warnings), "cancelled": self.cancelled,
+                "orientation_lightmaps": [dict(r) for r in self.orientation_lightmaps]}
 
 
 LAST_RUN = None
@@ -132,6 +134,9 @@ def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=Non
     stats("Compiling scene")
     cs = compile_scene(scene)
     run.lightmap_bytes = cs.lightmap_bytes()
+    if cs.info.get("csg_ties"):
+        report("WARNING", f"Photon Lightmaps: coincident CSG operand faces ({cs.info['csg_ties']:,} ties on "
+                          f"{cs.info['csg_tie_texels']:,} texels), resolved by the tie rule: the cut owns them")
     run.lightmaps, run.texels = int(cs.info.get("lightmaps", 0)), int(cs.info.get("texels", 0))
     lm_text = f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB ({run.texels:,} texels)"
     t_compile = time.perf_counter()
@@ -151,6 +156,10 @@ def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=Non
                                record_direct=False, progress=photon_progress)
             run.photons, run.rays = ps.photons, ps.rays
             run.photons_per_second = ps.photons / max(ps.seconds, 1e-9)
+        if scene.orientation_lightmaps:
+            # Per-OL numbers for the JSON report and the OL panel; averaging warnings to the user.
+            from .ol_bake import record_report
+            run.orientation_lightmaps = record_report(cs, run.scene, "render", report)
         t_photons = time.perf_counter()
         if should_stop():
             raise Cancelled("stopped after the photon pass")
@@ -250,7 +259,9 @@ class PhotonLightmapsRenderEngine(BakeMixin, bpy.types.RenderEngine):
         self.update_memory_stats(memory_used=_mib(run.lightmap_bytes), memory_peak=_mib(peak_rss_bytes()))
         self.update_stats("", f"Done | {run.photons:,} photons in {run.seconds['photon_pass']:.2f} s "
                               f"({run.photons_per_second:,.0f} photons/s) | render {run.seconds['render']:.2f} s | "
-                              f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB")
+                              f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB"
+                              + (f" | {len(run.orientation_lightmaps)} orientation lightmaps"
+                                 if run.orientation_lightmaps else ""))
 
 
 # Built-in panels that make sense for this engine (dimensions, output, camera, object

@@ -10,6 +10,7 @@ import bpy
 
 from .. import bake as _bake
 from . import bake, csg_primitives
+from . import orientation_lightmaps as ol_ops
 
 ENGINE_ID = "PHOTON_LIGHTMAPS"
 
@@ -42,6 +43,8 @@ class PHOTON_LIGHTMAPS_PT_bake(bpy.types.Panel):
         col.operator_context = "INVOKE_DEFAULT"
         col.operator(bake.PHOTON_LIGHTMAPS_OT_bake.bl_idname, icon="LIGHT")
         col.operator(bake.PHOTON_LIGHTMAPS_OT_remove_lightmap_hook.bl_idname, icon="X")
+        col.operator(ol_ops.PHOTON_LIGHTMAPS_OT_bake_orientation_lightmaps.bl_idname, icon="LIGHT")
+        col.operator(ol_ops.PHOTON_LIGHTMAPS_OT_suggest_orientation_lightmaps.bl_idname)
 
         # Blender's bake into the active Image Texture node (Diffuse, Emit, Combined).
         cbk = context.scene.render.bake
@@ -69,7 +72,7 @@ _MENUS = ("TOPBAR_MT_render", "VIEW3D_MT_object")
 # The photon pass kept for Blender's own Bake button is freed when that bake ends.
 _HANDLERS = ("object_bake_complete", "object_bake_cancel")
 
-classes = bake.classes + csg_primitives.classes + (PHOTON_LIGHTMAPS_PT_bake,)
+classes = bake.classes + csg_primitives.classes + ol_ops.classes + (PHOTON_LIGHTMAPS_PT_bake,)
 
 
 @bpy.app.handlers.persistent
@@ -83,6 +86,7 @@ def register():
     for name in _MENUS:
         getattr(bpy.types, name).append(_menu)
     bpy.types.VIEW3D_MT_add.append(csg_primitives.menu_add)
+    bpy.types.VIEW3D_MT_object.append(ol_ops.menu)
     for h in _HANDLERS:
         handlers = getattr(bpy.app.handlers, h)
         if _free_bake_cache not in handlers:
@@ -94,6 +98,7 @@ def unregister():
         handlers = getattr(bpy.app.handlers, h)
         if _free_bake_cache in handlers:
             handlers.remove(_free_bake_cache)
+    bpy.types.VIEW3D_MT_object.remove(ol_ops.menu)
     bpy.types.VIEW3D_MT_add.remove(csg_primitives.menu_add)
     for name in _MENUS:
         getattr(bpy.types, name).remove(_menu)

@@ -64,6 +64,9 @@ class PHOTON_LIGHTMAPS_PT_object(_EnginePanel, bpy.types.Panel):
         layout.use_property_decorate = False
         ob = context.object
         s = ob.photon_lightmaps
+        if ob.type == 'EMPTY' and s.orientation_lightmap:
+            _draw_orientation_lightmap(layout, context, ob)
+            return
         layout.prop(s, "exclude")
         sub = layout.column()
         sub.active = not s.exclude
@@ -73,6 +76,56 @@ class PHOTON_LIGHTMAPS_PT_object(_EnginePanel, bpy.types.Panel):
             sub.label(text="UVs: 'Lightmap' layer" if has_uv else "UVs: automatic (no 'Lightmap' UV layer)",
                       icon='UV' if has_uv else 'INFO')
             _draw_csg(layout, ob)
+            ols = _covering_ols(context, ob)
+            if ols:
+                sub.label(text=f"Stored in orientation lightmap {', '.join(ols)}", icon='SPHERE')
+
+
+def _covering_ols(context, ob):
+    """Names of the OL empties whose collection holds `ob` (the innermost one wins at export)."""
+    scene = getattr(context, "scene", None)
+    if scene is None:
+        return []
+    out = []
+    for o in scene.objects:
+        s = getattr(o, "photon_lightmaps", None)
+        if o.type == 'EMPTY' and s is not None and s.orientation_lightmap and s.ol_collection is not None:
+            if ob.name in s.ol_collection.all_objects:
+                out.append(o.name)
+    return out
+
+
+def _draw_orientation_lightmap(layout, context, ob):
+    """Settings of an OL empty and what the last render or bake measured (ol_bake.REPORTS)."""
+    from .. import ol_bake
+    s = ob.photon_lightmaps
+    layout.prop(s, "orientation_lightmap")
+    col = layout.column()
+    col.prop(s, "ol_collection")
+    col.prop(s, "ol_resolution")
+    col.prop(s, "ol_samples")
+    col.prop(s, "ol_min_hits")
+    col.prop(s, "ol_backup")
+    if s.ol_collection is None:
+        layout.label(text="No collection: this orientation lightmap is ignored", icon='ERROR')
+    scene = getattr(context, "scene", None)
+    rep = ol_bake.last_report(scene.name, ob) if scene is not None else None
+    box = layout.box()
+    if rep is None:
+        box.label(text="Not rendered or baked yet", icon='INFO')
+        return
+    box.label(text=f"Last {rep['source']}", icon='SPHERE')
+    box.label(text=f"Bins {rep['bins']:,} ({rep['resolution']}x{rep['resolution']}), "
+                   f"{rep['bins_with_area']:,} with surface")
+    box.label(text=f"Photons received {rep['photons']:,} ({rep['instances']:,} objects)")
+    box.label(text=f"Memory {rep['memory_bytes'] / 1024:.1f} KiB")
+    err = rep.get('area_rel_error')
+    box.label(text=f"Area {rep['area']:.4g} m²" + (f" ± {100 * err:.1f} %" if err is not None else ""))
+    box.label(text=f"Openness {rep['openness']:.2f}")
+    if rep.get('parent'):
+        box.label(text=f"Inside '{rep['parent']}'")
+    for w in rep.get('warnings', []):
+        box.label(text=w, icon='ERROR')
 
 
 def _draw_csg(layout, ob):

@@ -274,11 +274,20 @@ class BakeJob:
     primitives: set = field(default_factory=set)   # stand-alone tagged primitives among targets
 
 
+def _covering_ol(router, ob):
+    """Name of the (non-backup) OL empty that takes this object's hits, else None."""
+    key = router.route(ob) if router else None
+    if key is None:
+        return None
+    empty = router.colls[key][1]
+    return None if empty.photon_lightmaps.ol_backup else empty.name
+
+
 def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=None,
                  indirect_only=False):
     """Main thread: Lightmap UV layers for the objects, then the scene export."""
     from . import uv_layers
-    from .export import export_scene
+    from .export import _OLRouter, export_scene
 
     t0 = time.perf_counter()
     result = BakeResult()
@@ -291,6 +300,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=Non
     wanted = []
     seen = set()
     operands = _csg_operands(depsgraph)
+    ol_router = _OLRouter(bscene, lambda level, msg: None)
     for ob in objects:
         ob = _original(ob)
         if ob.name in seen:
@@ -303,6 +313,10 @@ def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=Non
         elif ob.name in operands:
             result.skipped[ob.name] = (f"a Boolean operand of '{operands[ob.name]}': it is baked into "
                                        "that solid's lightmap")
+        elif _covering_ol(ol_router, ob) is not None:
+            # no Lightmap UV layer either: its light lives in the OL, indexed by normal
+            result.skipped[ob.name] = (f"covered by orientation lightmap '{_covering_ol(ol_router, ob)}': "
+                                       "use Bake Orientation Lightmaps")
         else:
             wanted.append(ob)
     changed = False

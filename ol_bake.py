@@ -121,11 +121,32 @@ def ol_rgba(cs, k):
             break
         level = np.where(up, ol.parent[level], level)
     ti = lm.offset[ol.lid[level]] + idx
-    e = lm.irradiance[ti]
+    e = lm.irradiance[ti].copy()
+    # EEVEE looks bins up by smooth shading normals, which reach bins that no
+    # flat face normal has: those take the value of the nearest bin in angle.
+    empty = lm.state[ti] == LM.STATE_EMPTY
+    full = ~empty
+    if empty.any() and full.any():
+        c = (np.arange(r) + 0.5) / r
+        d = octa_decode(np.tile(c, r), np.repeat(c, r))
+        for chunk in np.array_split(np.flatnonzero(empty), max(1, int(empty.sum()) // 4096)):
+            near = np.flatnonzero(full)[np.argmax(d[chunk] @ d[full].T, axis=1)]
+            e[chunk] = e[near]
     rgba = np.zeros((n, 4), np.float32)
     rgba[:, :3] = (e if e.shape[1] == 3 else np.repeat(e.mean(axis=1, keepdims=True), 3, axis=1)) / math.pi
     rgba[:, 3] = lm.area[sl0] > 0.0
     return rgba.reshape(r, r, 4)
+
+
+def octa_decode(s, t):
+    """Unit normals (N, 3) at octahedral coordinates (s, t): inverse of octa_st."""
+    x, y = 2.0 * np.asarray(s, np.float64) - 1.0, 2.0 * np.asarray(t, np.float64) - 1.0
+    z = 1.0 - np.abs(x) - np.abs(y)
+    low = z < 0
+    sx, sy = np.where(x >= 0, 1.0, -1.0), np.where(y >= 0, 1.0, -1.0)
+    x, y = np.where(low, (1 - np.abs(y)) * sx, x), np.where(low, (1 - np.abs(x)) * sy, y)
+    n = np.stack([x, y, z], axis=1)
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
 def octa_st(normals):

@@ -198,6 +198,20 @@ def test_add_operator_makes_a_sphere_empty_on_the_active_collection():
     assert len(es.orientation_lightmaps) == 1 and "OL_cluster" not in {r.object_name for r in em.instances}
 
 
+def test_lightmap_bake_skips_ol_covered_objects_without_touching_them():
+    from photon_lightmaps import bake
+    scene, coll, obs = _cluster_scene()
+    vl = bpy.context.view_layer
+    vl.active_layer_collection = vl.layer_collection.children["cluster"]
+    assert bpy.ops.photon_lightmaps.add_orientation_lightmap() == {"FINISHED"}
+    layers = [o.data.uv_layers.keys() for o in obs]
+    res = bake.bake_objects(bpy.context, obs, photons=20_000, seed=0)
+    for o, before in zip(obs, layers):
+        assert "orientation lightmap 'OL_cluster'" in res.skipped[o.name]
+        assert o.data.uv_layers.keys() == before, "no Lightmap UV layer is added"
+    assert not res.maps and not res.images
+
+
 def _snapshot():
     """Everything of the user's scene that an OL must not change."""
     bpy.context.view_layer.update()   # matrix_world of new objects

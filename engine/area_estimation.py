@@ -3,17 +3,24 @@
 An orientation lightmap needs, for each normal bin, the area of the covered
 geometry whose normal falls in it. Summing exact areas would mean visiting
 every primitive, which is what OLs exist to avoid; instead s sample points
-are spread evenly over the m parts of the group (systematic sampling over
-the part list, so s may be much smaller than m, 6.3.2). A part is one shape
-(triangle, primitive or CSG leaf) of one instance; instanced parts are
-sampled through their prototype and the instance transform.
+are spread over the m parts of the group by systematic sampling, so s may be
+much smaller than m (6.3.2). A part is one shape (triangle, primitive or CSG
+leaf) of one instance; instanced parts are sampled through their prototype
+and the instance transform.
 
-Each sample is a uniform (u, v) point of its part's chart; its area value is
-A_uv · |∂p/∂u × ∂p/∂v| (the area element, analytic for every primitive: the
-derivatives come with the chart, primitives.prim_point; a triangle's is its
-area), times m/s for the parts it stands for. The value goes to the bin of
-the sample's world normal, so every bin's area and the total are unbiased
-estimates. A CSG leaf counts only where it lies on its solid's boundary.
+The thesis spreads samples evenly over the parts. That starves big parts
+among many small ones (a sphereflake's root sphere is a fifth of its area but
+one part in 7381), so here parts are drawn in proportion to a cheap size
+proxy instead: the part's local area (exact for triangles, the closed form
+for primitives) times the instance's mean area scale |det M|^(2/3). Each
+sample is a uniform (u, v) point of its part's chart; its value is
+A_uv · |∂p/∂u × ∂p/∂v| (the analytic area element: the derivatives come with
+the chart, primitives.prim_point; a triangle's is its area) divided by s
+times the part's probability. Under similarity transforms the proxy is the
+part's true area, so the choice of part adds no variance: only the area
+element inside a chart varies (for triangles nothing does). The value goes to the bin of the sample's world normal: every
+bin's area and the total are unbiased estimates. A CSG leaf counts only
+where it lies on its solid's boundary.
 
 The same samples also measure how much of the group's surface the group
 itself shades (`openness`): strongly self-shadowed groups (cavities, Menger
@@ -26,7 +33,7 @@ import numpy as np
 from numba import njit, prange
 
 from . import csg as CSG
-from .primitives import _octa_encode, prim_nfaces, prim_point
+from .primitives import _octa_encode, prim_area, prim_nfaces, prim_point
 from .raycast import STACK_WORDS, intersect_closest
 from .sampling import cosine_hemisphere, next_float, stream_state, to_world
 
@@ -80,30 +87,49 @@ def _csg_side(buf, cb, roots, leaf, px, py, pz, bits):
 
 
 @njit(cache=True, parallel=True)
-def _sample_kernel(g, insts, cum, part_start, parts, csg_roots_start, csg_roots, vs0, res, n_s,
-                   seed, out_bin, out_val, out_pn):
-    m = cum[cum.shape[0] - 1]
+def _sample_kernel(g, insts, inst_cum, part_start, parts, part_acc, csg_roots_start, csg_roots,
+                   vs0, res, n_s, seed, out_bin, out_val, out_pn):
+    total = inst_cum[inst_cum.shape[0] - 1]
     buf = (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)
     has_csg = csg_roots.shape[0] > 0
     cb = CSG.csg_base(buf) if has_csg else 0
     state0 = stream_state(seed, np.uint64(0xA5EA))
     state0, off = next_float(state0)
-    scale = m / n_s
     for k in prange(n_s):
         bits = np.empty(3 * CSG.MAX_WORK + 8, np.int32)
         state = stream_state(seed, k)
-        j = min(np.int64((k + off) * scale), m - 1)
-        # instance holding part j (cum ascending), then the part inside its prototype
-        lo, hi = 0, cum.shape[0] - 2
+        x = (k + off) / n_s * total
+        # instance: inst_cum[a] <= x < inst_cum[a+1] (cumulative size proxies)
+        lo, hi = 0, inst_cum.shape[0] - 2
         while lo < hi:
             mid = (lo + hi + 1) // 2
-            if cum[mid] <= j:
+            if inst_cum[mid] <= x:
                 lo = mid
             else:
                 hi = mid - 1
         inst = insts[lo]
         proto = g.inst_proto[inst]
-        shape = parts[part_start[proto] + (j - cum[lo])]
+        w_inst = inst_cum[lo + 1] - inst_cum[lo]
+        p0 = part_start[proto]
+        p1 = part_start[proto + 1]
+        a_proto = part_acc[p1 - 1]
+        # part: the first whose cumulative local area exceeds the position inside the instance
+        if not (w_inst > 0.0 and a_proto > 0.0):
+            out_bin[k] = -1
+            out_val[k] = 0.0
+            continue
+        y = min(max((x - inst_cum[lo]) / w_inst, 0.0), 1.0) * a_proto
+        a, b = p0, p1 - 1
+        while a < b:
+            mid = (a + b) // 2
+            if part_acc[mid] > y:
+                b = mid
+            else:
+                a = mid + 1
+        a_part = part_acc[a] - (part_acc[a - 1] if a > p0 else 0.0)
+        shape = parts[a]
+        # 1 / (s * P(part)): P = (w_inst / total) * (a_part / a_proto)
+        scale = total * a_proto / (n_s * w_inst * a_part) if a_part > 0.0 else 0.0
         xf = g.inst_xf[inst]
         inv = g.inst_inv[inst]
         det_i = abs(_det3(xf))
@@ -184,6 +210,27 @@ def _openness_kernel(g, pn, member, n_rays, tmax, seed, out):
         out[k] = free / n_rays
 
 
+@njit(cache=True)
+def _local_areas(g, parts):
+    """Size proxy of each part in prototype space: a triangle's area, a primitive's
+    closed-form area times its transform's mean area scale."""
+    out = np.empty(parts.shape[0])
+    for j in range(parts.shape[0]):
+        sh = parts[j]
+        idx = g.shape_index[sh]
+        if g.shape_kind[sh] == 0:
+            p = g.tri_p[idx]
+            ax, ay, az = p[1, 0] - p[0, 0], p[1, 1] - p[0, 1], p[1, 2] - p[0, 2]
+            bx, by, bz = p[2, 0] - p[0, 0], p[2, 1] - p[0, 1], p[2, 2] - p[0, 2]
+            cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+            out[j] = 0.5 * math.sqrt(cx * cx + cy * cy + cz * cz)
+        else:
+            pr = g.prim_params[idx]
+            out[j] = prim_area(g.shape_kind[sh], (pr[0], pr[1], pr[2], pr[3])) * \
+                abs(_det3(g.prim_xf[idx])) ** (2.0 / 3.0)
+    return out
+
+
 def _part_tables(g):
     """Per prototype: the shapes that are surfaces (CSR), and its CSG roots (CSR)."""
     n_p = g.proto_root.shape[0]
@@ -219,11 +266,22 @@ def estimate_areas(g, instances, resolution, samples, seed=0, member=None, tmax=
     s = int(samples)
     insts = np.asarray(instances, np.int64).reshape(-1)
     part_start, parts, counts, roots_start, roots = _part_tables(g)
-    per_inst = counts[g.inst_proto[insts]] if insts.size else np.zeros(0, np.int64)
-    cum = np.zeros(insts.size + 1, np.int64)
-    cum[1:] = np.cumsum(per_inst)
-    m = int(cum[-1])
-    if m == 0 or s < 1:
+    m = int(counts[g.inst_proto[insts]].sum()) if insts.size else 0
+    # cumulative local part areas, restarting at each prototype
+    local = _local_areas(g, parts)
+    acc = np.cumsum(local)
+    first = part_start[:-1][counts > 0]
+    base = np.zeros(parts.size)
+    base[first] = np.concatenate([[0.0], acc[first[1:] - 1]]) if first.size else 0.0
+    part_acc = acc - np.maximum.accumulate(base)
+    proto_area = np.zeros(counts.size)
+    has = counts > 0
+    proto_area[has] = part_acc[part_start[1:][has] - 1]
+    det = np.abs(np.linalg.det(g.inst_xf[insts][:, :, :3])) if insts.size else np.zeros(0)
+    w = proto_area[g.inst_proto[insts]] * det ** (2.0 / 3.0) if insts.size else np.zeros(0)
+    inst_cum = np.zeros(insts.size + 1)
+    inst_cum[1:] = np.cumsum(w)
+    if m == 0 or s < 1 or not inst_cum[-1] > 0:
         nbin = R * R
         return AreaEstimate(np.zeros(nbin), np.full(nbin, np.inf), 0.0, math.inf, s, m, 1.0,
                             time.perf_counter() - t0)
@@ -231,8 +289,8 @@ def estimate_areas(g, instances, resolution, samples, seed=0, member=None, tmax=
     out_bin = np.empty(s, np.int64)
     out_val = np.empty(s)
     out_pn = np.zeros((s, 6))
-    _sample_kernel(g, insts, cum, part_start, parts, roots_start, roots, int(vs0), R, s,
-                   np.uint64(seed), out_bin, out_val, out_pn)
+    _sample_kernel(g, insts, inst_cum, part_start, parts, np.ascontiguousarray(part_acc), roots_start,
+                   roots, int(vs0), R, s, np.uint64(seed), out_bin, out_val, out_pn)
     ok = out_bin >= 0
     b = out_bin[ok]
     v = out_val[ok]

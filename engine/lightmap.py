@@ -19,6 +19,7 @@ offset + y * width + x). A primitive with F faces has F square tiles of R × R
 side by side (width = F·R); texel (x, y) of a tile covers the chart square
 [x/R, (x+1)/R] × [y/R, (y+1)/R] of that face. A mesh atlas is one tile.
 """
+import functools
 import math
 from collections import namedtuple
 
@@ -485,6 +486,7 @@ _CENTRE_ORDER = 16
 _NEAR_CENTRE = 4.0
 
 
+@functools.lru_cache(maxsize=16)
 def _gauss_legendre01(order):
     """Gauss–Legendre nodes and weights on [0, 1]."""
     x, w = np.polynomial.legendre.leggauss(int(order))
@@ -704,11 +706,41 @@ def primitive_texel_areas(kind, params, M, R, order=None):
     p[:pv.size] = pv
     if order is None:
         order = 4 if R < 512 else 3
+    M = np.asarray(M, np.float64)[:3, :3]
+    s2 = _similarity_scale2(M)
+    if s2 is not None:
+        # rotation x uniform scale: every texel's area is its local one times s²,
+        # so thousands of instanced spheres share one quadrature
+        return _local_texel_areas(kind, tuple(p), R, int(order)) * s2
+    return _texel_areas_quadrature(kind, p, M, R, int(order))
+
+
+def _texel_areas_quadrature(kind, p, M, R, order):
     gx, gw = _gauss_legendre01(order)
     gx_c, gw_c = _gauss_legendre01(max(int(order), _CENTRE_ORDER))
     sub = max(1, -(-_MIN_CELLS // R))
-    return _primitive_areas_kernel(kind, p, cofactor(M), n_faces, R, sub, gx, gw, gx_c, gw_c,
-                                   _CREASES)
+    return _primitive_areas_kernel(kind, p, cofactor(M), prim_nfaces(kind), R, sub, gx, gw, gx_c,
+                                   gw_c, _CREASES)
+
+
+@functools.lru_cache(maxsize=256)
+def _local_texel_areas_cached(kind, params, R, order):
+    a = _texel_areas_quadrature(kind, np.asarray(params, np.float64), np.eye(3), R, order)
+    a.flags.writeable = False
+    return a
+
+
+def _local_texel_areas(kind, params, R, order):
+    return _local_texel_areas_cached(kind, params, R, order).copy()
+
+
+def _similarity_scale2(M, rtol=1e-12):
+    """s² if M = s·Q with Q orthogonal (MᵀM = s² I), else None."""
+    G = M.T @ M
+    s2 = float(np.trace(G)) / 3.0
+    if s2 > 0.0 and np.abs(G - s2 * np.eye(3)).max() <= rtol * s2:
+        return s2
+    return None
 
 
 # --------------------------------------------------------------------------------------

@@ -136,7 +136,7 @@ def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=Non
     run.lightmap_bytes = cs.lightmap_bytes()
     if cs.info.get("csg_ties"):
         report("WARNING", f"Photon Lightmaps: coincident CSG operand faces ({cs.info['csg_ties']:,} ties on "
-                          f"{cs.info['csg_tie_texels']:,} texels), resolved by the tie rule: the cut owns them")
+                          f"{cs.info['csg_tie_texels']:,} texels), resolved by the tie rule (thesis 4.1.2)")
     run.lightmaps, run.texels = int(cs.info.get("lightmaps", 0)), int(cs.info.get("texels", 0))
     lm_text = f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB ({run.texels:,} texels)"
     t_compile = time.perf_counter()

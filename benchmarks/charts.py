@@ -259,3 +259,97 @@ def make_all(result, images, out):
     error_maps(result, images, out, files)
     failure_cases(result, images, out, files)
     return files
+
+
+# --------------------------------------------------------------------------------------
+# bench_csg: exact CSG against the tessellated Boolean mesh, split against plain lightmaps
+# --------------------------------------------------------------------------------------
+
+def _model_colour(m):
+    return {"exact": "C0", "exact_plain": "C1"}.get(m, f"C{2 + abs(hash(m)) % 5}")
+
+
+def csg_charts(result, images, out):
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    pts = result["points"]
+    scenes = [i["scene"] for i in result["scenes"]]
+    models = [m for m in dict.fromkeys(p["model"] for p in pts) if m != "exact_plain"]
+    tess = sorted({p["model"] for p in pts if p["model"].startswith("tess")},
+                  key=lambda m: int(m[4:]))
+    colours = {"exact": "C0", **{m: f"C{2 + i}" for i, m in enumerate(tess)}}
+
+    # 1. exact against tessellated: five quantities, log bars per scene
+    panels = (("primitives + triangles", lambda p: p["primitives"] + p["triangles"]),
+              ("memory: trace buffer + lightmaps (MiB)", lambda p: p["memory_bytes"] / 2 ** 20),
+              ("setup s: Boolean + unwrap + export + compile", lambda p: p["setup_seconds"]),
+              ("photon pass s", lambda p: p["photon_seconds"]),
+              ("render relative RMSE vs Cycles", lambda p: max(p["rel_rmse"], 1e-4)))
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.3 * len(panels), 3.6))
+    width = 0.8 / max(len(models), 1)
+    x = np.arange(len(scenes))
+    for ax, (title, f) in zip(axes, panels):
+        for k, m in enumerate(models):
+            vals = [next((f(p) for p in pts if p["scene"] == s and p["model"] == m), np.nan) for s in scenes]
+            ax.bar(x + (k - (len(models) - 1) / 2) * width, vals, width, color=colours.get(m, "C7"),
+                   label="exact CSG" if m == "exact" else f"Boolean mesh, {m[4:]} segments")
+        ax.set_yscale("log")
+        ax.set_xticks(x)
+        ax.set_xticklabels([s.replace("fig55_", "5.5 ") for s in scenes], rotation=30, fontsize=7)
+        ax.set_title(title, fontsize=8)
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+    axes[0].legend(fontsize=6)
+    fig.suptitle("exact CSG against Blender's Exact-Boolean mesh (this engine, same photons)", fontsize=9)
+    fig.tight_layout()
+    _save(fig, out / "csg_exact_vs_tessellated.png", files)
+
+    # 2. split (CSG-aware) against plain lightmaps
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
+    sp = [i["split"] for i in result["scenes"]]
+    ax = axes[0]
+    ax.bar(x - 0.2, [100 * s["photon_overhead"] for s in sp], 0.4, color="C0", label="photon-pass time")
+    ax.bar(x + 0.2, [100 * s["lightmap_memory_overhead"] for s in sp], 0.4, color="C1",
+           label="lightmap memory")
+    ax.axhline(10.0, color="k", ls="--", lw=1, label="goal: 10 %")
+    ax.axhline(0.0, color="0.5", lw=0.7)
+    ax.set_ylabel("overhead of split lightmaps (%)")
+    ax.set_title("CSG-aware lightmaps against plain ones", fontsize=9)
+    ax.set_xticks(x)
+    ax.set_xticklabels([s.replace("fig55_", "5.5 ") for s in scenes], rotation=30, fontsize=7)
+    ax.legend(fontsize=7)
+    ax = axes[1]
+    ax.bar(x - 0.2, [s["rel_rmse_split"] for s in sp], 0.4, color="C0", label="split (visible texel area)")
+    ax.bar(x + 0.2, [s["rel_rmse_plain"] for s in sp], 0.4, color="C1", label="plain (full texel area)")
+    ax.set_ylabel("render relative RMSE vs Cycles")
+    ax.set_xticks(x)
+    ax.set_xticklabels([s.replace("fig55_", "5.5 ") for s in scenes], rotation=30, fontsize=7)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    _save(fig, out / "csg_split_overhead.png", files)
+
+    # 3. images: reference, exact, plain, coarsest Boolean mesh and |error| maps
+    cols = ["reference", "exact", "exact_plain"] + tess[:1]
+    fig, axes = plt.subplots(len(scenes), 2 * len(cols) - 1, figsize=(2.0 * (2 * len(cols) - 1),
+                                                                       2.1 * len(scenes)), squeeze=False)
+    for r, s in enumerate(scenes):
+        im = images[s]
+        ref = im["reference"]
+        scale = np.percentile(ref, 99)
+        j = 0
+        for c in cols:
+            if c not in im:
+                continue
+            axes[r, j].imshow(_srgb(im[c] / scale))
+            axes[r, j].set_title(f"{s.replace('fig55_', '5.5 ')}: {c}", fontsize=7)
+            j += 1
+            if c != "reference":
+                axes[r, j].imshow(np.abs(im[c] - ref).mean(-1) / ref.mean(), cmap="magma", vmin=0, vmax=0.5)
+                axes[r, j].set_title(f"|error| {c}", fontsize=7)
+                j += 1
+        for a in axes[r]:
+            a.axis("off")
+    fig.suptitle("renders against Cycles on the finest Boolean mesh (|error| / mean, 0..0.5)", fontsize=9)
+    fig.tight_layout()
+    _save(fig, out / "csg_images.png", files, dpi=58)
+    return files

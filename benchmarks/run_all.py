@@ -4,6 +4,7 @@ Usage (from the repository root):
     .venv/bin/python -m benchmarks.run_all            # full run (about 15 minutes on 2 cores)
     .venv/bin/python -m benchmarks.run_all --quick    # tiny knobs, cornell only (about a minute)
 Options: --scenes cornell,window  --out DIR  --charts DIR  --no-charts
+         --csg (then also benchmarks/bench_csg.py: exact CSG, its own JSON and charts)
 
 Writes DIR/results.json (every measured point) and PNG charts, and prints the
 headline ratios. Errors are scored against converged Cycles references
@@ -346,6 +347,8 @@ def main(argv=None):
     ap.add_argument("--charts", default=None, help="chart folder (default: OUT/charts; the full run "
                                                    "also copies them to benchmarks/charts)")
     ap.add_argument("--no-charts", action="store_true")
+    ap.add_argument("--csg", action="store_true", help="also run bench_csg (exact CSG against the "
+                                                       "Boolean mesh; about 25 min full, 6 min --quick)")
     args = ap.parse_args(argv)
     cfg = dict(QUICK if args.quick else FULL)
     if args.scenes:
@@ -383,6 +386,10 @@ def main(argv=None):
     with open(out / "results.json", "w") as f:
         json.dump(result, f, indent=1, default=float)
     log(f"wrote {out / 'results.json'} ({len(points)} points) in {result['seconds_total']:.0f} s")
+    if args.csg:
+        from benchmarks import bench_csg
+        bench_csg.main((["--quick"] if args.quick else []) + ["--out", str(out)]
+                       + (["--no-charts"] if args.no_charts else []))
     return result
 
 

@@ -1038,10 +1038,14 @@ FULL_MASK = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
 @njit(cache=True, parallel=True)
-def _visibility_kernel(buf, root, leaf, kind, params, xf, inv, n_faces, R, eps, out):
+def _visibility_kernel(buf, root, leaf, kind, params, xf, inv, n_faces, R, eps, span, out, ties):
     """out[f*R*R + y*R + x]: bit j*SUB+i set if the centre of sampling cell
     (i, j) of texel (x, y) of face f lies on the solid's boundary as part of
-    leaf L = `leaf`.
+    leaf L = `leaf`. ties[same index]: coincident-boundary events (the ray
+    kernel's tie rule, module docstring) on the ray segments (-span, span)
+    through the texel's cell centres along L's normal: a ray landing on the
+    cell head-on, so coplanar operand faces show up here (thesis 4.1.2); the
+    short segment lets the node boxes cull every operand away from the cell.
 
     That is: the solid's membership differs just outside and just inside L
     (p ± eps·n), and just inside it depends on L (removing L changes it).
@@ -1053,6 +1057,7 @@ def _visibility_kernel(buf, root, leaf, kind, params, xf, inv, n_faces, R, eps, 
     h = 1.0 / (R * S)
     for cell in prange(n_faces * R * R):
         bits = np.empty(3 * MAX_WORK + 8, np.int32)
+        sc = np.zeros(CSG_SCRATCH_WORDS + 2, np.int32)
         f = cell // (R * R)
         rem = cell - f * R * R
         y = rem // R
@@ -1085,12 +1090,14 @@ def _visibility_kernel(buf, root, leaf, kind, params, xf, inv, n_faces, R, eps, 
                     if not ln > 0.0:
                         continue
                 e = eps / ln
+                _evaluate(buf, cb, sc, 0, root, qx, qy, qz, nx / ln, ny / ln, nz / ln, -span, span)
                 a = _inside(buf, cb, root, qx + e * nx, qy + e * ny, qz + e * nz, bits)
                 b = _inside(buf, cb, root, qx - e * nx, qy - e * ny, qz - e * nz, bits)
                 if a != b and b != _inside(buf, cb, root, qx - e * nx, qy - e * ny, qz - e * nz,
                                            bits, leaf, False):
                     m |= np.uint64(1) << np.uint64(j * S + i)
         out[cell] = m
+        ties[cell] = sc[SC_TIES]
 
 
 @njit(cache=True)
@@ -1190,6 +1197,7 @@ LeafSplit = namedtuple("LeafSplit", [
     "mixed",      # int64[K] face-major texels with visible and removed cells
     "n_comp",     # int64[K] disjoint visible regions of each mixed texel
     "labels",     # int8[K, 64] region of each sampling cell (nearest for removed cells)
+    "ties",       # int64[F*R*R] coincident-boundary events on the texel's sampling rays
 ])
 
 
@@ -1202,15 +1210,17 @@ def leaf_visibility(table_trace, root, flat, leaf, R):
     nf = int(N_FACES[kind])
     box = flat.node_box[root]
     # the membership probe steps off the surface by a tiny fraction of the solid's size
-    eps = 1e-7 * max(float(np.max(np.abs(box))), float(np.max(box[3:] - box[:3])), 1e-30)
+    size = max(float(np.max(np.abs(box))), float(np.max(box[3:] - box[:3])), 1e-30)
+    eps = 1e-7 * size
     mask = np.zeros(nf * R * R, np.uint64)
+    ties = np.zeros(nf * R * R, np.int64)
     _visibility_kernel(table_trace, int(root), int(leaf), np.int32(kind), flat.leaf_params[leaf],
-                       flat.leaf_xf[leaf], flat.leaf_inv[leaf], nf, int(R), eps, mask)
+                       flat.leaf_xf[leaf], flat.leaf_inv[leaf], nf, int(R), eps, 1e-3 * size, mask, ties)
     mixed = np.nonzero((mask != 0) & (mask != FULL_MASK))[0].astype(np.int64)
     labels = np.empty((mixed.size, SPLIT_SUB * SPLIT_SUB), np.int8)
     n_comp = np.zeros(mixed.size, np.int64)
     _components(mask[mixed], labels, n_comp)
-    return LeafSplit(mask, mixed, n_comp, labels)
+    return LeafSplit(mask, mixed, n_comp, labels, ties)
 
 
 def visible_areas(split, kind, params, M, R, area_facemajor):
@@ -1270,7 +1280,7 @@ def apply_csg_lightmaps(lm, plan, fills, flat, extra_lid):
     of lightmap extra_lid). Returns (lm with split tables, stats dict)."""
     t0 = time.perf_counter()
     split_rows, firsts, labels = [], [], []
-    n_mixed = n_removed = 0
+    n_mixed = n_removed = n_ties = n_tie_texels = 0
     next_row = int(lm.offset[extra_lid]) if extra_lid is not None else 0
     for lid, leaf, sp in plan:
         F = int(lm.tiles[lid])
@@ -1284,6 +1294,8 @@ def apply_csg_lightmaps(lm, plan, fills, flat, extra_lid):
                                       face_major)
         n_mixed += sp.mixed.size
         n_removed += int(np.sum(sp.mask == 0))
+        n_ties += int(sp.ties.sum())
+        n_tie_texels += int(np.count_nonzero(sp.ties))
         f, rem = np.divmod(sp.mixed, R * R)
         y, x = np.divmod(rem, R)
         texel_rows = o + y * W + f * R + x
@@ -1305,6 +1317,8 @@ def apply_csg_lightmaps(lm, plan, fills, flat, extra_lid):
     stats = {"csg_boundary_texels": int(n_mixed), "csg_split_texels": K,
              "csg_sub_texels": int(next_row - (int(lm.offset[extra_lid]) if extra_lid is not None else 0)),
              "csg_removed_texels": int(n_removed),
+             # coplanar operand faces: resolved by the tie rule, reported (thesis 4.1.2)
+             "csg_ties": int(n_ties), "csg_tie_texels": int(n_tie_texels),
              "csg_split_bytes": int(lm.split.nbytes + lm.split_first.nbytes + lm.split_cell.nbytes),
              "csg_apply_seconds": time.perf_counter() - t0}
     return lm, stats

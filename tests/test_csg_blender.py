@@ -1,10 +1,10 @@
 """Exact CSG from Blender: Add > Photon CSG Primitive and Boolean-modifier export.
 
 bpy is imported once per process; every test starts from an empty factory file.
-The render comparison with Cycles needs the core's CSG integration
-(engine/geometry.py importing engine/csg.py) and skips, saying so, without it.
-Its bound: image mean within 5 % of Cycles rendering Blender's Exact Boolean
-of finely tessellated display meshes (256 segments) at 32x32.
+The render comparison (thesis fig. 5.5: a cylinder and a sphere under each
+operator) checks this engine against Cycles rendering Blender's Exact Boolean
+of finely tessellated display meshes (256 segments) at 32x32: image mean and
+4x4-block means within the bounds stated (and motivated) at the test.
 """
 import math
 import types
@@ -457,15 +457,6 @@ def test_object_panel_shows_csg_parameters():
 
 # -- render: this engine vs Cycles on Blender's Exact Boolean ----------------------------------
 
-def _csg_core_integrated():
-    from photon_lightmaps.engine import geometry
-    for v in vars(geometry).values():
-        name = v.__name__ if isinstance(v, types.ModuleType) else getattr(v, "__module__", None) or ""
-        if name.endswith("engine.csg"):
-            return True
-    return False
-
-
 def _render_exr(scene, engine, path):
     scene.render.engine = engine
     if engine == "CYCLES":
@@ -492,9 +483,10 @@ def _render_exr(scene, engine, path):
     return px.reshape(h, w, 4)[..., :3].astype(np.float64)
 
 
-def build_csg_render_scene(segments=256):
-    """A white floor, a cylinder-minus-sphere bowl (tagged primitives, Exact Boolean),
-    a 1 m square area light 2.5 m up and an oblique camera; 32x32 pixels."""
+def build_csg_render_scene(operation="DIFFERENCE", segments=256):
+    """A white floor, a cylinder and a sphere under `operation` (tagged primitives,
+    Exact Boolean; thesis fig. 5.5), a 1 m square area light 2.5 m up and an
+    oblique camera; 32x32 pixels."""
     scene = bpy.context.scene
     white = demo_blend.principled("white", (0.8, 0.8, 0.8))
     s = 4.0
@@ -504,9 +496,14 @@ def build_csg_render_scene(segments=256):
                                                 segments=segments, material=white)
     solid.scale = (0.6, 0.6, 0.5)
     cutter = csg_primitives.new_primitive_object("sphere", "cutter", location=(0.15, -0.1, 1.0), size=0.5,
-                                                 segments=segments)
+                                                 segments=segments, material=white)
     cutter.hide_render = True
-    boolean(solid, cutter, "DIFFERENCE")
+    for ob in (solid, cutter):
+        # Flat facets (sub-pixel at 256 segments): smooth vertex normals would be
+        # interpolated across the Boolean's new creases (not marked sharp) and shade
+        # Cycles' whole long side quads wrongly where the sphere cuts the wall.
+        ob.data.shade_flat()
+    boolean(solid, cutter, operation)
     demo_blend.add_light(scene, "AREA", "light", power=300.0, location=(0.3, -0.5, 2.5), size=1.0)
     demo_blend.add_camera(scene, (0.0, -3.0, 2.5), (math.atan2(3.0, 2.5), 0.0, 0.0), lens=35.0)
     demo_blend.set_world(scene)
@@ -515,14 +512,33 @@ def build_csg_render_scene(segments=256):
     return scene, solid
 
 
-def test_csg_difference_render_agrees_with_cycles(tmp_path):
-    if not _csg_core_integrated():
-        pytest.skip("engine/geometry.py does not import engine/csg.py yet, so Prototype.csg is not "
-                    "compiled (the core's CSG integration has not landed); the exporter's trees are "
-                    "checked structurally above")
-    scene, _ = build_csg_render_scene()
+def _block_means(img, n=4):
+    """Means of n x n blocks of an (H, W, C) image (H, W multiples of n)."""
+    h, w, c = img.shape
+    return img.reshape(n, h // n, n, w // n, c).mean(axis=(1, 3, 4))
+
+
+# Bounds, relative to Cycles' image mean, from measurements at these settings
+# (32x32; ours 300k photons, 32 spp; Cycles 128 spp): 4x4-block means (8x8 px)
+# differ by at most 5.6 % (union), 3.2 % (intersection), 2.7 % (difference), and
+# converge to <= 1.7 % at 3M photons / 256 spp against Cycles at 1024 spp, so
+# this is noise: our own run-to-run block noise is 3-5 %, Cycles' 1.5 %. Image
+# means agree within 0.3 %. The block bound leaves ~2x room over the worst
+# measurement; a wrong operator or a lost cut moves blocks on the solid by 20 %+
+# (smooth normals across the Boolean's unmarked creases alone did, in Cycles).
+MEAN_BOUND = 0.05
+BLOCK_BOUND = 0.10
+
+
+@pytest.mark.parametrize("operation", ["UNION", "INTERSECT", "DIFFERENCE"])
+def test_csg_operator_render_agrees_with_cycles(tmp_path, operation):
+    scene, _ = build_csg_render_scene(operation)
     ours = _render_exr(scene, "PHOTON_LIGHTMAPS", tmp_path / "ours.exr")
     ref = _render_exr(scene, "CYCLES", tmp_path / "cycles.exr")
-    rel_err = abs(ours.mean() - ref.mean()) / ref.mean()
-    print(f"CSG difference: mean ours {ours.mean():.5f}, Cycles {ref.mean():.5f}, rel {rel_err:.2%}")
-    assert rel_err < 0.05
+    assert np.all(np.isfinite(ours))
+    mean_err = abs(ours.mean() - ref.mean()) / ref.mean()
+    block_err = np.abs(_block_means(ours) - _block_means(ref)) / ref.mean()
+    print(f"CSG {operation}: mean ours {ours.mean():.5f}, Cycles {ref.mean():.5f}, rel {mean_err:.2%}; "
+          f"4x4 blocks max {block_err.max():.2%}, mean {block_err.mean():.2%}")
+    assert mean_err < MEAN_BOUND
+    assert block_err.max() < BLOCK_BOUND, np.round(block_err, 3)

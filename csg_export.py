@@ -256,10 +256,7 @@ class CSGBuilder:
                 for s in subs:
                     node = CSGNode(op, node, s, name=name)
             else:
-                operand = subs[0]
-                for s in subs[1:]:
-                    operand = CSGNode("union", operand, s, name=f"{name}/collection")
-                node = CSGNode(op, node, operand, name=name)
+                node = CSGNode(op, node, _balanced_union(subs, f"{name}/collection"), name=name)
         return node
 
     def _relative(self, ob):
@@ -326,3 +323,14 @@ def tree_leaves(node):
     if isinstance(node, CSGNode):
         return tree_leaves(node.left) + tree_leaves(node.right)
     return [node]
+
+
+def _balanced_union(items, name):
+    """Union of a collection's solids as a balanced tree: depth log2(n), so a
+    collection of hundreds of rivets stays within the ray-CSG work stack and
+    its subtree boxes cull whole halves."""
+    if len(items) == 1:
+        return items[0]
+    mid = (len(items) + 1) // 2
+    return CSGNode("union", _balanced_union(items[:mid], name), _balanced_union(items[mid:], name),
+                   name=name)

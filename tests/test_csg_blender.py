@@ -542,3 +542,14 @@ def test_csg_operator_render_agrees_with_cycles(tmp_path, operation):
           f"4x4 blocks max {block_err.max():.2%}, mean {block_err.mean():.2%}")
     assert mean_err < MEAN_BOUND
     assert block_err.max() < BLOCK_BOUND, np.round(block_err, 3)
+
+
+def test_collection_union_is_balanced():
+    # 300 rivets: a chain would be 300 deep (past the ray-CSG work stack); balanced is 9
+    leaves = [Primitive("sphere", name=f"r{i}") for i in range(300)]
+    root = csg_export._balanced_union(leaves, "rivets")
+
+    def depth(n):
+        return 1 + max(depth(n.left), depth(n.right)) if isinstance(n, CSGNode) else 0
+    assert depth(root) == 9
+    assert [leaf.name for leaf in csg_export.tree_leaves(root)] == [f"r{i}" for i in range(300)]

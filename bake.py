@@ -740,6 +740,34 @@ def _pack_exr(img, filepath):
 # Material hook
 # --------------------------------------------------------------------------------------
 
+def hook_nodes(tree, frame, origin, lookup, vector, image, group, out, surface, tag):
+    """Image (read at `vector`, made by node `lookup`) -> lightmap group -> an
+    EEVEE-only Material Output beside the user's. Shared by the UV lightmap
+    hook and the orientation lightmap hook (ol_bake.py); returns the group node."""
+    tex = tag(tree.nodes.new("ShaderNodeTexImage"), "Image")
+    tex.image = image
+    tex.interpolation = "Linear"
+    tex.extension = "EXTEND"
+    grp = tag(tree.nodes.new("ShaderNodeGroup"), "Group")
+    grp.node_tree = group
+    eo = tag(tree.nodes.new("ShaderNodeOutputMaterial"), "Output")
+    eo.target = "EEVEE"
+    for n, dx in ((lookup, -700), (tex, -500), (grp, -200), (eo, 0)):
+        n.parent = frame
+        n.location = (origin[0] + dx, origin[1])
+    tree.links.new(vector, tex.inputs["Vector"])
+    tree.links.new(tex.outputs["Color"], grp.inputs["Lightmap"])
+    if surface is not None:
+        tree.links.new(surface, grp.inputs["Shader"])
+    tree.links.new(grp.outputs["Shader"], eo.inputs["Surface"])
+    if out is not None:
+        for key in ("Volume", "Displacement"):
+            src = _source(out.inputs[key])
+            if src is not None:
+                tree.links.new(src, eo.inputs[key])
+    return grp
+
+
 def _tag(node, role):
     node[HOOK_PROP] = role
     node.name = f"{HOOK_PREFIX} {role}" if role != "Group" else HOOK_PREFIX
@@ -866,27 +894,7 @@ def add_lightmap_hook(ob, image, baked_objects=(), warnings=None, parts=(), mate
         frame.label = "Photon Lightmap (baked light, EEVEE only; remove with Remove Lightmap Hook)"
         uv = _tag(tree.nodes.new("ShaderNodeUVMap"), "UV")
         uv.uv_map = LAYER_NAME
-        tex = _tag(tree.nodes.new("ShaderNodeTexImage"), "Image")
-        tex.image = image
-        tex.interpolation = "Linear"
-        tex.extension = "EXTEND"
-        grp = _tag(tree.nodes.new("ShaderNodeGroup"), "Group")
-        grp.node_tree = ng
-        eo = _tag(tree.nodes.new("ShaderNodeOutputMaterial"), "Output")
-        eo.target = "EEVEE"
-        for n, dx in ((uv, -700), (tex, -500), (grp, -200), (eo, 0)):
-            n.parent = frame
-            n.location = (x0 + dx, y0)
-        tree.links.new(uv.outputs["UV"], tex.inputs["Vector"])
-        tree.links.new(tex.outputs["Color"], grp.inputs["Lightmap"])
-        if surface is not None:
-            tree.links.new(surface, grp.inputs["Shader"])
-        tree.links.new(grp.outputs["Shader"], eo.inputs["Surface"])
-        if out is not None:
-            for key in ("Volume", "Displacement"):
-                src = _source(out.inputs[key])
-                if src is not None:
-                    tree.links.new(src, eo.inputs[key])
+        grp = hook_nodes(tree, frame, (x0, y0), uv, uv.outputs["UV"], image, ng, out, surface, _tag)
         _link_base_color(tree, surface, grp, mat, warnings)
         # EEVEE prefers an output whose target is exactly EEVEE over an "All" one, active
         # or not, so ours needs no active flag (setting it would clear the user's).

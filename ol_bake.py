@@ -405,27 +405,8 @@ def add_ol_hook(empty, image, objects, warnings=None):
                        "removed with Remove Orientation Lightmap)")
         grp_c = _tag(tree.nodes.new("ShaderNodeGroup"), "Coordinates", empty.name)
         grp_c.node_tree = coords
-        tex = _tag(tree.nodes.new("ShaderNodeTexImage"), "Image", empty.name)
-        tex.image = image
-        tex.interpolation = "Linear"
-        tex.extension = "EXTEND"
-        grp = _tag(tree.nodes.new("ShaderNodeGroup"), "Group", empty.name)
-        grp.node_tree = shade
-        eo = _tag(tree.nodes.new("ShaderNodeOutputMaterial"), "Output", empty.name)
-        eo.target = "EEVEE"
-        for nd, dx in ((grp_c, -700), (tex, -500), (grp, -200), (eo, 0)):
-            nd.parent = frame
-            nd.location = (x0 + dx, y0)
-        tree.links.new(grp_c.outputs["Vector"], tex.inputs["Vector"])
-        tree.links.new(tex.outputs["Color"], grp.inputs["Lightmap"])
-        if surface is not None:
-            tree.links.new(surface, grp.inputs["Shader"])
-        tree.links.new(grp.outputs["Shader"], eo.inputs["Surface"])
-        if out is not None:
-            for key in ("Volume", "Displacement"):
-                src = B._source(out.inputs[key])
-                if src is not None:
-                    tree.links.new(src, eo.inputs[key])
+        grp = B.hook_nodes(tree, frame, (x0, y0), grp_c, grp_c.outputs["Vector"], image, shade, out,
+                           surface, lambda nd, role: _tag(nd, role, empty.name))
         B._link_base_color(tree, surface, grp, mat, warnings)
         done.append(mat.name)
     return done

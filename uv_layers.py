@@ -62,8 +62,8 @@ def mesh_triangles(mesh):
             tl.reshape(-1, 3).astype(np.int64), tp.astype(np.int64))
 
 
-def geometry_hash(mesh):
-    """Hash of vertex positions and topology: what an unwrap depends on."""
+def _mesh_raw(mesh):
+    """Vertex positions (float32, flat), loop vertices, polygon loop starts and sizes."""
     co = np.empty(len(mesh.vertices) * 3, np.float32)
     mesh.vertices.foreach_get("co", co)
     lv = np.empty(len(mesh.loops), np.int32)
@@ -72,6 +72,12 @@ def geometry_hash(mesh):
     pt = np.empty(len(mesh.polygons), np.int32)
     mesh.polygons.foreach_get("loop_start", ps)
     mesh.polygons.foreach_get("loop_total", pt)
+    return co, lv, ps, pt
+
+
+def geometry_hash(mesh):
+    """Hash of vertex positions and topology: what an unwrap depends on."""
+    co, lv, ps, pt = _mesh_raw(mesh)
     h = hashlib.sha256(_VERSION)
     for a in (co, lv, ps, pt):
         h.update(np.int64(a.size).tobytes())
@@ -302,14 +308,7 @@ _UNIT = (0.0, 0.0, 1.0, 1.0)
 
 
 def _mesh_arrays(mesh):
-    co = np.empty(len(mesh.vertices) * 3, np.float32)
-    mesh.vertices.foreach_get("co", co)
-    lv = np.empty(len(mesh.loops), np.int32)
-    mesh.loops.foreach_get("vertex_index", lv)
-    ps = np.empty(len(mesh.polygons), np.int32)
-    pt = np.empty(len(mesh.polygons), np.int32)
-    mesh.polygons.foreach_get("loop_start", ps)
-    mesh.polygons.foreach_get("loop_total", pt)
+    co, lv, ps, pt = _mesh_raw(mesh)
     return co.reshape(-1, 3).astype(np.float64), lv, ps, pt
 
 

@@ -31,6 +31,7 @@ from . import primitives as P
 from .raycast import STACK_WORDS
 from .renderer import direct_irradiance
 from .sampling import next_float, stream_state
+from .texel_gather import _grid_side
 
 GUTTER = 1   # texels around each leaf block
 
@@ -198,9 +199,7 @@ def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, 
     S = CSG.SPLIT_SUB
     K = item_lm.shape[0]
     nb = acc.shape[1]
-    k = 1
-    while (k + 1) * (k + 1) <= n_samples:
-        k += 1
+    k = _grid_side(n_samples)
     for it in prange(K):
         stack = np.empty(STACK_WORDS, np.int32)
         bits = np.empty(3 * CSG.MAX_WORK + 8, np.int32)

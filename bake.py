@@ -1016,7 +1016,11 @@ def _bake_lightmaps(depsgraph, modes, progress, report):
         if mode == "indirect":
             continue
         if "gathered" not in passes:
-            passes["gathered"] = TG.direct_texel_irradiance(cs, None, DIRECT_SAMPLES,
+            # Blender's bake API addresses mesh triangles only (exact primitives and
+            # CSG solids are refused below), so only mesh lightmaps need direct light.
+            mesh_lms = [l for i, lids in enumerate(cs.instance_lightmaps)
+                        if scene.prototypes[scene.instances[i].prototype].meshes for l in lids]
+            passes["gathered"] = TG.direct_texel_irradiance(cs, mesh_lms, DIRECT_SAMPLES,
                                                             seed=settings["seed"])
         ids, E = passes["gathered"]
         lm = LM.Lightmaps(*(a.copy() for a in ind))

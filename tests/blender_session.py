@@ -1,4 +1,6 @@
-"""Fixtures shared by the Blender-side tests (import them into a test module)."""
+"""Fixtures and helpers shared by the Blender-side tests (import them into a test module)."""
+import bpy
+import numpy as np
 import pytest
 
 import photon_lightmaps
@@ -14,3 +16,34 @@ def addon():
     yield
     if owned:
         photon_lightmaps.unregister()
+
+
+def read_image(path):
+    """(H, W, 4) float pixels, rows top to bottom (float EXR: linear; PNG: encoded bytes / 255)."""
+    img = bpy.data.images.load(str(path), check_existing=False)
+    try:
+        w, h = img.size
+        px = np.empty(w * h * 4, np.float32)
+        img.pixels.foreach_get(px)
+    finally:
+        bpy.data.images.remove(img)
+    return px.reshape(h, w, 4)[::-1].astype(np.float64)
+
+
+def render_exr(scene, engine, path, cycles_samples=128):
+    scene.render.engine = engine
+    if engine == "CYCLES":
+        c = scene.cycles
+        c.device = "CPU"
+        c.samples = cycles_samples
+        c.use_denoising = False
+        c.use_adaptive_sampling = False
+        c.light_sampling_threshold = 0.0
+        c.max_bounces = c.diffuse_bounces = 16
+        c.seed = 1
+    scene.render.filepath = str(path)
+    scene.render.use_file_extension = False
+    im = scene.render.image_settings
+    im.file_format, im.color_depth, im.color_mode = "OPEN_EXR", "32", "RGBA"
+    bpy.ops.render.render(write_still=True)
+    return read_image(path)

@@ -31,44 +31,13 @@ ENGINE = "PHOTON_LIGHTMAPS"
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
 
-from blender_session import addon  # noqa: E402,F401  (session-wide registration)
+from blender_session import addon, read_image, render_exr  # noqa: E402,F401  (addon: session-wide registration)
 
 
 @pytest.fixture(autouse=True)
 def empty_file():
     bpy.ops.wm.read_factory_settings(use_empty=True)
     yield
-
-
-def read_image(path):
-    """(H, W, 4) float pixels, rows top to bottom (float EXR: linear; PNG: encoded bytes / 255)."""
-    img = bpy.data.images.load(str(path), check_existing=False)
-    try:
-        w, h = img.size
-        px = np.empty(w * h * 4, np.float32)
-        img.pixels.foreach_get(px)
-    finally:
-        bpy.data.images.remove(img)
-    return px.reshape(h, w, 4)[::-1].astype(np.float64)
-
-
-def render_exr(scene, engine, path, cycles_samples=128):
-    scene.render.engine = engine
-    if engine == "CYCLES":
-        c = scene.cycles
-        c.device = "CPU"
-        c.samples = cycles_samples
-        c.use_denoising = False
-        c.use_adaptive_sampling = False
-        c.light_sampling_threshold = 0.0
-        c.max_bounces = c.diffuse_bounces = 16
-        c.seed = 1
-    scene.render.filepath = str(path)
-    scene.render.use_file_extension = False
-    im = scene.render.image_settings
-    im.file_format, im.color_depth, im.color_mode = "OPEN_EXR", "32", "RGBA"
-    bpy.ops.render.render(write_still=True)
-    return read_image(path)
 
 
 def block_means(img, n=4):

@@ -15,13 +15,13 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import photon_lightmaps  # noqa: E402
-from photon_lightmaps import csg_export, demo_blend, export, registration  # noqa: E402
+from photon_lightmaps import csg_export, demo_blend, export  # noqa: E402
 from photon_lightmaps.engine.primitives import KIND_IDS, N_FACES, prim_point, prim_surface  # noqa: E402
 from photon_lightmaps.engine.scene import CSGNode, Primitive, TriangleMesh  # noqa: E402
 from photon_lightmaps.operators import csg_primitives  # noqa: E402
 
 
-from blender_session import addon  # noqa: E402,F401  (session-wide registration)
+from blender_session import addon, render_exr  # noqa: E402,F401  (addon: session-wide registration)
 
 
 @pytest.fixture(autouse=True)
@@ -457,32 +457,6 @@ def test_object_panel_shows_csg_parameters():
 
 # -- render: this engine vs Cycles on Blender's Exact Boolean ----------------------------------
 
-def _render_exr(scene, engine, path):
-    scene.render.engine = engine
-    if engine == "CYCLES":
-        c = scene.cycles
-        c.device = "CPU"
-        c.samples = 128
-        c.use_denoising = False
-        c.use_adaptive_sampling = False
-        c.light_sampling_threshold = 0.0
-        c.max_bounces = c.diffuse_bounces = 16
-        c.seed = 1
-    scene.render.filepath = str(path)
-    scene.render.use_file_extension = False
-    im = scene.render.image_settings
-    im.file_format, im.color_depth, im.color_mode = "OPEN_EXR", "32", "RGBA"
-    bpy.ops.render.render(write_still=True)
-    img = bpy.data.images.load(str(path), check_existing=False)
-    try:
-        w, h = img.size
-        px = np.empty(w * h * 4, np.float32)
-        img.pixels.foreach_get(px)
-    finally:
-        bpy.data.images.remove(img)
-    return px.reshape(h, w, 4)[..., :3].astype(np.float64)
-
-
 def build_csg_render_scene(operation="DIFFERENCE", segments=256):
     """A white floor, a cylinder and a sphere under `operation` (tagged primitives,
     Exact Boolean; thesis fig. 5.5), a 1 m square area light 2.5 m up and an
@@ -533,8 +507,8 @@ BLOCK_BOUND = 0.10
 @pytest.mark.parametrize("operation", ["UNION", "INTERSECT", "DIFFERENCE"])
 def test_csg_operator_render_agrees_with_cycles(tmp_path, operation):
     scene, _ = build_csg_render_scene(operation)
-    ours = _render_exr(scene, "PHOTON_LIGHTMAPS", tmp_path / "ours.exr")
-    ref = _render_exr(scene, "CYCLES", tmp_path / "cycles.exr")
+    ours = render_exr(scene, "PHOTON_LIGHTMAPS", tmp_path / "ours.exr")[..., :3]
+    ref = render_exr(scene, "CYCLES", tmp_path / "cycles.exr")[..., :3]
     assert np.all(np.isfinite(ours))
     mean_err = abs(ours.mean() - ref.mean()) / ref.mean()
     block_err = np.abs(_block_means(ours) - _block_means(ref)) / ref.mean()

@@ -141,11 +141,11 @@ def _orientation_areas(ols, maps, geom, lm):
     a level's area covers exactly the instances whose hits it receives."""
     K = len(ols)
     own = []
+    covered = [OL.covered_instances(maps, k) for k in range(K)]
     for k, ol in enumerate(ols):
         mine = np.flatnonzero(maps.inst_ol == k)
-        covered = OL.covered_instances(maps, k)
         member = np.zeros(maps.inst_ol.shape[0], np.bool_)
-        member[covered] = True
+        member[covered[k]] = True
         own.append(estimate_areas(geom, mine, int(ol.resolution), int(ol.samples), int(ol.seed),
                                   member=member))
     area = [e.area.copy() for e in own]
@@ -172,7 +172,7 @@ def _orientation_areas(ols, maps, geom, lm):
         rows.append(dict(
             name=ol.name, resolution=int(ol.resolution), bins=int(area[k].size),
             bins_with_area=int(pos.sum()), parent=int(maps.parent[k]), backup=bool(ol.backup),
-            instances=int(OL.covered_instances(maps, k).size), parts=int(own[k].parts),
+            instances=int(covered[k].size), parts=int(own[k].parts),
             samples=int(own[k].samples), area=tot,
             area_rel_error=float(math.sqrt(var[k].sum()) / tot) if tot > 0 else math.inf,
             bin_rel_error=rel,

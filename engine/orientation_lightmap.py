@@ -120,15 +120,16 @@ def plan(scene):
 
 def covered_instances(maps, k):
     """Instances whose hits OL k receives: its own and those of every descendant."""
-    out = []
-    for i, j in enumerate(maps.inst_ol):
-        j = int(j)
-        while j >= 0:
-            if j == k:
-                out.append(i)
-                break
-            j = int(maps.parent[j])
-    return np.asarray(out, np.int64)
+    hit = np.zeros(maps.inst_ol.shape[0], np.bool_)
+    j = maps.inst_ol.astype(np.int64)
+    # walk all instances up their chains at once: one step per level, not per instance
+    for _ in range(MAX_LEVELS + 1):
+        hit |= j == k
+        live = j >= 0
+        if not live.any():
+            break
+        j[live] = maps.parent[j[live]]
+    return np.flatnonzero(hit)
 
 
 # --------------------------------------------------------------------------------------

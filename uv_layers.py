@@ -146,54 +146,6 @@ def _planar_uvs(v, tri_v, rows):
     return np.stack([p @ a, p @ b], axis=-1)
 
 
-def _repack(v, tri_v, corner_uv, island, resolution, padding):
-    """Packs given UV islands (corner_uv in object units, island id per triangle) with xatlas.
-
-    Corners are welded by (vertex, island, uv), so xatlas sees each island as one
-    connected chart and only scales and places it.
-    """
-    import math
-    import xatlas
-
-    from .engine import uv_atlas as UA
-
-    T = tri_v.shape[0]
-    q = np.round(corner_uv.reshape(-1, 2) / max(np.abs(corner_uv).max(), 1e-30) * 2 ** 30)
-    key = np.column_stack([tri_v.reshape(-1), np.repeat(island, 3), q]).astype(np.int64)
-    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    pos = v[uniq[:, 0]].astype(np.float32)
-    in_uv = np.zeros((uniq.shape[0], 2))
-    in_uv[inverse] = corner_uv.reshape(-1, 2)
-    idx = inverse.reshape(T, 3).astype(np.uint32)
-    gap = 2 * padding + 1
-    tpu = None
-    for attempt in range(4):
-        atlas = xatlas.Atlas()
-        atlas.add_mesh(pos, idx, None, in_uv.astype(np.float32))
-        co = xatlas.ChartOptions()
-        co.use_input_mesh_uvs = True
-        po = xatlas.PackOptions()
-        po.padding = padding
-        po.bilinear = True
-        if tpu:
-            po.texels_per_unit = tpu
-        else:
-            po.resolution = resolution
-        atlas.generate(chart_options=co, pack_options=po)
-        w, h = int(atlas.width), int(atlas.height)
-        side = max(w, h, 1)
-        if gap * resolution / side >= UA.MIN_GAP_TEXELS or attempt == 3:
-            break
-        # Packed larger than asked: lower the density in proportion and pack again.
-        tpu = float(atlas.texels_per_unit) * (gap * resolution / (UA.MIN_GAP_TEXELS * side)) * 0.97
-    vmap, out_idx, out_uv = atlas[0]
-    if out_idx.shape[0] != T or not np.array_equal(vmap[out_idx], idx):
-        raise RuntimeError("xatlas reordered faces while repacking lightmap UV islands")
-    uv = np.clip(out_uv[out_idx].astype(np.float64) * np.array([w, h]) / side, 0.0, 1.0)
-    return uv, int(math.ceil(UA.MIN_GAP_TEXELS * side / gap))
-
-
 def compute_lightmap_uvs(mesh, resolution=None, padding=2):
     """xatlas layout of a mesh as one UV per loop -> (uv (L, 2) float64, min_resolution).
 
@@ -201,6 +153,8 @@ def compute_lightmap_uvs(mesh, resolution=None, padding=2):
     a polygon whose triangles land in different charts cannot be written as
     they are. Such polygons (a few percent on organic meshes) become islands of
     their own, flattened onto their plane, and all islands are packed again.
+    xatlas runs in a child process; its failures and crashes raise
+    engine.uv_atlas.UnwrapError (a SceneError), for the caller to report.
     """
     from .engine import uv_atlas as UA
 
@@ -231,7 +185,7 @@ def compute_lightmap_uvs(mesh, resolution=None, padding=2):
             corner[rows] = _planar_uvs(v, tri_v, rows)
             island[rows] = next_id
             next_id += 1
-        uv, min_res = _repack(v, tri_v, corner, island, resolution, max(int(padding), 2))
+        uv, min_res = UA.pack_islands(v, tri_v, corner, island, resolution, padding)
     per_loop = np.zeros((n_loops, 2))
     per_loop[tri_l.reshape(-1)] = uv.reshape(-1, 2)
     return per_loop, int(min_res)
@@ -249,6 +203,8 @@ def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False):
     force: unwrap our own layer again even if it looks current. A layer named
     `Lightmap` that we did not make (or that was edited after we made it) is
     never modified, force or not. Returns USER, CACHED, CREATED or UPDATED.
+    Raises engine.uv_atlas.UnwrapError when xatlas fails or crashes (the mesh is
+    left as it was).
     """
     mesh = _mesh_of(obj_or_mesh)
     if mesh.is_editmode:

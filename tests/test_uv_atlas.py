@@ -1,4 +1,5 @@
 """xatlas lightmap unwrap: layout validity, input order, chart separation, caching."""
+import subprocess
 import time
 
 import numpy as np
@@ -6,6 +7,7 @@ import pytest
 
 from photon_lightmaps.engine import lightmap as LM
 from photon_lightmaps.engine import uv_atlas as UA
+from photon_lightmaps.engine.scene import SceneError
 
 
 def _torus_mesh(n=32, m=14, major=1.0, minor=0.35):
@@ -161,10 +163,111 @@ def test_unwrap_feeds_exact_texel_areas(cache, torus):
 
 
 def test_bad_input(cache):
-    with pytest.raises(ValueError):
+    launches = UA.worker_launches
+    with pytest.raises(UA.UnwrapError):
         UA.unwrap(np.zeros((3, 2)), np.array([[0, 1, 2]]))
-    with pytest.raises(ValueError):
+    with pytest.raises(UA.UnwrapError, match="out of range"):
         UA.unwrap(np.zeros((3, 3)), np.array([[0, 1, 3]]))
-    with pytest.raises(ValueError):
-        UA.unwrap(np.full((3, 3), np.nan), np.array([[0, 1, 2]]))
+    v = np.eye(3)
+    v[1, 2] = np.nan
+    with pytest.raises(SceneError, match="NaN or infinity") as e:
+        UA.unwrap(v, np.array([[0, 1, 2]]))
+    assert isinstance(e.value, UA.UnwrapError) and isinstance(e.value, ValueError)
+    assert "vertex 1" in str(e.value) and e.value.triangles == 1
     assert UA.unwrap(np.zeros((3, 3)), np.zeros((0, 3), int)).shape == (0, 3, 2)
+    # Caught before xatlas: no child process for any of them.
+    assert UA.worker_launches == launches
+
+
+def _uv_sphere(seg, ring):
+    th = np.pi * np.arange(1, ring) / ring
+    ph = 2 * np.pi * np.arange(seg) / seg
+    ring_v = np.stack([np.sin(th)[:, None] * np.cos(ph), np.sin(th)[:, None] * np.sin(ph),
+                       np.cos(th)[:, None] * np.ones(seg)], -1).reshape(-1, 3)
+    v = np.concatenate([[[0, 0, 1]], ring_v, [[0, 0, -1]]])
+    j = np.arange(seg)
+    top = np.stack([np.zeros(seg, int), 1 + j, 1 + (j + 1) % seg], 1)
+    i, j2 = np.meshgrid(np.arange(ring - 2), j, indexing="ij")
+    a = 1 + i * seg + j2
+    b = 1 + i * seg + (j2 + 1) % seg
+    quads = np.concatenate([np.stack([a, a + seg, b + seg], -1), np.stack([a, b + seg, b], -1)], -1)
+    n, last = len(v) - 1, 1 + (ring - 2) * seg
+    bottom = np.stack([np.full(seg, n), last + (j + 1) % seg, last + j], 1)
+    return v, np.concatenate([top, quads.reshape(-1, 3), bottom])
+
+
+def test_xatlas_crash_is_contained_and_the_batch_goes_on(cache, torus):
+    """xatlas 0.0.11 segfaults on this sphere: the job fails, this process lives on,
+    and a new child unwraps the mesh after it."""
+    sphere = _uv_sphere(512, 256)
+    v, tri = torus
+    calls = []
+    launches = UA.worker_launches
+    bad, good = UA.unwrap_many([(*sphere, 64), dict(vertices=v, triangles=tri, resolution=64)],
+                               progress=lambda done, total: calls.append((done, total)))
+    assert UA.worker_launches == launches + 2       # restarted once, after the crash
+    assert isinstance(bad, UA.UnwrapError) and isinstance(bad, SceneError)
+    assert bad.reason == "xatlas crashed (SIGSEGV)" and bad.triangles == 261_120
+    assert "unwrapping 261,120 triangles" in str(bad) and "'Lightmap'" in str(bad)
+    assert isinstance(good, UA.AtlasResult) and np.all(good.chart >= 0)
+    ref = UA.unwrap_atlas(v, tri, resolution=64, use_cache=False)
+    assert good.uv.tobytes() == ref.uv.tobytes() and good.min_resolution == ref.min_resolution
+    assert calls[-1] == (2, 2)
+    # A crash is not cached: asking again runs xatlas again (and fails the same way).
+    with pytest.raises(UA.UnwrapError, match=r"xatlas crashed \(SIGSEGV\)"):
+        UA.unwrap(*sphere, resolution=64)
+
+
+def test_cache_hits_start_no_worker(cache, torus):
+    v, tri = torus
+    launches = UA.worker_launches
+    uv = UA.unwrap(v, tri, resolution=40)
+    assert UA.worker_launches == launches + 1
+    assert UA.unwrap(v, tri, resolution=40).tobytes() == uv.tobytes()     # memory
+    UA.clear_memory_cache()
+    assert UA.unwrap(v, tri, resolution=40).tobytes() == uv.tobytes()     # disk
+    assert UA.worker_launches == launches + 1
+    # A batch sends only its misses, each distinct mesh once, to one child.
+    out = UA.unwrap_many([(v, tri, 40), (v * 2, tri, 40), (v, tri, 40), (v * 2, tri, 40)])
+    assert UA.worker_launches == launches + 2
+    assert out[0].uv.tobytes() == out[2].uv.tobytes() == uv.tobytes()
+    assert out[1].uv.tobytes() == out[3].uv.tobytes()
+    out[1].uv[:] = 0                                  # each job owns its copy
+    assert out[3].uv.max() > 0
+
+
+def test_should_stop_kills_the_worker(cache, torus, monkeypatch):
+    from photon_lightmaps.engine.photon_tracer import Cancelled
+    procs = []
+
+    class Recorded(subprocess.Popen):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            procs.append(self)
+
+    monkeypatch.setattr(subprocess, "Popen", Recorded)
+    v, tri = torus
+    t0 = time.perf_counter()
+    with pytest.raises(Cancelled):
+        UA.unwrap_many([(v, tri, 32), (v * 2, tri, 32)], should_stop=lambda: True)
+    assert time.perf_counter() - t0 < 5.0
+    assert len(procs) == 1 and procs[0].returncode is not None   # killed and reaped
+    assert not any(cache.joinpath("uv").glob("*.npz"))
+
+
+def test_worker_that_cannot_start_raises(cache, torus, monkeypatch):
+    monkeypatch.setattr(UA, "_WORKER", str(cache / "no_such_worker.py"))
+    v, tri = torus
+    with pytest.raises(UA.UnwrapError, match="could not start") as e:
+        UA.unwrap(v, tri)
+    assert "no_such_worker.py" in str(e.value)     # the child's stderr tail
+
+
+def test_pack_islands_in_the_worker(cache, torus):
+    v, tri = torus
+    res = UA.unwrap_atlas(v, tri, resolution=32)
+    uv, min_res = UA.pack_islands(v, tri, res.uv * 10.0, res.chart, 32)
+    assert uv.shape == tri.shape + (2,) and uv.min() >= 0 and uv.max() <= 1
+    assert np.all(_uv_area(uv) > 0) and min_res <= 32 * 1.01
+    with pytest.raises(UA.UnwrapError):
+        UA.pack_islands(v, tri, np.full((len(tri), 3, 2), np.nan), res.chart, 32)

@@ -20,4 +20,7 @@ def _source_digest():
 # per-user folder (Blender's install dir may be read-only).
 _base = os.environ.get("PHOTON_LIGHTMAPS_NUMBA_CACHE") or str(
     pathlib.Path.home() / ".cache" / "photon_lightmaps" / "numba")
-os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(_base, _source_digest()))
+# Bounds-checked kernels (NUMBA_BOUNDSCHECK=1, `make test-boundscheck`) are
+# different machine code under the same cache key: keep them in their own folder.
+_flavour = "-boundscheck" if os.environ.get("NUMBA_BOUNDSCHECK", "0") not in ("", "0") else ""
+os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(_base, _source_digest() + _flavour))

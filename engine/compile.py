@@ -11,15 +11,16 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import csg as CSG
+from . import memory_budget
 from . import lightmap as LM
 from . import orientation_lightmap as OL
 from . import primitives as P
 from .area_estimation import estimate_areas
-from .geometry import compile_geometry
+from .geometry import check_mesh_arrays, compile_geometry, nondegenerate
 from .lights import compile_lights
 from .materials import compile_materials
 from .renderer import compile_camera
-from .scene import SceneError, _bands
+from .scene import CSGNode, OrientationLightmap, SceneError, TriangleMesh, _bands
 
 
 @dataclass
@@ -91,6 +92,9 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
         if geom.inst_lm_base[i] >= 0:
             M = geom.inst_xf[i][:, :3]
             forced = int(inst.lightmap_resolution)
+            if not 0 <= forced <= MAX_RESOLUTION:
+                raise SceneError(f"instance '{inst.name}': lightmap resolution must be 0 (from the "
+                                 f"texel density) to {MAX_RESOLUTION}, got {forced}")
             for kind, data in surfaces[int(geom.inst_proto[i])]:
                 if kind == "mesh":
                     area3d = LM.triangle_world_areas(geom.tri_p[data], M)
@@ -107,6 +111,8 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
                     fills.append(("prim", data, M3))
                 ids.append(len(layouts) - 1)
         per_instance.append(ids)
+    _check_lightmap_memory(scene, layouts, per_instance, texel_density, forced_any=any(
+        int(inst.lightmap_resolution) for inst in scene.instances))
     plan, n_sub, t_plan = CSG.plan_csg_lightmaps(csg if csg_split else None, fills, layouts)
     ols = list(scene.orientation_lightmaps)
     ol_lids = []
@@ -136,6 +142,43 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
     return lm, per_instance, ol_maps
 
 
+# Per-object lightmap sides above this are refused (a 16k² lightmap is 16 GiB).
+MAX_RESOLUTION = 16384
+# Bytes per texel while rendering: the Lightmaps arrays (area, coverage, flux,
+# flux², hits, irradiance, state, split) and finalize()'s copy of irradiance
+# and state; plus 16 per band.
+TEXEL_BYTES = 46
+TEXEL_BAND_BYTES = 24
+
+
+# Bytes per area-estimation sample (bin, value, point and normal, the draw).
+AREA_SAMPLE_BYTES = 96
+# Bytes per pixel of a render: the band image, and Blender's RGBA float copy.
+PIXEL_BAND_BYTES = 8
+PIXEL_BYTES = 32
+
+
+def _check_lightmap_memory(scene, layouts, per_instance, density, forced_any):
+    """Refuses lightmaps the machine cannot hold, naming the largest object and
+    the texel density that would fit, before anything is allocated."""
+    texels = np.array([w * h for w, h, _ in layouts], np.float64)
+    ols = sum(int(ol.resolution) ** 2 for ol in scene.orientation_lightmaps)
+    per_texel = TEXEL_BYTES + TEXEL_BAND_BYTES * int(scene.n_bands)
+    need = (texels.sum() + ols) * per_texel
+    per_obj = [texels[ids].sum() for ids in per_instance]
+    big = int(np.argmax(per_obj)) if per_obj else 0
+
+    def fix(budget):
+        scale = math.sqrt(budget / need)
+        what = (f"the largest is '{scene.instances[big].name}' with {per_obj[big]:,.0f} texels; "
+                if per_obj else "")
+        return (f"{what}lower the texel density to about {density * scale:.3g} texels/m"
+                + (" and the per-object lightmap resolutions" if forced_any else ""))
+
+    memory_budget.check(f"lightmaps ({texels.sum() + ols:,.0f} texels at {density:g} texels/m)",
+                        need, fix)
+
+
 def _orientation_areas(ols, maps, geom, lm):
     """Estimates each OL's own instances, then sums each subtree bottom-up, so
     a level's area covers exactly the instances whose hits it receives."""
@@ -143,6 +186,8 @@ def _orientation_areas(ols, maps, geom, lm):
     own = []
     covered = [OL.covered_instances(maps, k) for k in range(K)]
     for k, ol in enumerate(ols):
+        memory_budget.check(f"orientation lightmap '{ol.name}' ({int(ol.samples):,} area samples)",
+                            AREA_SAMPLE_BYTES * int(ol.samples), "lower its area samples")
         mine = np.flatnonzero(maps.inst_ol == k)
         member = np.zeros(maps.inst_ol.shape[0], np.bool_)
         member[covered[k]] = True
@@ -190,6 +235,106 @@ def _chain(maps, k):
     return out
 
 
+def _csg_meshes(node):
+    """TriangleMesh leaves of a CSG tree, left to right."""
+    if isinstance(node, CSGNode):
+        return _csg_meshes(node.left) + _csg_meshes(node.right)
+    return [node] if isinstance(node, TriangleMesh) else []
+
+
+def _csg_with_uvs(node, uvs):
+    """The CSG tree with each mesh leaf given its UVs from `uvs` (id(mesh) -> uv)."""
+    if isinstance(node, CSGNode):
+        return replace(node, left=_csg_with_uvs(node.left, uvs), right=_csg_with_uvs(node.right, uvs))
+    if isinstance(node, TriangleMesh) and id(node) in uvs:
+        return replace(node, uvs=uvs[id(node)])
+    return node
+
+
+def unwrap_meshes(scene, warnings, progress=None):
+    """Gives lightmap UVs to the meshes that record photons but have none.
+
+    Only prototypes with an instance that keeps its own lightmaps are
+    unwrapped (objects under an orientation lightmap need no UVs), all in one
+    batch through the contained xatlas worker (engine/uv_atlas.py). Where
+    xatlas fails on a mesh, that prototype's instances fall back to an
+    orientation lightmap of their own (or the one they are already under),
+    with a warning naming the mesh. Returns a new Scene; the input is not
+    modified."""
+    from . import uv_atlas as UA   # late: xatlas is only needed for such meshes
+    n_mat = len(scene.materials)
+    recording = np.zeros(len(scene.prototypes), np.bool_)
+    for inst in scene.instances:
+        p = inst.prototype
+        if inst.lightmap and isinstance(p, (int, np.integer)) and 0 <= p < recording.size:
+            recording[p] = True
+    jobs, owners = [], []          # owners[j]: (prototype, mesh) of job j
+    for pi, proto in enumerate(scene.prototypes):
+        if not recording[pi]:
+            continue
+        meshes = list(proto.meshes) + [m for root in proto.csg for m in _csg_meshes(root)]
+        for mesh in meshes:
+            if mesh.uvs is not None:
+                continue
+            v, tri, _ = check_mesh_arrays(mesh, f"mesh '{mesh.name}' in prototype '{proto.name}'", n_mat)
+            keep = nondegenerate(v[tri])
+            jobs.append((v, tri[keep]))
+            owners.append((pi, mesh, keep))
+    if not jobs:
+        return scene
+    results = UA.unwrap_many(jobs, progress=progress)
+    uvs_by_proto, failed = {}, {}
+    for (pi, mesh, keep), res in zip(owners, results):
+        if isinstance(res, Exception):
+            failed.setdefault(pi, (mesh, res))
+            continue
+        uv = np.zeros((keep.shape[0], 3, 2))
+        uv[keep] = res.uv
+        uvs_by_proto.setdefault(pi, {})[id(mesh)] = uv
+    prototypes = list(scene.prototypes)
+    for pi, uvs in uvs_by_proto.items():
+        proto = prototypes[pi]
+        prototypes[pi] = replace(
+            proto, meshes=[replace(m, uvs=uvs[id(m)]) if id(m) in uvs else m for m in proto.meshes],
+            csg=[_csg_with_uvs(root, uvs) for root in proto.csg])
+    instances = list(scene.instances)
+    ols = list(scene.orientation_lightmaps)
+    covered = {int(i) for ol in ols for i in ol.instances}
+    for pi, (mesh, err) in failed.items():
+        mine = [i for i, inst in enumerate(instances) if inst.prototype == pi and inst.lightmap]
+        for i in mine:
+            instances[i] = replace(instances[i], lightmap=False)
+        alone = [i for i in mine if i not in covered]
+        if alone:
+            ols.append(OrientationLightmap(name=f"{mesh.name} (automatic)", instances=alone))
+        n = getattr(err, "triangles", None)
+        what = getattr(err, "reason", str(err)) + (f" unwrapping {n:,} triangles" if n else "")
+        warnings.append(f"mesh '{mesh.name}': {what}; its objects are lit through an orientation "
+                        "lightmap instead (per-object shading detail is averaged by normal; add a "
+                        "UV layer named 'Lightmap' to keep it)")
+    return replace(scene, prototypes=prototypes, instances=instances, orientation_lightmaps=ols)
+
+
+def _plan_orientation(scene):
+    """OL routing, and the scene with instances under a non-backup OL recording there only."""
+    ol_maps = OL.plan(scene)
+    if ol_maps.lid.size:
+        scene = replace(scene, instances=[
+            replace(inst, lightmap=False) if ol_maps.inst_ol[i] >= 0 and not ol_maps.inst_keep[i]
+            else inst for i, inst in enumerate(scene.instances)])
+    return scene, ol_maps
+
+
+def compile_warnings(info):
+    """One line per thing the compile dropped or changed, naming the mesh (for reports)."""
+    out = []
+    for what, n in info.get("degenerate", {}).items():
+        out.append(f"{what}: {n:,} zero-area triangles dropped (Blender: Mesh > Clean Up > Degenerate Dissolve)")
+    for what, n in info.get("uv_clamped", {}).items():
+        out.append(f"{what}: {n:,} triangles have lightmap UVs outside [0,1]², clamped to the atlas")
+    return out
+
+
 def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True):
     t0 = time.perf_counter()
     if int(scene.n_bands) < 1:
@@ -198,12 +343,14 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     if not (math.isfinite(density) and density > 0):
         raise SceneError(f"texel density must be positive, got {density}")
     materials = compile_materials(scene)
-    ol_maps = OL.plan(scene)
-    if ol_maps.lid.size:
-        # instances under a (non-backup) OL record there instead of on own lightmaps
-        scene = replace(scene, instances=[
-            replace(inst, lightmap=False) if ol_maps.inst_ol[i] >= 0 and not ol_maps.inst_keep[i]
-            else inst for i, inst in enumerate(scene.instances)])
+    warnings = []
+    # instances under a (non-backup) OL record there instead of on own lightmaps
+    scene, ol_maps = _plan_orientation(scene)
+    n_ols = len(scene.orientation_lightmaps)
+    scene = unwrap_meshes(scene, warnings)
+    if len(scene.orientation_lightmaps) != n_ols:    # unwrap fallbacks added OLs
+        scene, ol_maps = _plan_orientation(scene)
+    t_unwrap = time.perf_counter()
     geom, info = compile_geometry(scene)
     n_mat = materials.diffuse.shape[0]
     if geom.shape_material.size and (geom.shape_material.max() >= n_mat or geom.shape_material.min() < 0):
@@ -214,6 +361,7 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
         CSG.check_not_emissive(csg, materials)
     t_geo = time.perf_counter()
     info = dict(info)
+    info["warnings"] = warnings + compile_warnings(info)
     lightmaps, per_instance, ol_maps = allocate_lightmaps(scene, geom, density, max_resolution,
                                                           csg, csg_split, info, ol_maps)
     t_lm = time.perf_counter()
@@ -223,11 +371,14 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
         bounds = (np.zeros(3), np.zeros(3))
     lights = compile_lights(scene, geom, materials, bounds)
     camera = compile_camera(scene.camera)
+    memory_budget.check(f"render resolution {camera.width}x{camera.height}",
+                        camera.width * camera.height * (PIXEL_BYTES + PIXEL_BAND_BYTES * scene.n_bands),
+                        "lower the resolution (Output Properties > Format)")
     env = _bands(scene.environment, scene.n_bands, "environment")
     info.update(lightmaps=int(lightmaps.offset.shape[0]), texels=int(lightmaps.area.shape[0]),
                 lights=int(lights.kind.shape[0]))
     cs = CompiledScene(scene.name, int(scene.n_bands), geom, materials, lights, lightmaps, camera,
                        env, info, instance_lightmaps=per_instance, orientation=ol_maps)
-    cs.timings.update(geometry=t_geo - t0, lightmap_setup=t_lm - t_geo,
+    cs.timings.update(unwrap=t_unwrap - t0, geometry=t_geo - t0, lightmap_setup=t_lm - t_geo,
                       setup=time.perf_counter() - t0)
     return cs

@@ -194,6 +194,11 @@ def trace_arrays(g):
     }
 
 
+# World coordinates beyond this lose the float32 BVH bounds and the relative ray
+# offsets (1e-7 · |p|) their meaning; such input is refused by name.
+MAX_COORDINATE = 1e12
+
+
 def _fail(what, msg):
     raise SceneError(f"{what}: {msg}")
 
@@ -252,22 +257,31 @@ def _instance_transforms(instances, n_protos, inst_proto, inst_xf, inst_inv):
         _fail(f"instance '{instances[int(np.argmax(bad))].name}'", "transform cannot be inverted")
 
 
-def _unwrap_uvs(vertices, triangles, what):
-    """Lightmap UVs for a mesh that has none: an xatlas unwrap (cached on disk)."""
-    from .uv_atlas import unwrap  # imported late: xatlas is only needed for such meshes
-    uv = np.asarray(unwrap(vertices, triangles), dtype=np.float64)
-    if uv.shape != (triangles.shape[0], 3, 2):
-        _fail(what, f"UV unwrap returned shape {uv.shape}")
-    return uv
+def nondegenerate(p):
+    """bool[T]: triangles (T, 3, 3) with area, i.e. not collinear within float64
+    rounding (|e1 x e2| ~ eps·|e|² there). Degenerate ones are dropped from the
+    BVH and the lightmaps: they have no normal and no texel area."""
+    e1 = p[:, 1] - p[:, 0]
+    e2 = p[:, 2] - p[:, 0]
+    e3 = p[:, 2] - p[:, 1]
+    cr = np.linalg.norm(np.cross(e1, e2), axis=1)
+    longest2 = np.maximum(np.maximum((e1 * e1).sum(1), (e2 * e2).sum(1)), (e3 * e3).sum(1))
+    return cr > 1e-14 * longest2
 
 
-def _check_mesh(mesh, what, n_materials):
+def check_mesh_arrays(mesh, what, n_materials):
+    """Validated (vertices float64[V,3], triangles int64[T,3], materials int64[T]) of a
+    TriangleMesh; raises SceneError naming `what` for NaNs, bad shapes or indices."""
     v = np.asarray(mesh.vertices, dtype=np.float64)
     if v.ndim != 2 or v.shape[1] != 3:
         _fail(what, f"vertices must have shape (V, 3), got {v.shape}")
     bad = ~np.isfinite(v).all(axis=1)
     if bad.any():
-        _fail(what, f"vertex {int(np.argmax(bad))} is NaN or infinite ({int(bad.sum())} such vertices)")
+        _fail(what, f"vertex {int(np.argmax(bad))} is NaN or infinite ({int(bad.sum())} such "
+                    "vertices); fix or delete them (Blender: Mesh > Clean Up)")
+    if v.size and np.abs(v).max() > MAX_COORDINATE:
+        _fail(what, f"a vertex lies {np.abs(v).max():.3g} m from the origin, beyond the tracer's "
+                    f"range of {MAX_COORDINATE:.0e} m; scale the object down")
     tri = np.asarray(mesh.triangles)
     if tri.size == 0:
         tri = tri.reshape(0, 3)
@@ -291,26 +305,34 @@ def _check_mesh(mesh, what, n_materials):
         mats = np.full(T, int(mesh.material), np.int64)
     if n_materials and T and (mats.min() < 0 or mats.max() >= n_materials):
         _fail(what, f"material index out of range (scene has {n_materials} materials)")
-    uvs = None
-    if mesh.uvs is not None:
+    return v, tri, mats
+
+
+def _check_mesh(mesh, what, n_materials, notes=None):
+    """(triangles (T',3,3), uvs (T',3,2), materials (T',), dropped) of a mesh's
+    non-degenerate triangles. A mesh without UVs gets zero UVs here: compile.py
+    unwraps the meshes whose lightmaps are used before geometry is built.
+    notes[what] counts triangles whose given UVs left [0,1]² (clamped)."""
+    v, tri, mats = check_mesh_arrays(mesh, what, n_materials)
+    T = tri.shape[0]
+    if mesh.uvs is None:
+        uvs = np.zeros((T, 3, 2))
+    else:
         uvs = np.asarray(mesh.uvs, dtype=np.float64)
         if uvs.shape != (T, 3, 2):
             _fail(what, f"uvs must have shape ({T}, 3, 2), got {uvs.shape}")
         if not np.all(np.isfinite(uvs)):
             _fail(what, "uvs contain NaN or infinity")
+        # A lightmap atlas is [0,1]²: outside it texel lookups would clamp to
+        # the border while the area went elsewhere; clamping keeps both together.
+        out = ((uvs < 0.0) | (uvs > 1.0)).any(axis=(1, 2))
+        if out.any():
+            uvs = np.clip(uvs, 0.0, 1.0)
+            if notes is not None:
+                notes[what] = int(out.sum())
     p = v[tri]                                   # (T, 3, 3)
-    e1 = p[:, 1] - p[:, 0]
-    e2 = p[:, 2] - p[:, 0]
-    e3 = p[:, 2] - p[:, 1]
-    cr = np.linalg.norm(np.cross(e1, e2), axis=1)
-    longest2 = np.maximum(np.maximum((e1 * e1).sum(1), (e2 * e2).sum(1)), (e3 * e3).sum(1))
-    # zero area, or collinear within float64 rounding (|e1 x e2| ~ eps·|e|²)
-    keep = cr > 1e-14 * longest2
-    if uvs is None:
-        uvs = _unwrap_uvs(v, tri[keep], what)
-    else:
-        uvs = uvs[keep]
-    return p[keep], uvs, mats[keep], int(T - keep.sum())
+    keep = nondegenerate(p)
+    return p[keep], uvs[keep], mats[keep], int(T - keep.sum())
 
 
 def _check_primitive(prim, what, kind_ids, n_materials):
@@ -347,6 +369,7 @@ def compile_geometry(scene):
     proto_start, proto_count, sh_proto = [], [], []
     n_shapes = n_tris = n_prims = n_nodes = 0
     degenerate = {}
+    uv_clamped = {}
     surfaces = []
     # all CSG solids at once: node ids are global, one blob for the trace
     csg = flatten_csg([(r, f"prototype '{p.name}'") for p in scene.prototypes for r in p.csg],
@@ -365,7 +388,7 @@ def compile_geometry(scene):
         surf = []
         for mi, mesh in enumerate(proto.meshes):
             what = f"mesh '{mesh.name}' in {pname}"
-            p, uv, mats, dropped = _check_mesh(mesh, what, n_materials)
+            p, uv, mats, dropped = _check_mesh(mesh, what, n_materials, uv_clamped)
             if dropped:
                 degenerate[what] = dropped
             slot = len(surf)
@@ -599,6 +622,12 @@ def compile_geometry(scene):
     world = np.einsum("ijk,ilk->ilj", inst_xf[:, :, :3], corners) + inst_xf[:, None, :, 3]
     if n_inst:
         t_lo[live], t_hi[live] = _pad(world.min(axis=1)[live], world.max(axis=1)[live])
+        far = live & (np.maximum(np.abs(t_lo), np.abs(t_hi)).max(axis=1) > MAX_COORDINATE)
+        if far.any():
+            i = int(np.argmax(far))
+            _fail(f"instance '{scene.instances[i].name}'",
+                  f"its transform puts it {np.abs(world[i]).max():.3g} m from the origin, beyond "
+                  f"the tracer's range of {MAX_COORDINATE:.0e} m; scale or move it closer")
     live_ids = np.nonzero(live)[0].astype(np.int32)
     tl = build_bvh(t_lo[live_ids], t_hi[live_ids])
     tlas_items = live_ids[tl.items] if live_ids.size else np.zeros(0, np.int32)
@@ -648,6 +677,7 @@ def compile_geometry(scene):
         "n_primitives": n_prims,
         "n_degenerate": int(sum(degenerate.values())),
         "degenerate": degenerate,                 # {"mesh 'x' in prototype 'y'": dropped}
+        "uv_clamped": uv_clamped,                 # {mesh: triangles whose UVs left [0,1]²}
         "n_instances": n_inst,
         "n_lightmaps": n_lightmaps,
         "surfaces": surfaces,                     # per prototype: [(kind, name)] by slot

@@ -37,9 +37,14 @@ STATE_MEASURED = 1
 STATE_DILATED = 2
 
 # A texel whose area is below this fraction of its lightmap's mean texel area
-# holds a sliver of surface: flux / area would be pure noise, so it is treated
-# as empty and filled by dilation instead.
-EMPTY_AREA_FRACTION = 1e-12
+# holds a sliver of surface: flux / area would be pure noise (one photon there
+# reads as a thousand elsewhere, or as ~1e296 on a 1e-300 m² rounding
+# remnant), so it is treated as empty and filled by dilation instead.
+EMPTY_AREA_FRACTION = 1e-3
+# A UV triangle whose doubled area in [0,1]² is below this has no texels: it
+# neither owns area nor records photons (a photon there would land in some
+# neighbouring chart's texel). Far below any real triangle of a 4096² atlas.
+MIN_UV_AREA2 = 1e-15
 DILATION_PASSES = 4
 
 Lightmaps = namedtuple("Lightmaps", [
@@ -236,6 +241,13 @@ def _clipped_area_unit_square(x0, y0, x1, y1, x2, y2, px, py, qx, qy):
     return abs(0.5 * s)
 
 
+@njit(cache=True, inline="always")
+def has_uv_area(uv):
+    """A UV triangle (3, 2) that covers texels (see MIN_UV_AREA2)."""
+    return abs((uv[1, 0] - uv[0, 0]) * (uv[2, 1] - uv[0, 1])
+               - (uv[2, 0] - uv[0, 0]) * (uv[1, 1] - uv[0, 1])) > MIN_UV_AREA2
+
+
 @njit(cache=True)
 def _triangle_texel_areas(uv, area3d, width, height):
     W = width
@@ -262,29 +274,29 @@ def _triangle_texel_areas(uv, area3d, width, height):
         if not (math.isfinite(x0) and math.isfinite(y0) and math.isfinite(x1)
                 and math.isfinite(y1) and math.isfinite(x2) and math.isfinite(y2)):
             continue
-        uv2 = abs((x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0))  # 2 × area in texel units
+        if not has_uv_area(uv[k]):
+            continue  # no texels: it records no photons either (record_slot)
         m = 0
         total = 0.0
-        if uv2 > 1e-12:
-            bx0 = max(int(math.floor(min(x0, x1, x2))), 0)
-            by0 = max(int(math.floor(min(y0, y1, y2))), 0)
-            bx1 = min(int(math.floor(max(x0, x1, x2))), W - 1)
-            by1 = min(int(math.floor(max(y0, y1, y2))), H - 1)
-            if bx1 >= bx0 and by1 >= by0:
-                need = (bx1 - bx0 + 1) * (by1 - by0 + 1)
-                if need > cap:
-                    cap = max(need, 2 * cap)
-                    buf_i = np.empty(cap, np.int64)
-                    buf_a = np.empty(cap)
-                for ty in range(by0, by1 + 1):
-                    for tx in range(bx0, bx1 + 1):
-                        c = _clipped_area_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
-                                                      x2 - tx, y2 - ty, px, py, qx, qy)
-                        if c > 0.0:
-                            buf_i[m] = ty * W + tx
-                            buf_a[m] = c
-                            total += c
-                            m += 1
+        bx0 = max(int(math.floor(min(x0, x1, x2))), 0)
+        by0 = max(int(math.floor(min(y0, y1, y2))), 0)
+        bx1 = min(int(math.floor(max(x0, x1, x2))), W - 1)
+        by1 = min(int(math.floor(max(y0, y1, y2))), H - 1)
+        if bx1 >= bx0 and by1 >= by0:
+            need = (bx1 - bx0 + 1) * (by1 - by0 + 1)
+            if need > cap:
+                cap = max(need, 2 * cap)
+                buf_i = np.empty(cap, np.int64)
+                buf_a = np.empty(cap)
+            for ty in range(by0, by1 + 1):
+                for tx in range(bx0, bx1 + 1):
+                    c = _clipped_area_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
+                                                  x2 - tx, y2 - ty, px, py, qx, qy)
+                    if c > 0.0:
+                        buf_i[m] = ty * W + tx
+                        buf_a[m] = c
+                        total += c
+                        m += 1
         if m > 0 and total > 0.0:
             # Dividing by the sum of the clipped pieces (not the analytic UV area)
             # makes the triangle deposit exactly its world area, also for parts
@@ -292,12 +304,6 @@ def _triangle_texel_areas(uv, area3d, width, height):
             for i in range(m):
                 area[buf_i[i]] += a3 * (buf_a[i] / total)
                 cov[buf_i[i]] += buf_a[i]
-        else:
-            # Degenerate UV triangle (or fully outside the grid): its surface still
-            # receives photons, so its whole area goes to the texel under the UV centroid.
-            cx = min(max(int(math.floor((x0 + x1 + x2) / 3.0)), 0), W - 1)
-            cy = min(max(int(math.floor((y0 + y1 + y2) / 3.0)), 0), H - 1)
-            area[cy * W + cx] += a3
     for i in range(W * H):
         cov[i] = min(cov[i], 1.0)
     return area, cov
@@ -309,9 +315,9 @@ def triangle_texel_areas(uv, area3d, width, height):
     uv (T,3,2) in [0,1]² and area3d (T,) world areas of the same triangles.
     Returns (area (H*W,), coverage (H*W,)), row-major (index y*W + x).
     Each triangle's area3d is shared among the texels it overlaps in proportion
-    to the exactly clipped UV area, so sum(area) == sum(area3d). Triangles with
-    zero UV area put all of their area into the texel containing their UV
-    centroid (clamped to the grid); triangles with zero world area add nothing.
+    to the exactly clipped UV area, so sum(area) == sum(area3d) over triangles
+    with UV area. Triangles without UV area (has_uv_area) or world area add
+    nothing, and record no photons (record_slot).
     """
     uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 3, 2)
     area3d = np.ascontiguousarray(area3d, dtype=np.float64).reshape(-1)
@@ -369,40 +375,40 @@ def _triangle_texel_pieces(uv, area3d, width, height):
         if not (math.isfinite(x0) and math.isfinite(y0) and math.isfinite(x1)
                 and math.isfinite(y1) and math.isfinite(x2) and math.isfinite(y2)):
             continue
+        if not has_uv_area(uv[k]):
+            continue  # as in _triangle_texel_areas: no texels, no pieces
         det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-        uv2 = abs(det)
         m = 0
         total = 0.0
-        if uv2 > 1e-12:
-            bx0 = max(int(math.floor(min(x0, x1, x2))), 0)
-            by0 = max(int(math.floor(min(y0, y1, y2))), 0)
-            bx1 = min(int(math.floor(max(x0, x1, x2))), W - 1)
-            by1 = min(int(math.floor(max(y0, y1, y2))), H - 1)
-            if bx1 >= bx0 and by1 >= by0:
-                need = (bx1 - bx0 + 1) * (by1 - by0 + 1)
-                if need > tcap:
-                    tcap = max(need, 2 * tcap)
-                    buf_i = np.empty(tcap, np.int64)
-                    buf_a = np.empty(tcap)
-                    buf_nv = np.empty(tcap, np.int64)
-                    buf_b = np.empty((tcap, MAX_PIECE_VERTICES, 2))
-                for ty in range(by0, by1 + 1):
-                    for tx in range(bx0, bx1 + 1):
-                        c = _clipped_area_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
-                                                      x2 - tx, y2 - ty, px, py, qx, qy)
-                        if c > 0.0:
-                            nv = _clip_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
-                                                   x2 - tx, y2 - ty, px, py, qx, qy)
-                            buf_i[m] = ty * W + tx
-                            buf_a[m] = c
-                            buf_nv[m] = min(nv, MAX_PIECE_VERTICES)
-                            for i in range(buf_nv[m]):
-                                rx = px[i] + tx - x0
-                                ry = py[i] + ty - y0
-                                buf_b[m, i, 0] = (rx * (y2 - y0) - (x2 - x0) * ry) / det
-                                buf_b[m, i, 1] = ((x1 - x0) * ry - rx * (y1 - y0)) / det
-                            total += c
-                            m += 1
+        bx0 = max(int(math.floor(min(x0, x1, x2))), 0)
+        by0 = max(int(math.floor(min(y0, y1, y2))), 0)
+        bx1 = min(int(math.floor(max(x0, x1, x2))), W - 1)
+        by1 = min(int(math.floor(max(y0, y1, y2))), H - 1)
+        if bx1 >= bx0 and by1 >= by0:
+            need = (bx1 - bx0 + 1) * (by1 - by0 + 1)
+            if need > tcap:
+                tcap = max(need, 2 * tcap)
+                buf_i = np.empty(tcap, np.int64)
+                buf_a = np.empty(tcap)
+                buf_nv = np.empty(tcap, np.int64)
+                buf_b = np.empty((tcap, MAX_PIECE_VERTICES, 2))
+            for ty in range(by0, by1 + 1):
+                for tx in range(bx0, bx1 + 1):
+                    c = _clipped_area_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
+                                                  x2 - tx, y2 - ty, px, py, qx, qy)
+                    if c > 0.0:
+                        nv = _clip_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
+                                               x2 - tx, y2 - ty, px, py, qx, qy)
+                        buf_i[m] = ty * W + tx
+                        buf_a[m] = c
+                        buf_nv[m] = min(nv, MAX_PIECE_VERTICES)
+                        for i in range(buf_nv[m]):
+                            rx = px[i] + tx - x0
+                            ry = py[i] + ty - y0
+                            buf_b[m, i, 0] = (rx * (y2 - y0) - (x2 - x0) * ry) / det
+                            buf_b[m, i, 1] = ((x1 - x0) * ry - rx * (y1 - y0)) / det
+                        total += c
+                        m += 1
         if n_p + max(m, 1) > cap:
             cap = max(2 * cap, n_p + m + 1)
             t_tri = np.empty(cap, np.int64)
@@ -424,18 +430,6 @@ def _triangle_texel_pieces(uv, area3d, width, height):
                 p_nv[n_p] = buf_nv[i]
                 p_b[n_p] = buf_b[i]
                 n_p += 1
-        else:
-            # Degenerate UV triangle: the whole triangle belongs to its centroid's texel.
-            cx = min(max(int(math.floor((x0 + x1 + x2) / 3.0)), 0), W - 1)
-            cy = min(max(int(math.floor((y0 + y1 + y2) / 3.0)), 0), H - 1)
-            p_tri[n_p] = k
-            p_tex[n_p] = cy * W + cx
-            p_area[n_p] = a3
-            p_nv[n_p] = 3
-            p_b[n_p, 0, 0], p_b[n_p, 0, 1] = 0.0, 0.0
-            p_b[n_p, 1, 0], p_b[n_p, 1, 1] = 1.0, 0.0
-            p_b[n_p, 2, 0], p_b[n_p, 2, 1] = 0.0, 1.0
-            n_p += 1
     return p_tri[:n_p], p_tex[:n_p], p_area[:n_p], p_nv[:n_p], p_b[:n_p]
 
 
@@ -445,8 +439,8 @@ def triangle_texel_pieces(uv, area3d, width, height):
 
     Same inputs and rules as `triangle_texel_areas`: a piece is a triangle
     clipped to a texel square, with that triangle's world area shared in
-    proportion to clipped UV area; a degenerate UV triangle is one whole piece
-    in its centroid's texel. Returns `TexelPieces`, grouped by texel (CSR),
+    proportion to clipped UV area; a triangle without UV area has no pieces.
+    Returns `TexelPieces`, grouped by texel (CSR),
     within a texel in triangle order; per texel the piece areas sum to the
     texel's area from `triangle_texel_areas`.
     """
@@ -787,6 +781,16 @@ def lightmap_slot(g, lm, inst, shape, face, u, v):
         t = w0 * uv[0, 1] + u * uv[1, 1] + v * uv[2, 1]
         return base + slot, 0, s, t
     return base + slot, face, u, v
+
+
+@njit(cache=True)
+def record_slot(g, lm, inst, shape, face, u, v):
+    """lightmap_slot for recording a photon: -1 on a triangle without UV area,
+    which owns no texel area, so a photon counted anywhere would be misplaced."""
+    lid, f, s, t = lightmap_slot(g, lm, inst, shape, face, u, v)
+    if lid >= 0 and g.shape_kind[shape] == 0 and not has_uv_area(g.tri_uv[g.shape_index[shape]]):
+        return -1, f, s, t
+    return lid, f, s, t
 
 
 SPLIT_SUB = 8   # sampling grid of a split texel (engine/csg.py SPLIT_SUB)

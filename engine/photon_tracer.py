@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit, prange
 
 from . import lightmap as LM
+from . import memory_budget
 from . import orientation_lightmap as OL
 from .lightmap import lightmap_slot  # noqa: F401  (hosts import it from here)
 from .lights import emit_photon
@@ -101,7 +102,7 @@ def _trace_chunk(g, ms, ls, lm, ol, seed, first, n_total, max_bounces, record_fr
                 break
             px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
             if depth >= record_from:
-                lid, f, s, tt = lightmap_slot(g, lm, inst, shape, face, u, v)
+                lid, f, s, tt = LM.record_slot(g, lm, inst, shape, face, u, v)
                 if lid >= 0 and rec < n_rec:
                     rec_texel[i, rec] = LM.record_index(lm, lid, f, s, tt)
                     for b in range(nb):
@@ -186,6 +187,9 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     # one record per hit on an own lightmap, plus one per OL level above the instance
     n_rec = (int(max_bounces) + 1) * (1 + OL.levels(ol))
     chunk = chunk or max(4096, min(1 << 16, (1 << 21) // n_rec))
+    if keep_points:   # a photon map keeps every hit: refuse what cannot fit before tracing
+        memory_budget.check(f"photon map ({n_photons:,} photons kept, up to {n_rec} hits each)",
+                            n_photons * min(n_rec, 4) * (6 + nb) * 8 * 2, "lower the photon count")
     rec_texel = np.empty((chunk, n_rec), np.int64)
     rec_power = np.empty((chunk, n_rec, nb))
     ledger = np.empty((chunk, 4, nb))

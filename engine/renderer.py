@@ -37,6 +37,8 @@ def compile_camera(camera):
     aspect = w / h
     if camera.kind == "orthographic":
         half = 0.5 * float(camera.ortho_scale)
+        if not (math.isfinite(half) and half > 0.0):
+            raise SceneError(f"camera: orthographic scale must be positive, got {camera.ortho_scale}")
         kind = 1
     elif camera.kind == "perspective":
         if not 0 < camera.fov < math.pi:

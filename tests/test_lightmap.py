@@ -77,20 +77,20 @@ def test_triangle_coverage_matches_supersampling():
         assert np.abs(cov - ref).mean() < 0.005
 
 
-def test_zero_uv_area_triangles_keep_their_area():
+def test_zero_uv_area_triangles_own_no_texels():
+    """Without UV area a triangle has no texels: it adds no area (and records no
+    photons, see record_slot), so no texel mixes in surface it cannot resolve."""
     uv = np.array([
         [[0.1, 0.1], [0.6, 0.6], [0.9, 0.9]],     # collinear UVs: zero UV area
         [[0.7, 0.2], [0.7, 0.2], [0.7, 0.2]],     # a single UV point
         [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],     # zero world area: adds nothing
+        [[0.0, 0.0], [0.5, 0.0], [0.0, 0.5]],     # a real one
     ])
-    area, cov = LM.triangle_texel_areas(uv, [1.5, 0.25, 0.0], 4, 4)
-    # centroid (0.533, 0.533) -> texel (2, 2); (0.7, 0.2) -> texel (2, 0)
-    expected = np.zeros(16)
-    expected[2 * 4 + 2] = 1.5
-    expected[0 * 4 + 2] = 0.25
-    np.testing.assert_array_equal(area, expected)
-    assert area.sum() == 1.75
-    assert np.all(cov == 0.0)   # no UV area, and the zero-world-area triangle is skipped
+    area, cov = LM.triangle_texel_areas(uv, [1.5, 0.25, 0.0, 2.0], 4, 4)
+    assert area.sum() == pytest.approx(2.0, rel=1e-12)
+    assert area[[0, 1, 4]].sum() == pytest.approx(2.0, rel=1e-12)   # texels under the real one
+    pcs = LM.triangle_texel_pieces(uv, [1.5, 0.25, 0.0, 2.0], 4, 4)
+    assert set(pcs.tri.tolist()) == {3}
 
 
 def test_triangle_world_areas_affine():

@@ -26,7 +26,10 @@ image of the same name that we did not make belongs to the user: with
 otherwise the bake writes a new image with a unique name (".001", ...) and
 says so in `BakeResult.warnings`. Nothing is written until every lightmap
 has been computed, so a cancelled or failed bake leaves all images as they
-were (new Lightmap UV layers may already have been added by then).
+were; the Lightmap UV layers the export needs are made first and put back as
+they were (rollback_bake) when the bake fails or is cancelled. The output
+folder is checked before the first image is written. A user error (bad scene
+data) is an engine SceneError naming the object, e.g. a NaN vertex.
 
 Files. `save_dir` saves "<dir>/<object>.exr"; otherwise an image is saved to
 "//lightmaps/<object>.exr" next to a saved .blend, or packed with `pack`.
@@ -90,6 +93,8 @@ import numpy as np
 from .engine import lightmap as LM  # first: the engine package picks numba's cache folder
 from numba import njit, prange  # noqa: E402
 from .engine.photon_tracer import Cancelled
+from .engine.scene import SceneError
+from .messages import describe, is_user_error
 
 IMAGE_SUFFIX = "_Lightmap"
 OWNER_PROP = "photon_lightmaps_object"
@@ -272,6 +277,8 @@ class BakeJob:
     # CSG solid name -> {leaf object name: None (bake it) or why it is skipped}
     csg: dict = field(default_factory=dict)
     primitives: set = field(default_factory=set)   # stand-alone tagged primitives among targets
+    # mesh name -> its Lightmap layer state before prepare_bake (rollback_bake puts it back)
+    uv_undo: dict = field(default_factory=dict)
 
 
 def _covering_ol(router, ob):
@@ -285,9 +292,11 @@ def _covering_ol(router, ob):
 
 def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=None,
                  indirect_only=False):
-    """Main thread: Lightmap UV layers for the objects, then the scene export."""
-    from . import uv_layers
-    from .export import _OLRouter, export_scene
+    """Main thread: Lightmap UV layers for the objects, then the scene export.
+
+    On failure the UV layers are as they were; after it, rollback_bake(job) puts them
+    back (a failed or cancelled compute or commit)."""
+    from .export import _OLRouter
 
     t0 = time.perf_counter()
     result = BakeResult()
@@ -296,7 +305,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=Non
     props = getattr(bscene, "photon_lightmaps", None)
     density = float(props.texel_density) if props is not None else 16.0
     if resolution is not None and int(resolution) < 1:
-        raise ValueError(f"resolution must be a positive number of texels, got {resolution}")
+        raise SceneError(f"resolution: must be a positive number of texels, got {resolution}")
     wanted = []
     seen = set()
     operands = _csg_operands(depsgraph)
@@ -319,9 +328,44 @@ def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=Non
                                        "use Bake Orientation Lightmaps")
         else:
             wanted.append(ob)
-    changed = False
     for ob in wanted:
-        status = uv_layers.ensure_lightmap_uv(ob, resolution=layout_resolution(ob, density, resolution))
+        _check_finite(ob)
+    uv_undo = _uv_snapshot({ob.data.name: ob.data for ob in wanted}.values())
+    try:
+        job = _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution)
+    except BaseException:
+        _uv_restore(uv_undo)
+        raise
+    job.uv_undo = uv_undo
+    job.settings.update(photons=int(photons), seed=int(seed))
+    job.direct, job.t_start = not indirect_only, t0
+    result.seconds["export"] = time.perf_counter() - t0
+    return job
+
+
+def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution):
+    """prepare_bake after choosing the objects: their Lightmap UV layers, then the export."""
+    from . import uv_layers
+    from .export import export_scene
+    bscene = depsgraph.scene
+    from .engine.uv_atlas import UnwrapError
+    changed = False
+    for ob in list(wanted):
+        try:
+            status = uv_layers.ensure_lightmap_uv(ob, resolution=layout_resolution(ob, density, resolution))
+        except UnwrapError as exc:
+            # xatlas failed (or crashed in its worker) on this mesh alone: bake the others
+            wanted.remove(ob)
+            result.skipped[ob.name] = (f"no Lightmap UV layer: {exc.reason}; add a UV layer named "
+                                       f"'{uv_layers.LAYER_NAME}' (e.g. UV > Lightmap Pack) and bake again")
+            result.warnings.append(f"object '{ob.name}': {result.skipped[ob.name]}")
+            continue
+        except (ValueError, RuntimeError) as exc:
+            # xatlas refusals (UnwrapError), Edit Mode, a linked mesh: the user's to fix, so
+            # say which object (unless the message does already).
+            if isinstance(exc, SceneError) and f"'{ob.name}'" in str(exc):
+                raise
+            raise SceneError(f"object '{ob.name}': cannot make its Lightmap UV layer: {exc}") from exc
         result.uv_layers[ob.data.name] = status
         changed |= status in (uv_layers.CREATED, uv_layers.UPDATED)
     if changed:
@@ -363,11 +407,69 @@ def prepare_bake(context_or_depsgraph, objects, *, photons, seed, resolution=Non
         inst.lightmap = i in targets.values()
         if inst.lightmap and resolution:
             inst.lightmap_resolution = int(resolution)
-    settings = _settings(bscene)
-    settings.update(photons=int(photons), seed=int(seed))
-    result.seconds["export"] = time.perf_counter() - t0
-    return BakeJob(scene, emap, targets, settings, not indirect_only, result, t0, csg=csg,
+    return BakeJob(scene, emap, targets, _settings(bscene), True, result, 0.0, csg=csg,
                    primitives=primitives)
+
+
+def _check_finite(ob):
+    """A NaN or infinite vertex would fail deep in the unwrap or the kernels: refuse it by name."""
+    co = np.empty(len(ob.data.vertices) * 3, np.float32)
+    ob.data.vertices.foreach_get("co", co)
+    bad = ~np.isfinite(co.reshape(-1, 3)).all(axis=1)
+    if bad.any():
+        raise SceneError(f"object '{ob.name}': vertex {int(np.argmax(bad))} of mesh '{ob.data.name}' is NaN "
+                         f"or infinite ({int(bad.sum())} such vertices); move it to a finite position or "
+                         "delete it")
+
+
+def _uv_props():
+    from . import uv_layers
+    return uv_layers.HASH_PROP, uv_layers.DIGEST_PROP, uv_layers.MIN_RES_PROP
+
+
+def _uv_snapshot(meshes):
+    """What uv_layers.ensure_lightmap_uv may change on each mesh, to put back on failure."""
+    from . import uv_layers
+    snap = {}
+    for me in meshes:
+        layer = me.uv_layers.get(uv_layers.LAYER_NAME)
+        snap[me.name] = dict(uv=None if layer is None else uv_layers.read_uvs(layer).copy(),
+                             props={k: me[k] for k in _uv_props() if k in me},
+                             active=me.uv_layers.active_index,
+                             render=[l.name for l in me.uv_layers if l.active_render])
+    return snap
+
+
+def _uv_restore(snap):
+    """Puts back what _uv_snapshot saw: a layer we added goes, a layer we rewrote gets its UVs back."""
+    import bpy
+    from . import uv_layers
+    for name, s in snap.items():
+        me = bpy.data.meshes.get(name)
+        if me is None:
+            continue
+        layer = me.uv_layers.get(uv_layers.LAYER_NAME)
+        if layer is not None and s["uv"] is None:
+            me.uv_layers.remove(layer)
+        elif layer is not None and not np.array_equal(uv_layers.read_uvs(layer), s["uv"]):
+            layer.uv.foreach_set("vector", s["uv"].reshape(-1))
+        for k in _uv_props():
+            if k in s["props"]:
+                me[k] = s["props"][k]
+            elif k in me:
+                del me[k]
+        if len(me.uv_layers):
+            me.uv_layers.active_index = s["active"]
+            for l in me.uv_layers:
+                if l.name in s["render"]:
+                    l.active_render = True
+        me.update()
+
+
+def rollback_bake(job):
+    """After a failed or cancelled bake: the Lightmap UV layers as they were before prepare_bake."""
+    _uv_restore(job.uv_undo)
+    job.uv_undo = {}
 
 
 def _csg_operands(depsgraph):
@@ -520,6 +622,9 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
     result = job.result
     t0 = time.perf_counter()
     blend_saved = bool(bpy.data.filepath)
+    if result.maps:
+        # A folder that cannot take the files fails here, before any image is touched.
+        check_writable(save_dir or (None if pack or not blend_saved else f"//{LIGHTMAP_DIR}"))
     for name, bm in result.maps.items():
         ob = bpy.data.objects[name]
         img = _target_image(ob, bm.width, bm.height, overwrite, result.warnings)
@@ -555,6 +660,23 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
     result.seconds["bake"] = result.seconds.get("extract", 0.0) + time.perf_counter() - t0
     result.seconds["total"] = time.perf_counter() - job.t_start
     return result
+
+
+def check_writable(folder):
+    """Creates the output folder (a Blender "//" path is fine) -> raises an InputError if it cannot take files."""
+    import bpy
+
+    from .messages import InputError
+    if not folder:
+        return
+    path = os.path.abspath(bpy.path.abspath(folder))
+    try:
+        os.makedirs(path, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".photon_lightmaps_probe"):
+            pass
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write the lightmaps there ({exc.strerror or exc}); "
+                         "choose another folder") from exc
 
 
 def _place_leaf_uvs(solid, bm, warnings):
@@ -623,7 +745,11 @@ def bake_objects(context_or_depsgraph, objects, *, photons, seed, resolution=Non
     """
     job = prepare_bake(context_or_depsgraph, objects, photons=photons, seed=seed,
                        resolution=resolution, indirect_only=indirect_only)
-    compute_bake(job, progress)
+    try:
+        compute_bake(job, progress)
+    except BaseException:
+        rollback_bake(job)
+        raise
     return commit_bake(job, overwrite=overwrite, save_dir=save_dir, pack=pack,
                        hook_materials=hook_materials)
 
@@ -983,7 +1109,11 @@ def _patch_missing_uvs(scene):
     for proto in scene.prototypes:
         for tm in proto.meshes:
             if tm.uvs is None:
-                tm.uvs = unwrap(tm.vertices, tm.triangles)
+                try:
+                    tm.uvs = unwrap(tm.vertices, tm.triangles)
+                except ValueError as exc:   # NaN vertices, xatlas refusals: name the mesh
+                    raise SceneError(f"mesh '{tm.name}' in prototype '{proto.name}': cannot unwrap its "
+                                     f"lightmap UVs: {exc}") from exc
 
 
 def _bake_lightmaps(depsgraph, modes, progress, report):
@@ -1102,7 +1232,10 @@ class BakeMixin:
             except Cancelled:
                 self.report({"WARNING"}, "Photon Lightmaps bake cancelled; the image was left as it was")
             except Exception as e:  # noqa: BLE001  (any failure must still end the result)
-                self.report({"ERROR"}, f"Photon Lightmaps bake of '{obj.name}' failed: {e}")
+                if not is_user_error(e):
+                    import traceback
+                    traceback.print_exception(e)
+                self.report({"ERROR"}, describe(e))
             if rgba is None:
                 # Blender writes the image whatever happens: give it back what it holds.
                 imgs = _target_images(obj)
@@ -1119,7 +1252,7 @@ class BakeMixin:
 
     def _photon_bake_pixels(self, depsgraph, obj, pass_type, pass_filter, raw):
         if pass_type not in ("DIFFUSE", "EMIT", "COMBINED"):
-            raise ValueError(f"the {pass_type} pass is not supported by Photon Lightmaps "
+            raise SceneError(f"bake type {pass_type}: not supported by Photon Lightmaps "
                              "(use Diffuse, Emit or Combined, or bake it with Cycles)")
         direct = bool(pass_filter & FILTER_DIRECT)
         indirect = bool(pass_filter & FILTER_INDIRECT)
@@ -1130,7 +1263,7 @@ class BakeMixin:
             want_color = bool(pass_filter & FILTER_COLOR)
             want_emit = False
             if not (want_light or want_color):
-                raise ValueError("the Diffuse bake needs Direct, Indirect or Color")
+                raise SceneError("bake contributions: the Diffuse bake needs Direct, Indirect or Color")
         else:
             want_light = (direct or indirect) and bool(pass_filter & FILTER_DIFFUSE)
             want_color = True
@@ -1152,23 +1285,23 @@ class BakeMixin:
         name = _original(obj).name
         ids = emap.object_instances(name)
         if not ids:
-            raise ValueError(f"object '{name}' is not part of the exported scene")
+            raise SceneError(f"object '{name}' is not part of the exported scene")
         lit = [i for i in ids if emap.instances[i].lightmap]
         if want_light and not lit:
-            raise ValueError(f"object '{name}' is excluded from lightmaps (Object > Photon Lightmaps)")
+            raise SceneError(f"object '{name}' is excluded from lightmaps (Object > Photon Lightmaps)")
         inst = lit[0] if lit else ids[0]
         proto = scene.prototypes[emap.instances[inst].prototype]
         if not proto.meshes:
             # Exact primitives and CSG solids have analytic charts, not the bake
             # mesh's triangles: Blender's per-triangle bake cannot address them.
-            raise ValueError(f"object '{name}' is an exact primitive or CSG solid; use "
+            raise SceneError(f"object '{name}' is an exact primitive or CSG solid; use "
                              "Render > Bake Photon Lightmaps, which bakes its analytic charts")
         tm = proto.meshes[0]
 
         prim_id = raw[:, 2].view(np.int32)
         ok = prim_id >= 0
         if ok.any() and prim_id[ok].max() >= tm.triangles.shape[0]:
-            raise ValueError(f"object '{name}': Blender's bake mesh has more triangles than the "
+            raise SceneError(f"object '{name}': Blender's bake mesh has more triangles than the "
                              "exported one (is the mesh being edited?)")
         k = prim_id[ok].astype(np.int64)
         u = raw[ok, 0].astype(np.float64)[:, None]
@@ -1238,15 +1371,10 @@ def bake_main(args):
     import sys
 
     import bpy
+    from .headless import open_blend
     t0 = time.perf_counter()
-    if not os.path.isfile(args.blend):
-        print(f"error: no such file: {args.blend}", file=sys.stderr)
-        return 2
-    if args.resolution is not None and args.resolution < 1:
-        print(f"error: --resolution must be >= 1, got {args.resolution}", file=sys.stderr)
-        return 2
     _ensure_registered()
-    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(args.blend), load_ui=False)
+    blend = open_blend(args.blend)
     _ensure_registered()
     context = bpy.context
     settings = _settings(context.scene)
@@ -1254,7 +1382,7 @@ def bake_main(args):
     seed = settings["seed"] if args.seed is None else int(args.seed)
     objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
     out_dir = os.path.abspath(args.out)
-    os.makedirs(out_dir, exist_ok=True)
+    check_writable(out_dir)
 
     def progress(done, total):
         print(f"\rphotons {done}/{total}", end="", file=sys.stderr, flush=True)
@@ -1266,7 +1394,7 @@ def bake_main(args):
     print(file=sys.stderr)
     stats = res.stats
     report = {
-        "blend": os.path.abspath(args.blend),
+        "blend": str(blend),
         "photons": int(stats.photons) if stats else 0,
         "rays": int(stats.rays) if stats else 0,
         "seconds": {"photon_pass": res.seconds.get("photon_pass", 0.0),

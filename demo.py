@@ -25,18 +25,13 @@ def demo_main(args):
     common = dict(blend=blend, photons=args.photons, seed=args.seed)
     render_json = os.path.join(out, "render.json")
     bake_json = os.path.join(out, "bake.json")
-    rc = headless.render_main(argparse.Namespace(out=os.path.join(out, "render.png"),
-                                                 samples=args.samples, json=render_json, **common))
-    if rc:
-        return rc
-    rc = bake.bake_main(argparse.Namespace(out=os.path.join(out, "lightmaps"), resolution=None,
-                                           indirect_only=False, json=bake_json, **common))
-    if rc:
-        return rc
+    # A failing step raises; cli.main turns that into the one "error: ..." line.
+    headless.render_main(argparse.Namespace(out=os.path.join(out, "render.png"),
+                                            samples=args.samples, json=render_json, **common))
+    bake.bake_main(argparse.Namespace(out=os.path.join(out, "lightmaps"), resolution=None,
+                                      indirect_only=False, json=bake_json, **common))
     ol_json = os.path.join(out, "orientation_lightmaps.json")
-    rc = ol_bake.ol_bake_main(argparse.Namespace(out=os.path.join(out, "lightmaps"), json=ol_json, **common))
-    if rc:
-        return rc
+    ol_bake.ol_bake_main(argparse.Namespace(out=os.path.join(out, "lightmaps"), json=ol_json, **common))
     with open(render_json) as f:
         render_report = json.load(f)
     with open(bake_json) as f:

@@ -8,7 +8,6 @@ its last run in render_engine.LAST_RUN for the JSON report.
 import json
 import os
 import pathlib
-import sys
 import time
 
 ENGINE_ID = "PHOTON_LIGHTMAPS"
@@ -28,12 +27,18 @@ def ensure_registered():
         register()
 
 
+def check_format(path):
+    ext = pathlib.Path(path).suffix.lower()
+    if ext not in FORMATS:
+        from .messages import InputError
+        raise InputError(f"--out '{path}': the image must end in .png or .exr")
+    return ext
+
+
 def configure_output(scene, path):
     """Output format from the file extension; 8-bit PNG through the 'Standard' view
     transform (no tone curve), or 32-bit float linear OpenEXR."""
-    ext = pathlib.Path(path).suffix.lower()
-    if ext not in FORMATS:
-        raise ValueError(f"output must end in .png or .exr, got '{path}'")
+    ext = check_format(path)
     im = scene.render.image_settings
     im.file_format = FORMATS[ext]
     if ext == ".png":
@@ -49,14 +54,40 @@ def configure_output(scene, path):
         im.color_depth = "32"
 
 
+def open_blend(path):
+    """Opens a .blend for a command; a missing or unreadable file is an InputError."""
+    import bpy
+
+    from .messages import InputError
+    path = pathlib.Path(path).resolve()
+    if not path.is_file():
+        raise InputError(f"{path}: no such .blend file (check the path)")
+    try:
+        bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
+    except RuntimeError as exc:
+        # Blender's message holds the reason (not a .blend, truncated, newer version).
+        raise InputError(f"{path}: cannot open it as a .blend file: {exc}") from None
+    return path
+
+
 def render_to_file(scene, out_path):
-    """Renders `scene` with this engine and writes the image; returns the RenderRun."""
+    """Renders `scene` with this engine and writes the image; returns the RenderRun.
+
+    Raises what the engine's render() kept in render_engine.LAST_ERROR: Blender only
+    prints an exception raised inside a RenderEngine, the caller would never see it.
+    """
     import bpy
     from . import render_engine
     scene.render.engine = ENGINE_ID
     configure_output(scene, out_path)
-    render_engine.LAST_RUN = None
-    bpy.ops.render.render(write_still=False, scene=scene.name)
+    render_engine.LAST_RUN = render_engine.LAST_ERROR = None
+    render_engine.RAISE_BUGS = False    # we re-raise it below; Blender would print it first
+    try:
+        bpy.ops.render.render(write_still=False, scene=scene.name)
+    finally:
+        render_engine.RAISE_BUGS = True
+    if render_engine.LAST_ERROR is not None:
+        raise render_engine.LAST_ERROR
     run = render_engine.LAST_RUN
     if run is None or run.image is None:
         raise RuntimeError("the render did not finish" + (" (cancelled)" if run is not None and run.cancelled else ""))
@@ -68,33 +99,24 @@ def render_to_file(scene, out_path):
 
 
 def render_main(args):
+    from .messages import InputError
     t0 = time.perf_counter()
-    blend = pathlib.Path(args.blend).resolve()
     out = pathlib.Path(args.out).resolve()
-    if not blend.is_file():
-        print(f"error: no such .blend file: {blend}", file=sys.stderr)
-        return 2
-    if out.suffix.lower() not in FORMATS:
-        print(f"error: --out must end in .png or .exr, got '{args.out}'", file=sys.stderr)
-        return 2
-    import bpy
+    check_format(args.out)      # before the (slow) load
     ensure_registered()
-    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    blend = open_blend(args.blend)
+    import bpy
     scene = bpy.context.scene
     if scene.camera is None:
-        print(f"error: scene '{scene.name}' has no camera", file=sys.stderr)
-        return 2
+        raise InputError(f"scene '{scene.name}': no camera; add one and set it as the scene camera "
+                         "(Scene Properties > Camera)")
     settings = scene.photon_lightmaps
     for name in ("photons", "samples", "seed"):
         value = getattr(args, name, None)
         if value is not None:
             setattr(settings, name, value)
     t_load = time.perf_counter()
-    try:
-        run = render_to_file(scene, out)
-    except (RuntimeError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+    run = render_to_file(scene, out)
     t_end = time.perf_counter()
     report = run.as_dict()
     report.update(blend=str(blend), image=str(out), engine=ENGINE_ID,

@@ -39,6 +39,7 @@ import numpy as np
 from . import bake as B
 from .engine import lightmap as LM
 from .engine import orientation_lightmap as OL
+from .engine.scene import SceneError
 
 OL_IMAGE_PROP = "photon_lightmaps_ol"        # on images we baked for an OL (value: empty name)
 OL_HOOK_PROP = "photon_lightmaps_ol_hook"    # on our nodes (value: empty name) and on the group (1)
@@ -205,7 +206,7 @@ def compute(depsgraph, *, photons, seed, max_bounces=8, progress=None):
     scene, emap = export_scene(depsgraph, report=lambda level, msg: None)
     warnings.extend(emap.warnings)
     if not scene.orientation_lightmaps:
-        raise ValueError("the scene has no usable orientation lightmap (add one with "
+        raise SceneError(f"scene '{depsgraph.scene.name}': no usable orientation lightmap (add one with "
                          "Object > Add Orientation Lightmap to Collection)")
     # Only the OL bins are baked: per-object lightmaps would cost memory and time for
     # nothing, and recording never changes where photons go.
@@ -230,7 +231,7 @@ def bake_orientation_lightmaps(context_or_depsgraph, *, photons=None, seed=None,
     photons = settings["photons"] if photons is None else int(photons)
     seed = settings["seed"] if seed is None else int(seed)
     if photons < 0:
-        raise ValueError(f"photon count must be non-negative, got {photons}")
+        raise SceneError(f"photons: must be 0 or more, got {photons}")
     res = OLBakeResult()
     cs, emap, stats, warns = compute(depsgraph, photons=photons, seed=seed,
                                      max_bounces=settings["max_bounces"], progress=progress)
@@ -243,6 +244,7 @@ def bake_orientation_lightmaps(context_or_depsgraph, *, photons=None, seed=None,
         res.warnings.extend(row["warnings"])
     # Everything is computed: only now touch images and materials.
     blend_saved = bool(bpy.data.filepath)
+    B.check_writable(save_dir or (None if pack or not blend_saved else f"//{B.LIGHTMAP_DIR}"))
     names = [row["empty"] for row in emap.orientation_lightmaps]   # engine OL order
     for k, name in enumerate(names):
         empty = bpy.data.objects.get(name)
@@ -453,25 +455,18 @@ def remove_orientation_lightmap(empty):
 
 def ol_bake_main(args):
     """CLI: bakes every orientation lightmap of a .blend to DIR/<empty>.exr (+ JSON report)."""
-    import sys
-
     import bpy
+
+    from .headless import open_blend
     t0 = time.perf_counter()
-    if not os.path.isfile(args.blend):
-        print(f"error: no such file: {args.blend}", file=sys.stderr)
-        return 2
     B._ensure_registered()
-    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(args.blend), load_ui=False)
+    blend = open_blend(args.blend)
     B._ensure_registered()
     out_dir = os.path.abspath(args.out)
-    os.makedirs(out_dir, exist_ok=True)
-    try:
-        res = bake_orientation_lightmaps(bpy.context, photons=args.photons, seed=args.seed,
-                                         save_dir=out_dir, overwrite=True, hook_materials=False)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    report = {"blend": os.path.abspath(args.blend),
+    B.check_writable(out_dir)
+    res = bake_orientation_lightmaps(bpy.context, photons=args.photons, seed=args.seed,
+                                     save_dir=out_dir, overwrite=True, hook_materials=False)
+    report = {"blend": str(blend),
               "photons": int(res.stats.photons) if res.stats else 0,
               "orientation_lightmaps": {
                   name: {"path": res.paths[name], "resolution": int(rgba.shape[0]),

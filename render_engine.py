@@ -17,6 +17,7 @@ from .engine.compile import compile_scene
 from .engine.photon_tracer import Cancelled, trace_photons
 from .engine.renderer import render as render_image
 from .export import export_scene
+from .messages import describe, is_user_error, record
 
 try:
     from .bake import BakeMixin
@@ -64,6 +65,10 @@ class RenderRun:
 
 
 LAST_RUN = None
+# The exception the last render() failed with (headless.py raises it again), and
+# whether render() re-raises a bug itself (headless.py turns that off while it waits).
+LAST_ERROR = None
+RAISE_BUGS = True
 
 
 def peak_rss_bytes():
@@ -133,6 +138,8 @@ def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=Non
                           "the image is black")
     stats("Compiling scene")
     cs = compile_scene(scene)
+    for text in cs.info.get("warnings", ()):   # dropped triangles, unwrap fallbacks, clamped UVs
+        report("WARNING", f"Photon Lightmaps: {text}")
     run.lightmap_bytes = cs.lightmap_bytes()
     if cs.info.get("csg_ties"):
         report("WARNING", f"Photon Lightmaps: coincident CSG operand faces ({cs.info['csg_ties']:,} ties on "
@@ -156,7 +163,7 @@ def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=Non
                                record_direct=False, progress=photon_progress)
             run.photons, run.rays = ps.photons, ps.rays
             run.photons_per_second = ps.photons / max(ps.seconds, 1e-9)
-        if scene.orientation_lightmaps:
+        if cs.info.get("orientation_lightmaps"):   # also the automatic ones (unwrap fallbacks)
             # Per-OL numbers for the JSON report and the OL panel; averaging warnings to the user.
             from .ol_bake import record_report
             run.orientation_lightmaps = record_report(cs, run.scene, "render", report)
@@ -221,6 +228,8 @@ class PhotonLightmapsRenderEngine(BakeMixin, bpy.types.RenderEngine):
         super().__init__(*args, **kwargs)
 
     def render(self, depsgraph):
+        global LAST_RUN, LAST_ERROR
+        LAST_RUN = LAST_ERROR = None
         scene = depsgraph.scene
         width, height = int(self.resolution_x), int(self.resolution_y)
         layer = depsgraph.view_layer.name
@@ -252,8 +261,17 @@ class PhotonLightmapsRenderEngine(BakeMixin, bpy.types.RenderEngine):
                              camera_override=self.camera_override,
                              resolution=(width, height))
         except Exception as exc:  # noqa: BLE001 - shown to the user instead of a silent black frame
-            self.error_set(f"Photon Lightmaps: {exc}")
-            raise
+            LAST_ERROR = exc
+            text = describe(exc)
+            self.error_set(text)
+            record(scene.name, "render", LAST_RUN.warnings if LAST_RUN is not None else [], error=text)
+            # A user error is told by error_set alone (raising would add Blender's traceback);
+            # a bug is raised so its traceback reaches the console, except when headless.py
+            # re-raises it itself.
+            if RAISE_BUGS and not is_user_error(exc):
+                raise
+            return
+        record(scene.name, "render", run.warnings)
         if run.cancelled:
             return
         self.update_memory_stats(memory_used=_mib(run.lightmap_bytes), memory_peak=_mib(peak_rss_bytes()))

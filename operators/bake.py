@@ -3,8 +3,10 @@
 The bake runs modal: the scene is exported on the UI thread, the photon pass
 runs on a worker thread while a timer updates the status bar, and the images
 are written on the UI thread once every lightmap is done. Esc sets a flag the
-photon pass polls between chunks; a cancelled bake writes nothing, so images
-from an earlier bake stay as they were.
+photon pass polls between chunks; a cancelled or failed bake writes nothing
+(the Lightmap UV layers it made are removed again), so images and layers from
+an earlier bake stay as they were. A user error (engine SceneError) is reported
+as its one-line text (messages.py).
 """
 import threading
 
@@ -12,6 +14,7 @@ import bpy
 from bpy.props import BoolProperty, IntProperty
 
 from .. import bake as B
+from .. import messages
 from ..engine.photon_tracer import Cancelled
 
 
@@ -89,12 +92,21 @@ class PHOTON_LIGHTMAPS_OT_bake(bpy.types.Operator):
             del job.result.maps[name]
         res = B.commit_bake(job, overwrite=self.overwrite, pack=self.pack,
                             hook_materials=self.hook_materials)
-        for name, why in res.skipped.items():
-            self.report({"WARNING"}, f"'{name}' not baked: {why}")
-        for w in res.warnings:
+        warnings = [f"'{name}' not baked: {why}" for name, why in res.skipped.items()] + res.warnings
+        for w in warnings:
             self.report({"WARNING"}, w)
+        messages.record(bpy.context.scene.name, "bake", warnings)
         self.report({"INFO"}, _summary(res))
         return res
+
+    def _failed(self, context, exc, job=None):
+        # Nothing half-written: the Lightmap UV layers prepare_bake made go again.
+        if job is not None:
+            B.rollback_bake(job)
+        if isinstance(exc, Cancelled):
+            self.report({"WARNING"}, "Photon Lightmaps bake cancelled; nothing was changed")
+            return {"CANCELLED"}
+        return messages.operator_failed(self, exc, context.scene)
 
     # -- entry points ------------------------------------------------------------------------
     def invoke(self, context, event):
@@ -103,6 +115,7 @@ class PHOTON_LIGHTMAPS_OT_bake(bpy.types.Operator):
         return context.window_manager.invoke_props_dialog(self, confirm_text="Bake")
 
     def execute(self, context):
+        job = None
         try:
             job = self._start(context)
             if job is None:
@@ -113,8 +126,7 @@ class PHOTON_LIGHTMAPS_OT_bake(bpy.types.Operator):
             B.compute_bake(job)
             self._finish(job)
         except Exception as e:  # noqa: BLE001  (reported to the user instead of a traceback)
-            self.report({"ERROR"}, f"Bake failed: {e}")
-            return {"CANCELLED"}
+            return self._failed(context, e, job)
         return {"FINISHED"}
 
     # -- modal (UI) ----------------------------------------------------------------------------
@@ -174,17 +186,14 @@ class PHOTON_LIGHTMAPS_OT_bake(bpy.types.Operator):
         self._thread.join()
         self._cleanup(context)
         error = self._state["error"]
-        if isinstance(error, Cancelled) or self._cancel.is_set():
-            self.report({"WARNING"}, "Photon Lightmaps bake cancelled; no image was changed")
-            return {"CANCELLED"}
-        if error is not None:
-            self.report({"ERROR"}, f"Bake failed: {error}")
-            return {"CANCELLED"}
+        if self._cancel.is_set():
+            error = Cancelled("cancelled with Esc")
         try:
+            if error is not None:
+                raise error
             self._finish(self._job)
-        except Exception as e:  # noqa: BLE001
-            self.report({"ERROR"}, f"Writing the lightmaps failed: {e}")
-            return {"CANCELLED"}
+        except Exception as e:  # noqa: BLE001  (reported to the user instead of a traceback)
+            return self._failed(context, e, self._job)
         return {"FINISHED"}
 
     def cancel(self, context):
@@ -192,6 +201,7 @@ class PHOTON_LIGHTMAPS_OT_bake(bpy.types.Operator):
         if self._thread is not None:
             self._cancel.set()
             self._thread.join()
+            B.rollback_bake(self._job)
         self._cleanup(context)
 
     def draw(self, context):

@@ -24,8 +24,10 @@ import bpy
 import numpy as np
 from bpy.props import EnumProperty, FloatProperty, FloatVectorProperty, IntProperty
 
+from .. import messages
 from ..csg_export import PARAMS_PROP, PRIMITIVE_PROP, SOLID_KINDS
 from ..engine.primitives import KIND_IDS, N_FACES, prim_point
+from ..engine.scene import SceneError
 
 LIGHTMAP_UV = "Lightmap"
 # Welding distance in the unit-size local frame: seam duplicates differ by ~1e-16,
@@ -135,10 +137,10 @@ def new_primitive_object(kind, name=None, *, location=(0.0, 0.0, 0.0), rotation=
                          size=1.0, minor_radius=0.25, segments=64, collection=None, material=None):
     """Creates and links a tagged CSG primitive object; `size` is its uniform scale."""
     if kind not in SOLID_KINDS:
-        raise ValueError(f"unknown CSG primitive kind '{kind}' (one of {', '.join(SOLID_KINDS)})")
+        raise SceneError(f"CSG primitive kind '{kind}': unknown (use one of {', '.join(SOLID_KINDS)})")
     params = (float(minor_radius),) if kind == "torus" else ()
     if kind == "torus" and not 0.0 < params[0] < 1.0:
-        raise ValueError("torus minor radius must lie in (0, 1): the major radius is 1")
+        raise SceneError(f"torus minor radius {params[0]:g}: must lie in (0, 1), the major radius is 1")
     name = name or f"CSG {kind.capitalize()}"
     me = build_display_mesh(name, kind, params, segments)
     if material is not None:
@@ -190,11 +192,15 @@ class PHOTON_LIGHTMAPS_OT_csg_primitive_add(bpy.types.Operator):
         return self.execute(context)
 
     def execute(self, context):
+        try:
+            ob = new_primitive_object(self.kind, location=tuple(self.location), rotation=tuple(self.rotation),
+                                      size=self.size, minor_radius=self.minor_radius, segments=self.segments,
+                                      collection=context.collection)
+        except Exception as exc:  # noqa: BLE001  (reported to the user instead of a traceback)
+            return messages.operator_failed(self, exc)
         for other in context.selected_objects:
-            other.select_set(False)
-        ob = new_primitive_object(self.kind, location=tuple(self.location), rotation=tuple(self.rotation),
-                                  size=self.size, minor_radius=self.minor_radius, segments=self.segments,
-                                  collection=context.collection)
+            if other != ob:
+                other.select_set(False)
         ob.select_set(True)
         context.view_layer.objects.active = ob
         return {"FINISHED"}

@@ -10,7 +10,7 @@ changes nothing but where the collection's photon hits are stored.
 import bpy
 from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 
-from .. import ol_bake
+from .. import messages, ol_bake
 from ..export import is_orientation_lightmap
 
 
@@ -231,8 +231,7 @@ class PHOTON_LIGHTMAPS_OT_suggest_orientation_lightmaps(bpy.types.Operator):
             props, kept = suggest(context, photons=self.photons, pilot_photons=self.pilot_photons,
                                   min_photons_per_texel=self.min_photons_per_texel, max_mib=self.max_mib)
         except Exception as exc:  # noqa: BLE001  (reported to the user instead of a traceback)
-            self.report({"ERROR"}, f"Suggest Orientation Lightmaps failed: {exc}")
-            return {"CANCELLED"}
+            return messages.operator_failed(self, exc)
         for p in props:
             verdict = "propose" if p.group in kept else ("nested in a proposal" if p.proposed else "keep")
             self.report({"INFO"}, f"'{p.group}' ({p.instances} objects): {verdict}; {p.reason}; "
@@ -279,11 +278,11 @@ class PHOTON_LIGHTMAPS_OT_bake_orientation_lightmaps(bpy.types.Operator):
             res = ol_bake.bake_orientation_lightmaps(context, photons=self.photons or None,
                                                      overwrite=self.overwrite, pack=self.pack,
                                                      hook_materials=self.hook_materials)
-        except Exception as exc:  # noqa: BLE001
-            self.report({"ERROR"}, f"Orientation lightmap bake failed: {exc}")
-            return {"CANCELLED"}
+        except Exception as exc:  # noqa: BLE001  (reported to the user instead of a traceback)
+            return messages.operator_failed(self, exc, context.scene, "orientation bake")
         for w in res.warnings:
             self.report({"WARNING"}, w)
+        messages.record(context.scene.name, "orientation bake", res.warnings)
         self.report({"INFO"}, f"Baked {len(res.images)} orientation lightmap(s) "
                               f"({res.stats.photons:,} photons, {res.seconds.get('total', 0.0):.1f} s)")
         return {"FINISHED"}

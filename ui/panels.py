@@ -47,6 +47,31 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         col.prop(s, "reconstruction")
         col = layout.column(heading="Render")
         col.prop(s, "samples")
+        _draw_last_run(layout, context.scene)
+
+
+# Lines the warnings box shows; the rest are in the Info editor and the JSON report.
+MAX_WARNING_LINES = 5
+
+
+def _draw_last_run(layout, scene):
+    """Compact box: the last render's or bake's error and warnings (messages.LAST)."""
+    from .. import messages
+    rep = messages.last(scene.name)
+    if rep is None or not (rep["error"] or rep["warnings"]):
+        return
+    box = layout.box()
+    n = len(rep["warnings"])
+    head = f"Last {rep['source']}: " + ("failed" if rep["error"] else "") + \
+        (", " if rep["error"] and n else "") + (f"{n} warning{'s' if n != 1 else ''}" if n else "")
+    box.label(text=head, icon='ERROR' if rep["error"] else 'INFO')
+    col = box.column(align=True)
+    if rep["error"]:
+        col.label(text=rep["error"], icon='CANCEL')
+    for w in rep["warnings"][:MAX_WARNING_LINES]:
+        col.label(text=w, icon='DOT')
+    if n > MAX_WARNING_LINES:
+        col.label(text=f"... and {n - MAX_WARNING_LINES} more (Info editor)")
 
 
 class PHOTON_LIGHTMAPS_PT_object(_EnginePanel, bpy.types.Panel):

@@ -277,8 +277,10 @@ def check_mesh_arrays(mesh, what, n_materials):
         _fail(what, f"vertices must have shape (V, 3), got {v.shape}")
     bad = ~np.isfinite(v).all(axis=1)
     if bad.any():
-        _fail(what, f"vertex {int(np.argmax(bad))} is NaN or infinite ({int(bad.sum())} such "
-                    "vertices); fix or delete them (Blender: Mesh > Clean Up)")
+        n = int(bad.sum())
+        _fail(what, f"vertex {int(np.argmax(bad))} is NaN or infinite"
+                    + (f" ({n:,} such vertices)" if n > 1 else "")
+                    + "; move it to a finite position or delete it")
     if v.size and np.abs(v).max() > MAX_COORDINATE:
         _fail(what, f"a vertex lies {np.abs(v).max():.3g} m from the origin, beyond the tracer's "
                     f"range of {MAX_COORDINATE:.0e} m; scale the object down")
@@ -391,9 +393,13 @@ def compile_geometry(scene):
             p, uv, mats, dropped = _check_mesh(mesh, what, n_materials, uv_clamped)
             if dropped:
                 degenerate[what] = dropped
+            T = p.shape[0]
+            if T == 0:
+                # nothing left to hit: no surface slot either, or every lightmap id after
+                # it would point one past its lightmap (slots count surfaces with shapes)
+                continue
             slot = len(surf)
             surf.append(("mesh", mesh.name))
-            T = p.shape[0]
             k_kind.append(np.zeros(T, np.int32))
             k_mat.append(mats.astype(np.int32))
             k_surf.append(np.full(T, slot, np.int32))

@@ -10,8 +10,9 @@ from photon_lightmaps.engine.memory_budget import BudgetError
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.photon_tracer import trace_photons
 from photon_lightmaps.engine.renderer import render
-from photon_lightmaps.engine.scene import (Camera, Light, Material, OrientationLightmap, Primitive, Scene,
-                                           SceneError, TriangleMesh, compose, scale, translate)
+from photon_lightmaps.engine.scene import (Camera, Instance, Light, Material, OrientationLightmap, Primitive,
+                                           Prototype, Scene, SceneError, TriangleMesh, compose, scale,
+                                           translate)
 
 
 def run_all(scene, photons=5000):
@@ -132,6 +133,34 @@ def test_mesh_of_only_degenerate_triangles_renders():
     s.add_object(TriangleMesh(v, np.array([[0, 1, 2], [1, 1, 2]]), name="flat"), name="flat")
     cs, stats, img = run_all(s)
     assert cs.info["n_degenerate"] == 2
+
+
+def test_emptied_meshes_take_no_lightmap_slot():
+    """A mesh whose triangles are all degenerate has no surface: lightmap ids of
+    the surfaces and instances after it must not shift (they pointed one past
+    their lightmap and the kernels wrote out of bounds: the fuzz cases that
+    segfaulted, the issue's "zero-area triangle crashes the render")."""
+    s = small_scene()
+    flat = TriangleMesh(np.array([[0, 0, 0.5], [0.2, 0, 0.5], [0.4, 0, 0.5]]), np.array([[0, 1, 2]]),
+                        uvs=np.full((1, 3, 2), 0.5), name="all_degenerate")
+    s.prototypes.append(Prototype("mixed", meshes=[flat], primitives=[Primitive("sphere")]))
+    s.instances.append(Instance(len(s.prototypes) - 1, compose(translate(0, 0, 0.5), scale(0.2)),
+                                name="mixed", lightmap_resolution=4))
+    s.prototypes.append(Prototype("empty", meshes=[flat]))
+    s.instances.append(Instance(len(s.prototypes) - 1, name="empty"))
+    s.add_object(Primitive("sphere"), compose(translate(0.5, 0, 0.3), scale(0.2)), name="after",
+                 lightmap_resolution=4)
+    cs, stats, img = run_all(s, photons=20000)
+    g, lm = cs.geometry, cs.lightmaps
+    n_lm = lm.offset.shape[0]
+    for i, ids in enumerate(cs.instance_lightmaps):
+        base = int(g.inst_lm_base[i])
+        assert ids == list(range(base, base + len(ids))) or (base < 0 and ids == [])
+        assert int(g.proto_n_surfaces[g.inst_proto[i]]) == len(ids) or base < 0
+        assert all(0 <= k < n_lm for k in ids)
+    assert cs.instance_lightmaps[-3:-1] == [[cs.instance_lightmaps[-3][0]], []]
+    # the sphere after the emptied prototype records into its own lightmap
+    assert lm.hits[LM.texel_slice(lm, cs.instance_lightmaps[-1][0])].sum() > 0
 
 
 @pytest.mark.parametrize("k", [1e-6, 1e7], ids=["tiny", "huge"])

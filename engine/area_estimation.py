@@ -294,8 +294,9 @@ def estimate_areas(g, instances, resolution, samples, seed=0, member=None, tmax=
     ok = out_bin >= 0
     b = out_bin[ok]
     v = out_val[ok]
-    area = np.bincount(b, weights=v, minlength=R * R)
-    sq = np.bincount(b, weights=v * v, minlength=R * R)
+    # astype: with no sample in any bin numpy's bincount returns int64 even with weights
+    area = np.bincount(b, weights=v, minlength=R * R).astype(np.float64)
+    sq = np.bincount(b, weights=v * v, minlength=R * R).astype(np.float64)
     # X_k = value of sample k in this bin (0 elsewhere): Var(sum) ~ s/(s-1) Σ (X_k - mean)²
     var = np.maximum(sq - area * area / s, 0.0) * s / max(s - 1, 1)
     rel = np.full(R * R, np.inf)

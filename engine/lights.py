@@ -269,7 +269,8 @@ def emissive_point(ls, g, li, u1, u2, u3):
         px, py, pz = _xf_point(ixf, x, y, z)
         wx, wy, wz = _xf_normal(iinv, nx, ny, nz)
         wx, wy, wz, _ = _normalize(wx, wy, wz)
-        return px, py, pz, wx, wy, wz, 1.0, 1.0 / ls.area[li]
+        # a triangle flattened to zero world area: pdf 0, callers drop the sample
+        return px, py, pz, wx, wy, wz, 1.0, 1.0 / ls.area[li] if ls.area[li] > 0.0 else 0.0
     # Primitive: choose a cell by area, then (u,v) uniformly inside it.
     total = ls.cell_cdf[start + cnt - 1]
     target = u3 * total
@@ -427,7 +428,7 @@ def sample_light(ls, g, li, px, py, pz, u1, u2, u3):
     if k == POINT or k == SPOT:
         cx, cy, cz = ls.pos[li, 0], ls.pos[li, 1], ls.pos[li, 2]
         wx, wy, wz, d = _normalize(cx - px, cy - py, cz - pz)
-        if d == 0.0:
+        if not d * d > 0.0:    # also d > 0 whose square underflows (1/d² would raise)
             return 0.0, 0.0, 1.0, 0.0, 0.0, False
         mask = 1.0
         if k == SPOT:
@@ -443,6 +444,10 @@ def sample_light(ls, g, li, px, py, pz, u1, u2, u3):
             return wx, wy, wz, d, soft * mask / (d * d), True
         # Sphere light: uniform direction in the visible cone; radiance I/(pi r^2).
         sin2 = (r * r) / (d * d)
+        if sin2 < 1e-12:
+            # the cone is too narrow for 1 - cos_max (it rounds to 0, pdf = 1/0);
+            # a fully visible uniform sphere gives exactly the point light's E
+            return wx, wy, wz, d, soft * mask / (d * d), True
         cos_max = math.sqrt(max(0.0, 1.0 - sin2))
         lx, ly, lz = uniform_cone(u1, u2, cos_max)
         sx, sy, sz = to_world(lx, ly, lz, wx, wy, wz)
@@ -462,7 +467,7 @@ def sample_light(ls, g, li, px, py, pz, u1, u2, u3):
         qz = ls.pos[li, 2] + a * ls.axis_u[li, 2] + b * ls.axis_v[li, 2]
         wx, wy, wz, d = _normalize(qx - px, qy - py, qz - pz)
         cos_l = -(wx * ls.normal[li, 0] + wy * ls.normal[li, 1] + wz * ls.normal[li, 2])
-        if cos_l <= 0.0 or d == 0.0:
+        if cos_l <= 0.0 or not d * d > 0.0:
             return wx, wy, wz, d, 0.0, False
         return wx, wy, wz, d, cos_l * ls.area[li] / (d * d), True
     if k == SUN:
@@ -478,6 +483,6 @@ def sample_light(ls, g, li, px, py, pz, u1, u2, u3):
     cos_l = -(wx * nx + wy * ny + wz * nz)
     if ls.two_sided[li]:
         cos_l = abs(cos_l)
-    if cos_l <= 0.0 or d == 0.0 or pdf_area <= 0.0:
+    if cos_l <= 0.0 or not d * d > 0.0 or not pdf_area > 0.0:
         return wx, wy, wz, d, 0.0, False
     return wx, wy, wz, d, cos_l / (d * d) / pdf_area, True

@@ -52,7 +52,10 @@ def lobe_probabilities(ms, m):
 
     Each lobe is chosen with the probability of its largest band, so a survivor's
     weight k/p never exceeds 1 in any band: photons keep (at most) their power,
-    and absorbed energy per band is never negative.
+    and absorbed energy per band is never negative. That needs the lobes'
+    largest bands to sum to at most 1; where they do not (diffuse [.9, .1] with
+    specular [.1, .9]: each band's own sum is fine) the probabilities are scaled
+    down, a band's weight can exceed 1, and the pass stays unbiased.
     """
     pd = 0.0
     ps = 0.0

@@ -402,7 +402,8 @@ def add_direct(lm, texel_ids, E):
     empty texels as usual. Call after the photon pass (which finalizes too).
     """
     ids = np.asarray(texel_ids, np.int64).reshape(-1)
-    E = np.asarray(E, np.float64).reshape(ids.size, -1)
+    # explicit band count: reshape(0, -1) of an empty result is an error
+    E = np.asarray(E, np.float64).reshape(ids.size, lm.flux.shape[1])
     if ids.size:
         lm.flux[ids] += E * lm.area[ids][:, None]
     LM.finalize(lm)

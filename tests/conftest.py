@@ -6,3 +6,8 @@ import pathlib
 os.environ.setdefault("PHOTON_LIGHTMAPS_NUMBA_CACHE",
                       str(pathlib.Path(__file__).resolve().parents[1] / ".numba_cache"))
 import photon_lightmaps.engine  # noqa: E402,F401  (sets NUMBA_CACHE_DIR before numba loads)
+
+
+def pytest_configure(config):
+    # `pytest -m fuzz` selects the generated-scene fuzz sample (tests/test_fuzz.py)
+    config.addinivalue_line("markers", "fuzz: generated broken scenes (benchmarks/fuzz.py)")

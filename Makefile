@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 export PHOTON_LIGHTMAPS_NUMBA_CACHE ?= $(CURDIR)/.numba_cache
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test test-unit test-boundscheck bench fuzz clean
 setup: .venv/.stamp
 .venv/.stamp: requirements.txt scripts/setup_venv.sh
 	sh scripts/setup_venv.sh
@@ -10,8 +10,18 @@ setup: .venv/.stamp
 demo: setup
 	$(PY) -m photon_lightmaps demo --out out/demo
 
-test: setup
+# The whole suite, then the bad-input and fuzz corpora again with numba's
+# bounds checking (kernels compiled into their own cache folder).
+test: test-unit test-boundscheck
+
+test-unit: setup
 	$(PY) -m pytest -q tests
+
+test-boundscheck: setup
+	NUMBA_BOUNDSCHECK=1 $(PY) -m pytest -q -p no:cacheprovider tests/test_bad_input.py tests/test_bad_input_blender.py tests/test_fuzz.py
+
+fuzz: setup
+	$(PY) -m benchmarks.fuzz --cases 10000 --json benchmarks/out/fuzz.json
 
 bench: setup
 	$(PY) benchmarks/bench_rays.py

@@ -675,11 +675,15 @@ def run_cases(ids, workers=2, timeout=60.0, warmup_timeout=1800.0, threads=1, lo
     ctx = mp.get_context("fork")
     todo = list(ids)[::-1]
     results = {}
-    slots = [_Slot(ctx, threads) for _ in range(max(1, min(workers, len(todo) or 1)))]
+    n_slots = max(1, min(workers, len(todo) or 1))
+    slots = [_Slot(ctx, threads)]
     t0 = time.monotonic()
     restarts = 0
     try:
         while len(results) < len(ids):
+            if len(slots) < n_slots and slots[0].ready:
+                # the first worker compiled and cached every kernel: the others only load them
+                slots += [_Slot(ctx, threads) for _ in range(n_slots - len(slots))]
             for s in slots:
                 if s.case is None and s.ready and todo:
                     s.case = todo.pop()

@@ -1,15 +1,21 @@
 """Command line for the bpy-module world: `python -m photon_lightmaps {demo,render,bake,bake-ol}`.
 
-Each command lives with the code it drives: `render` in headless.py, `bake`
-in bake.py, `bake-ol` in ol_bake.py, `demo` in demo.py; this module parses
-arguments (so `--help` works without importing Blender) and turns whatever a
+The one command-line module: it parses arguments (so `--help` works without
+importing Blender; each command imports bpy itself), runs the command and turns whatever a
 command raises into what the user sees (messages.py): a user error is one
 line "error: <culprit>: <what to do>" and exit code 2, a bug is one line
 "error: internal error: ..." and exit code 1; `--debug` adds the traceback.
 """
 import argparse
-import importlib
+import json
+import os
+import pathlib
 import sys
+import time
+
+from .registration import ensure_registered
+
+# Commands import bpy, numba and the add-on's packages themselves: --help needs none of them.
 
 
 class _Parser(argparse.ArgumentParser):
@@ -55,14 +61,14 @@ def build_parser():
     d.add_argument("--out", default="out/demo", help="output folder")
     _add_common(d)
     d.add_argument("--samples", type=_count(1), default=None)
-    d.set_defaults(module="demo", func="demo_main")
+    d.set_defaults(func=demo_main)
 
     r = sub.add_parser("render", help="render a .blend with the Photon Lightmaps engine")
     r.add_argument("blend", metavar="FILE.blend")
     r.add_argument("--out", required=True, metavar="IMG", help="output image (.png or .exr)")
     _add_common(r)
     r.add_argument("--samples", type=_count(1), default=None, help="pixel samples")
-    r.set_defaults(module="headless", func="render_main")
+    r.set_defaults(func=render_main)
 
     b = sub.add_parser("bake", help="bake photon lightmaps of a .blend to OpenEXR images")
     b.add_argument("blend", metavar="FILE.blend")
@@ -70,13 +76,13 @@ def build_parser():
     _add_common(b)
     b.add_argument("--resolution", type=_count(1), default=None, metavar="R", help="force R x R lightmaps")
     b.add_argument("--indirect-only", action="store_true", help="leave direct light out of the maps")
-    b.set_defaults(module="bake", func="bake_main")
+    b.set_defaults(func=bake_main)
 
     o = sub.add_parser("bake-ol", help="bake the orientation lightmaps of a .blend to OpenEXR images")
     o.add_argument("blend", metavar="FILE.blend")
     o.add_argument("--out", required=True, metavar="DIR", help="folder for <empty name>.exr")
     _add_common(o)
-    o.set_defaults(module="ol_bake", func="ol_bake_main")
+    o.set_defaults(func=ol_bake_main)
     return p
 
 
@@ -96,13 +102,247 @@ class _LineTracker:
         return getattr(self._stream, name)
 
 
+# --------------------------------------------------------------------------------------
+# Commands
+# --------------------------------------------------------------------------------------
+
+FORMATS = {".png": "PNG", ".exr": "OPEN_EXR"}
+
+
+def check_format(path):
+    from .messages import InputError
+    ext = pathlib.Path(path).suffix.lower()
+    if ext not in FORMATS:
+        raise InputError(f"--out '{path}': the image must end in .png or .exr")
+    return ext
+
+
+def configure_output(scene, path):
+    """Output format from the file extension; 8-bit PNG through the 'Standard' view
+    transform (no tone curve), or 32-bit float linear OpenEXR."""
+    ext = check_format(path)
+    im = scene.render.image_settings
+    im.file_format = FORMATS[ext]
+    if ext == ".png":
+        im.color_mode = "RGBA"
+        im.color_depth = "8"
+        vs = scene.view_settings
+        vs.view_transform = "Standard"
+        vs.look = "None"
+        vs.exposure = 0.0
+        vs.gamma = 1.0
+    else:
+        im.color_mode = "RGBA"
+        im.color_depth = "32"
+
+
+def open_blend(path):
+    """Opens a .blend for a command; a missing or unreadable file is an InputError."""
+    import bpy
+
+    from .messages import InputError
+    path = pathlib.Path(path).resolve()
+    if not path.is_file():
+        raise InputError(f"{path}: no such .blend file (check the path)")
+    try:
+        bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
+    except RuntimeError as exc:
+        # Blender's message holds the reason (not a .blend, truncated, newer version).
+        raise InputError(f"{path}: cannot open it as a .blend file: {exc}") from None
+    return path
+
+
+def render_to_file(scene, out_path):
+    """Renders `scene` with this engine and writes the image; returns the RenderRun.
+
+    Raises what the engine's render() kept in bake/render.LAST_ERROR: Blender only
+    prints an exception raised inside a RenderEngine, the caller would never see it.
+    """
+    import bpy
+    from .bake import render as render_engine
+    from .operators.render_engine import ENGINE_ID
+    scene.render.engine = ENGINE_ID
+    configure_output(scene, out_path)
+    render_engine.LAST_RUN = render_engine.LAST_ERROR = None
+    render_engine.RAISE_BUGS = False    # we re-raise it below; Blender would print it first
+    try:
+        bpy.ops.render.render(write_still=False, scene=scene.name)
+    finally:
+        render_engine.RAISE_BUGS = True
+    if render_engine.LAST_ERROR is not None:
+        raise render_engine.LAST_ERROR
+    run = render_engine.LAST_RUN
+    if run is None or run.image is None:
+        raise RuntimeError("the render did not finish" + (" (cancelled)" if run is not None and run.cancelled else ""))
+    t0 = time.perf_counter()
+    pathlib.Path(out_path).parent.mkdir(parents=True, exist_ok=True)
+    bpy.data.images["Render Result"].save_render(filepath=str(out_path), scene=scene)
+    run.seconds["save"] = time.perf_counter() - t0
+    return run
+
+
+def render_main(args):
+    from .messages import InputError
+    from .operators.render_engine import ENGINE_ID
+    t0 = time.perf_counter()
+    out = pathlib.Path(args.out).resolve()
+    check_format(args.out)      # before the (slow) load
+    ensure_registered()
+    blend = open_blend(args.blend)
+    import bpy
+    scene = bpy.context.scene
+    if scene.camera is None:
+        raise InputError(f"scene '{scene.name}': no camera; add one and set it as the scene camera "
+                         "(Scene Properties > Camera)")
+    settings = scene.photon_lightmaps
+    for name in ("photons", "samples", "seed"):
+        value = getattr(args, name, None)
+        if value is not None:
+            setattr(settings, name, value)
+    t_load = time.perf_counter()
+    run = render_to_file(scene, out)
+    t_end = time.perf_counter()
+    report = run.as_dict()
+    report.update(blend=str(blend), image=str(out), engine=ENGINE_ID,
+                  settings={k: getattr(settings, k) for k in ("photons", "max_bounces", "texel_density",
+                                                              "reconstruction", "samples", "seed")})
+    # "total" is the whole command (load, render, save); "pipeline" is export to last tile.
+    report["seconds"].update(load=t_load - t0, pipeline=run.seconds["total"], total=t_end - t0)
+    print(f"{out}: {run.width}x{run.height}, {run.photons:,} photons in {run.seconds['photon_pass']:.2f} s, "
+          f"render {run.seconds['render']:.2f} s, total {t_end - t0:.2f} s")
+    for ol in run.orientation_lightmaps:
+        print(f"  orientation lightmap '{ol['name']}': {ol['photons']:,} photons, "
+              f"{ol['memory_bytes'] / 1024:.1f} KiB, area {ol['area']:.4g} m², {len(ol['warnings'])} warnings")
+    if args.json:
+        path = pathlib.Path(args.json)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(report, indent=2) + os.linesep)
+    return 0
+
+
+def bake_main(args):
+    """CLI: bakes every mesh object of a .blend (excluded ones skipped) to DIR/<object>.exr."""
+    import bpy
+
+    from .bake import bake_objects, check_writable
+    from .bake.render import peak_rss_bytes
+    from .engine.session import Settings
+    t0 = time.perf_counter()
+    ensure_registered()
+    blend = open_blend(args.blend)
+    context = bpy.context
+    settings = Settings.read(context.scene.photon_lightmaps, photons=args.photons, seed=args.seed)
+    photons, seed = settings.photons, settings.seed
+    objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
+    out_dir = os.path.abspath(args.out)
+    check_writable(out_dir)
+
+    def progress(done, total):
+        print(f"\rphotons {done}/{total}", end="", file=sys.stderr, flush=True)
+        return True
+
+    res = bake_objects(context, objects, photons=photons, seed=seed, resolution=args.resolution,
+                       indirect_only=args.indirect_only, progress=progress, save_dir=out_dir,
+                       overwrite=True)
+    print(file=sys.stderr)
+    stats = res.stats
+    report = {
+        "blend": str(blend),
+        "photons": int(stats.photons) if stats else 0,
+        "rays": int(stats.rays) if stats else 0,
+        "seconds": {"photon_pass": res.seconds.get("photon_pass", 0.0),
+                    "direct": res.seconds.get("direct", 0.0),
+                    "bake": res.seconds.get("bake", 0.0),
+                    "total": time.perf_counter() - t0},
+        "objects": {name: {"path": res.paths[name], "width": bm.width, "height": bm.height,
+                           "bytes": os.path.getsize(res.paths[name]), "mean": bm.mean()}
+                    for name, bm in res.maps.items()},
+        "skipped": res.skipped,
+        "warnings": res.warnings,
+        "memory": {"lightmap_bytes": res.lightmap_bytes, "peak_rss_bytes": peak_rss_bytes()},
+    }
+    text = json.dumps(report, indent=2)
+    print(text)
+    if args.json:
+        with open(args.json, "w") as f:
+            f.write(text)
+    return 0
+
+
+def ol_bake_main(args):
+    """CLI: bakes every orientation lightmap of a .blend to DIR/<empty>.exr (+ JSON report)."""
+    import bpy
+
+    from .bake import check_writable
+    from .bake.orientation import bake_orientation_lightmaps
+    t0 = time.perf_counter()
+    ensure_registered()
+    blend = open_blend(args.blend)
+    out_dir = os.path.abspath(args.out)
+    check_writable(out_dir)
+    res = bake_orientation_lightmaps(bpy.context, photons=args.photons, seed=args.seed,
+                                     save_dir=out_dir, overwrite=True, hook_materials=False)
+    report = {"blend": str(blend),
+              "photons": int(res.stats.photons) if res.stats else 0,
+              "orientation_lightmaps": {
+                  name: {"path": res.paths[name], "resolution": int(rgba.shape[0]),
+                         "objects": res.covered.get(name, []),
+                         **next((r for r in res.rows if r["name"] == name), {})}
+                  for name, rgba in res.maps.items()},
+              "warnings": res.warnings,
+              "seconds": {"photon_pass": res.seconds.get("photon_pass", 0.0),
+                          "total": time.perf_counter() - t0}}
+    text = json.dumps(report, indent=2)
+    print(text)
+    if getattr(args, "json", None):
+        with open(args.json, "w") as f:
+            f.write(text)
+    return 0
+
+
+def demo_main(args):
+    import bpy  # noqa: F401  (bmesh and friends need bpy loaded first)
+
+    from . import demo_blend
+
+    out = os.path.abspath(args.out)
+    os.makedirs(out, exist_ok=True)
+    t0 = time.perf_counter()
+    ensure_registered()
+    blend = os.path.join(out, "demo.blend")
+    demo_blend.build_cornell_blend(blend, width=256, height=256, spheres=True, csg=True, ol=True)
+    common = dict(blend=blend, photons=args.photons, seed=args.seed)
+    render_json = os.path.join(out, "render.json")
+    bake_json = os.path.join(out, "bake.json")
+    # A failing step raises; cli.main turns that into the one "error: ..." line.
+    render_main(argparse.Namespace(out=os.path.join(out, "render.png"),
+                                            samples=args.samples, json=render_json, **common))
+    bake_main(argparse.Namespace(out=os.path.join(out, "lightmaps"), resolution=None,
+                                      indirect_only=False, json=bake_json, **common))
+    ol_json = os.path.join(out, "orientation_lightmaps.json")
+    ol_bake_main(argparse.Namespace(out=os.path.join(out, "lightmaps"), json=ol_json, **common))
+    with open(render_json) as f:
+        render_report = json.load(f)
+    with open(bake_json) as f:
+        bake_report = json.load(f)
+    with open(ol_json) as f:
+        ol_report = json.load(f)
+    report = {"blend": blend, "render": render_report, "bake": bake_report, "orientation_lightmaps": ol_report,
+              "seconds": {"total": time.perf_counter() - t0}}
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(report, f, indent=2)
+    print(f"demo: {render_report['image']} and {len(bake_report['objects'])} baked lightmaps in "
+          f"{os.path.join(out, 'lightmaps')} ({report['seconds']['total']:.1f} s)")
+    return 0
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)
     stderr = sys.stderr
     sys.stderr = tracker = _LineTracker(stderr)
     try:
-        module = importlib.import_module(f"{__package__}.{args.module}")
-        return getattr(module, args.func)(args)
+        return args.func(args)
     except Exception as exc:  # noqa: BLE001  (the one place a command's failure reaches the user)
         from .messages import describe, is_user_error
         user = is_user_error(exc)

@@ -13,7 +13,7 @@ import bmesh
 import bpy
 import numpy as np
 
-ENGINE_ID = "PHOTON_LIGHTMAPS"
+from .operators.render_engine import ENGINE_ID  # noqa: E402
 LIGHTMAP_UV = "Lightmap"
 # Texel inset of the unit-square lightmap UVs, so bilinear lookups never clamp at borders.
 UV_INSET = 0.002

@@ -1,11 +1,12 @@
 """Registers the add-on's parts in order; each listed submodule has register()/unregister().
 
-Order matters: properties before anything that reads them, the render engine
-before the panels that poll for it. Unregistering runs in reverse.
+Order matters: the PropertyGroups before anything that reads them, the render
+engine before the operators and panels that poll for it, the panels last (they
+draw the operators). Unregistering runs in reverse.
 """
 import importlib
 
-MODULES = ["properties", "render_engine", "ui", "operators"]
+MODULES = ["ui.properties", "operators.render_engine", "operators", "ui"]
 
 _registered = []
 
@@ -35,3 +36,19 @@ def register():
 def unregister():
     while _registered:
         _registered.pop().unregister()
+
+
+def engine_registered():
+    """True when some copy of the add-on (e.g. the installed extension) has registered the engine."""
+    import bpy
+
+    from .operators.render_engine import ENGINE_ID
+    return any(getattr(c, "bl_idname", None) == ENGINE_ID and c.is_registered
+               for c in bpy.types.RenderEngine.__subclasses__())
+
+
+def ensure_registered():
+    """Registers the add-on unless some copy of it already is (the one copy, for the CLI and demo)."""
+    if not engine_registered():
+        from . import register as register_addon
+        register_addon()

@@ -28,7 +28,9 @@ import bmesh  # noqa: E402  (after bpy)
 import numpy as np
 from mathutils import Vector
 
-from photon_lightmaps import csg_export, demo_blend, uv_layers
+from photon_lightmaps import demo_blend
+from photon_lightmaps.export import csg as csg_export
+from photon_lightmaps.export import uv_layers
 from photon_lightmaps.operators import csg_primitives as CP
 
 OPS = {"union": "UNION", "intersection": "INTERSECT", "difference": "DIFFERENCE"}

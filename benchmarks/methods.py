@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_lightmaps import bake as B
-from photon_lightmaps import uv_layers
+from photon_lightmaps.export import uv_layers
 from photon_lightmaps.engine import lightmap as LM
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.photon_tracer import trace_photons

@@ -19,7 +19,8 @@ import math
 import bpy
 import numpy as np
 
-from photon_lightmaps import demo_blend, uv_layers
+from photon_lightmaps import demo_blend
+from photon_lightmaps.export import uv_layers
 from photon_lightmaps.export import export_scene
 
 # Smallest lightmap resolution the UV layouts must stay valid for (chart padding).

@@ -4,15 +4,14 @@ Add > Photon CSG Primitive in the 3D viewport.
 
 The panel exists because Blender's own Bake panel belongs to Cycles (it is shown
 for Cycles only); with this engine active it offers Blender's Bake button, which
-lands in the engine's BakeMixin.bake, next to our lightmap bake.
+lands in bake/bake_api.py, next to our lightmap bake.
 """
 import bpy
 
-from .. import bake as _bake
+from ..bake import bake_api
 from . import bake, csg_primitives
 from . import orientation_lightmaps as ol_ops
-
-ENGINE_ID = "PHOTON_LIGHTMAPS"
+from .render_engine import ENGINE_ID
 
 
 def _menu(self, context):
@@ -77,7 +76,7 @@ classes = bake.classes + csg_primitives.classes + ol_ops.classes + (PHOTON_LIGHT
 
 @bpy.app.handlers.persistent
 def _free_bake_cache(*_args):
-    _bake.clear_cache()
+    bake_api.clear_cache()
 
 
 def register():
@@ -104,4 +103,4 @@ def unregister():
         getattr(bpy.types, name).remove(_menu)
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)
-    _bake.clear_cache()
+    bake_api.clear_cache()

@@ -13,8 +13,9 @@ import threading
 import bpy
 from bpy.props import BoolProperty, IntProperty
 
-from .. import bake as B
 from .. import messages
+from ..bake import hooks
+from ..bake import pipeline as B
 from ..engine.photon_tracer import Cancelled
 
 
@@ -80,9 +81,7 @@ class PHOTON_LIGHTMAPS_OT_bake(bpy.types.Operator):
         if not objects:
             self.report({"ERROR"}, "No mesh objects to bake" + (" (select some)" if self.selected_only else ""))
             return None
-        settings = B._settings(context.scene)
-        photons = self.photons or settings["photons"]
-        return B.prepare_bake(context, objects, photons=photons, seed=settings["seed"],
+        return B.prepare_bake(context, objects, photons=self.photons or None,
                               resolution=self.resolution or None, indirect_only=self.indirect_only)
 
     def _finish(self, job):
@@ -133,7 +132,7 @@ class PHOTON_LIGHTMAPS_OT_bake(bpy.types.Operator):
     def _start_modal(self, context, job):
         # The worker only touches these plain objects, never the operator (an RNA struct).
         cancel = threading.Event()
-        state = {"done": 0, "total": max(int(job.settings["photons"]), 1), "error": None}
+        state = {"done": 0, "total": max(int(job.settings.photons), 1), "error": None}
 
         def progress(done, total):
             state["done"], state["total"] = done, max(total, 1)
@@ -226,7 +225,7 @@ class PHOTON_LIGHTMAPS_OT_remove_lightmap_hook(bpy.types.Operator):
         if self.selected_only:
             mats = {s.material for ob in context.selected_objects for s in ob.material_slots
                     if s.material is not None}
-        n = B.remove_lightmap_hook(mats)
+        n = hooks.remove_lightmap_hook(mats)
         self.report({"INFO"}, f"Removed {n} Photon Lightmap node{'s' if n != 1 else ''}")
         return {"FINISHED"}
 

@@ -25,7 +25,7 @@ import numpy as np
 from bpy.props import EnumProperty, FloatProperty, FloatVectorProperty, IntProperty
 
 from .. import messages
-from ..csg_export import PARAMS_PROP, PRIMITIVE_PROP, SOLID_KINDS
+from ..export.csg import PARAMS_PROP, PRIMITIVE_PROP, SOLID_KINDS
 from ..engine.primitives import KIND_IDS, N_FACES, prim_point
 from ..engine.scene import SceneError
 

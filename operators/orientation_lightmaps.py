@@ -1,7 +1,7 @@
 """Operators for orientation lightmaps (thesis ch. 6; export.py reads them):
 Add Orientation Lightmap to Collection, Remove Orientation Lightmap, Suggest
 Orientation Lightmaps (engine/ol_planner.py) and Bake Orientation Lightmaps
-(ol_bake.py).
+(bake/orientation.py).
 
 An OL is an Empty shown as a sphere, sized to its collection's bounds and
 linked into that collection; Empties are never exported as geometry, so it
@@ -10,7 +10,9 @@ changes nothing but where the collection's photon hits are stored.
 import bpy
 from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 
-from .. import messages, ol_bake
+from .. import messages
+from ..bake import orientation as ol_bake
+from ..engine import session
 from ..export import is_orientation_lightmap
 
 
@@ -92,12 +94,11 @@ def suggest(context, *, photons=None, pilot_photons=30_000, min_photons_per_texe
     Returns (all proposals, kept: {collection name: Proposal}) where kept are
     the proposed ones not nested inside another proposed collection (their
     savings would be counted twice)."""
-    from ..engine.compile import compile_scene
     from ..engine.ol_planner import plan
     from ..export import export_scene
     scene = context.scene
-    settings = scene.photon_lightmaps
-    budget = int(settings.photons) if not photons else int(photons)
+    settings = session.Settings.read(scene.photon_lightmaps, photons=photons or None)
+    budget = settings.photons
     dg = context.evaluated_depsgraph_get()
     escene, emap = export_scene(dg, report=lambda level, msg: None, orientation_lightmaps=False)
     colls = {c.name: c for c in scene_collections(scene) if not ol_of_collection(scene, c)}
@@ -109,7 +110,7 @@ def suggest(context, *, photons=None, pilot_photons=30_000, min_photons_per_texe
             groups[name] = ids
     if not groups:
         return [], {}
-    cs = compile_scene(escene)
+    cs = session.compile(escene)
     props = plan(cs, budget, groups, pilot_photons=pilot_photons, seed=int(settings.seed),
                  max_bounces=int(settings.max_bounces), min_photons_per_texel=min_photons_per_texel,
                  max_bytes=int(max_mib * 2 ** 20), resolution=resolution)

@@ -20,7 +20,11 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from photon_lightmaps import bake as B  # noqa: E402
-from photon_lightmaps import cli, messages, render_engine, uv_layers  # noqa: E402
+from photon_lightmaps import cli, messages  # noqa: E402
+from photon_lightmaps.bake import images as B_images  # noqa: E402
+from photon_lightmaps.bake import render as render_engine  # noqa: E402
+from photon_lightmaps.engine import session  # noqa: E402
+from photon_lightmaps.export import uv_layers  # noqa: E402
 from photon_lightmaps.engine.scene import SceneError  # noqa: E402
 
 from blender_session import addon  # noqa: E402,F401  (session-wide registration)
@@ -176,7 +180,7 @@ def test_cli_bug_is_an_internal_error_and_errors_start_a_fresh_line(tmp_path, ca
     assert "Traceback" in err and "in bug" in err
     assert render_engine.RAISE_BUGS     # the UI path raises bugs again
     # A user error after "\rphotons N/M" progress starts on a line of its own.
-    monkeypatch.setattr(B, "_add_direct", lambda *a, **k: (_ for _ in ()).throw(SceneError("texel density: too high")))
+    monkeypatch.setattr(session, "bake_direct", lambda *a, **k: (_ for _ in ()).throw(SceneError("texel density: too high")))
     assert cli.main(["bake", str(blend), "--out", str(tmp_path / "lm"), "--resolution", "8"]) == 2
     err = capsys.readouterr().err
     assert "\rphotons " in err and err.endswith("\nerror: texel density: too high\n")
@@ -239,7 +243,7 @@ def _fail_late(monkeypatch, exc):
     """Makes the bake fail after the photon pass, once the Lightmap UV layers were made."""
     def late(*_a, **_k):
         raise exc
-    monkeypatch.setattr(B, "lightmap_rgba", late)
+    monkeypatch.setattr(B_images, "lightmap_rgba", late)
 
 
 def test_failed_or_cancelled_bake_leaves_user_data_identical(monkeypatch):

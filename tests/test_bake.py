@@ -19,7 +19,10 @@ bpy = pytest.importorskip("bpy")
 
 import photon_lightmaps  # noqa: E402
 from photon_lightmaps import bake as B  # noqa: E402
-from photon_lightmaps import demo_blend, registration, uv_layers  # noqa: E402
+from photon_lightmaps import demo_blend, registration  # noqa: E402
+from photon_lightmaps.engine.session import Settings  # noqa: E402
+from photon_lightmaps.export import uv_layers  # noqa: E402
+from photon_lightmaps.operators.render_engine import PhotonLightmapsRenderEngine  # noqa: E402
 from photon_lightmaps.engine.photon_tracer import Cancelled  # noqa: E402
 
 
@@ -118,7 +121,7 @@ RES = 64
 # indirect photon noise of single texels (ceiling, indirect only: 0.16), so the
 # 5 % bound still needs 16 M photons; the default is held to its measured level.
 PHOTONS = 16_000_000
-DEFAULT_PHOTONS = B._DEFAULTS["photons"]
+DEFAULT_PHOTONS = Settings().photons
 DEFAULT_MAX_RMSE = 0.11
 CYCLES_SPP = 512
 
@@ -440,7 +443,7 @@ def test_blender_bake_api_cancel_and_errors_keep_the_image(monkeypatch):
     B.clear_cache()
     bpy.context.scene.photon_lightmaps.seed = 9
     stops = []
-    monkeypatch.setattr(B.BakeMixin, "_photon_should_stop", lambda self: stops.append(1) or len(stops) > 1)
+    monkeypatch.setattr(PhotonLightmapsRenderEngine, "_photon_should_stop", lambda self: stops.append(1) or len(stops) > 1)
     # Not "Clear Image": with it Blender blanks the image itself before any engine runs.
     bpy.ops.object.bake(type="DIFFUSE", pass_filter={"DIRECT", "INDIRECT"}, uv_layer="Lightmap",
                         margin=4, use_clear=False)

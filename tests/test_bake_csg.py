@@ -14,7 +14,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from photon_lightmaps import bake as B  # noqa: E402
-from photon_lightmaps import uv_layers  # noqa: E402
+from photon_lightmaps.export import uv_layers  # noqa: E402
 from photon_lightmaps.engine import csg_bake  # noqa: E402
 from photon_lightmaps.engine import lightmap as LM  # noqa: E402
 from photon_lightmaps.engine import primitives as P  # noqa: E402

@@ -25,7 +25,10 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import photon_lightmaps  # noqa: E402
-from photon_lightmaps import demo_blend, headless, registration, render_engine  # noqa: E402
+from photon_lightmaps import cli as headless  # noqa: E402
+from photon_lightmaps import demo_blend, registration  # noqa: E402
+from photon_lightmaps.bake import render as render_engine  # noqa: E402
+from photon_lightmaps.ui import compat_panels  # noqa: E402
 
 ENGINE = "PHOTON_LIGHTMAPS"
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -159,17 +162,17 @@ def test_cancel_stops_cleanly():
 
 def test_registration_round_trip():
     fmt = bpy.types.RENDER_PT_format
-    assert ENGINE in fmt.COMPAT_ENGINES and headless.engine_registered()
+    assert ENGINE in fmt.COMPAT_ENGINES and registration.engine_registered()
     assert ENGINE not in bpy.types.DATA_PT_preview.COMPAT_ENGINES  # excluded: no previews
-    assert "CYCLES_RENDER_PT_sampling" not in {p.__name__ for p in render_engine.get_panels()}
+    assert "CYCLES_RENDER_PT_sampling" not in {p.__name__ for p in compat_panels.get_panels()}
     registration.unregister()
     try:
-        assert not headless.engine_registered()
+        assert not registration.engine_registered()
         assert ENGINE not in fmt.COMPAT_ENGINES
         assert not hasattr(bpy.types.Scene, "photon_lightmaps")
     finally:
         registration.register()
-    assert headless.engine_registered() and ENGINE in fmt.COMPAT_ENGINES
+    assert registration.engine_registered() and ENGINE in fmt.COMPAT_ENGINES
     assert bpy.context.scene.photon_lightmaps.photons == 1_000_000
 
 

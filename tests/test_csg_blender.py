@@ -15,7 +15,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import photon_lightmaps  # noqa: E402
-from photon_lightmaps import csg_export, demo_blend, export  # noqa: E402
+from photon_lightmaps import demo_blend, export  # noqa: E402
+from photon_lightmaps.export import csg as csg_export  # noqa: E402
 from photon_lightmaps.engine.primitives import KIND_IDS, N_FACES, prim_point, prim_surface  # noqa: E402
 from photon_lightmaps.engine.scene import CSGNode, Primitive, TriangleMesh  # noqa: E402
 from photon_lightmaps.operators import csg_primitives  # noqa: E402

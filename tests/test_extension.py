@@ -95,7 +95,8 @@ def test_zip_layout_and_manifest(linux_zip, build, bext):
                     wheel_members[name[len("wheels/"):]] = set(wheel.namelist())
 
     # Package files sit at the zip root, as `extension build` writes them.
-    for required in ("blender_manifest.toml", "__init__.py", "registration.py", "render_engine.py",
+    for required in ("blender_manifest.toml", "__init__.py", "registration.py", "operators/render_engine.py",
+                     "export/__init__.py", "bake/__init__.py", "ui/__init__.py",
                      "engine/__init__.py"):
         assert required in names
     for name in names:

@@ -1,13 +1,13 @@
 """Properties-editor panels for the Photon Lightmaps engine.
 
 Engine-generic built-in panels (dimensions, output, camera, ...) are reused
-through COMPAT_ENGINES (render_engine.get_panels); the panels here cover what
+through COMPAT_ENGINES (ui/compat_panels.py); the panels here cover what
 this engine reads that no generic panel shows: its settings, per-object
 lightmap settings, and the material/light/world inputs the exporter uses.
 """
 import bpy
 
-ENGINE_ID = "PHOTON_LIGHTMAPS"
+from ..operators.render_engine import ENGINE_ID
 
 
 class _EnginePanel:
@@ -122,7 +122,7 @@ def _covering_ols(context, ob):
 
 def _draw_orientation_lightmap(layout, context, ob):
     """Settings of an OL empty and what the last render or bake measured (ol_bake.REPORTS)."""
-    from .. import ol_bake
+    from ..bake import orientation as ol_bake
     s = ob.photon_lightmaps
     layout.prop(s, "orientation_lightmap")
     col = layout.column()
@@ -154,8 +154,8 @@ def _draw_orientation_lightmap(layout, context, ob):
 
 
 def _draw_csg(layout, ob):
-    """What the exporter makes of a CSG primitive or a Boolean stack (csg_export.py)."""
-    from .. import csg_export
+    """What the exporter makes of a CSG primitive or a Boolean stack (export/csg.py)."""
+    from ..export import csg as csg_export
     box = None
     try:
         tag = csg_export.primitive_tag(ob)

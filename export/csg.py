@@ -1,6 +1,6 @@
-"""Blender Boolean-modifier stacks -> exact CSG trees (thesis 4.1), for export.py.
+"""Blender Boolean-modifier stacks -> exact CSG trees (thesis 4.1), for the export.
 
-Conventions (shared with operators/csg_primitives.py and ui/panels.py):
+Conventions (shared with operators/csg_primitives.py, bake/ and ui/panels.py):
 
 * A *tagged CSG primitive* is a mesh object with the custom properties
   ``obj["photon_csg_primitive"]`` (a kind of engine.primitives: sphere, box,
@@ -40,7 +40,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .engine.scene import CSGNode, Primitive
+from ..engine.scene import CSGNode, Primitive, Prototype
+from .context import LIGHTMAP_UV, PrototypeRecord
 
 PRIMITIVE_PROP = "photon_csg_primitive"
 PARAMS_PROP = "photon_csg_params"
@@ -334,3 +335,69 @@ def _balanced_union(items, name):
     mid = (len(items) + 1) // 2
     return CSGNode("union", _balanced_union(items[:mid], name), _balanced_union(items[mid:], name),
                    name=name)
+
+
+def find_operands(depsgraph):
+    """{original operand object: name of the solid it cuts} for every solid an export of
+    `depsgraph` may meet (the one finder: the export and the bake's target choice use it)."""
+    viewport = depsgraph.mode == "VIEWPORT"
+    out = {}
+    for ob in depsgraph.objects:
+        original = ob.original if ob.original is not None else ob
+        if viewport and original.hide_render:
+            continue
+        cands = [original]
+        if original.instance_type == "COLLECTION" and original.instance_collection is not None:
+            cands += list(original.instance_collection.all_objects)
+        for c in cands:
+            if c.type == "MESH" and boolean_modifiers(c):
+                collect_operands(c, out)
+    return out
+
+
+def csg_prototype(ctx, ob):
+    """Prototype index of an object's exact CSG solid or tagged primitive; None: export its mesh."""
+    original = ob.original if ob.original is not None else ob
+    key = original.as_pointer()
+    if key in ctx.csg_index:
+        return ctx.csg_index[key]
+    name = original.name
+    ctx.csg_index[key] = None
+    try:
+        tag = primitive_tag(original)
+    except ValueError as exc:
+        ctx.report("WARNING", f"{exc}; its display mesh is exported instead")
+        tag = None
+        if not boolean_modifiers(original):
+            return None
+    if not boolean_modifiers(original):
+        if tag is None:
+            return None
+        others = other_modifiers(original)
+        if others:
+            ctx.report("WARNING", f"object '{name}': modifiers {', '.join(repr(m.name) for m in others)} "
+                                   "change the CSG primitive's display mesh, so that mesh is exported "
+                                   "instead of the exact surface")
+            return None
+    try:
+        solid = ctx.csg.build(original)
+    except CSGFallback as exc:
+        ctx.report("WARNING", f"{exc}; object '{name}' is exported as its evaluated Boolean result "
+                               "mesh instead of exact CSG")
+        ctx.map.csg_solids[name] = "fallback"
+        return None
+    root = solid.root
+    if isinstance(root, CSGNode):
+        proto, kind = Prototype(name=name, csg=[root]), "csg"
+    elif isinstance(root, Primitive):
+        proto, kind = Prototype(name=name, primitives=[root]), "primitive"
+    else:
+        return None   # every Boolean modifier was skipped: the plain mesh is the result
+    ctx.scene.prototypes.append(proto)
+    # A lone primitive's display mesh carries the engine's chart atlas as its Lightmap layer.
+    ctx.map.prototypes.append(PrototypeRecord(name, 0, LIGHTMAP_UV if kind == "primitive" else "csg"))
+    ctx.map.csg_solids[name] = kind
+    idx = len(ctx.scene.prototypes) - 1
+    ctx.csg_index[key] = idx
+    return idx
+

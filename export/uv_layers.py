@@ -17,7 +17,7 @@ import hashlib
 
 import numpy as np
 
-LAYER_NAME = "Lightmap"
+from .context import LIGHTMAP_UV as LAYER_NAME  # noqa: E402  (one name for the layer)
 HASH_PROP = "photon_lightmaps_uv_hash"
 DIGEST_PROP = "photon_lightmaps_uv_digest"
 MIN_RES_PROP = "photon_lightmaps_uv_min_res"
@@ -156,7 +156,7 @@ def compute_lightmap_uvs(mesh, resolution=None, padding=2):
     xatlas runs in a child process; its failures and crashes raise
     engine.uv_atlas.UnwrapError (a SceneError), for the caller to report.
     """
-    from .engine import uv_atlas as UA
+    from ..engine import uv_atlas as UA
 
     resolution = int(resolution) if resolution else UA.DEFAULT_RESOLUTION
     v, tri_v, tri_l, poly = mesh_triangles(mesh)
@@ -277,8 +277,8 @@ def primitive_chart_uvs(ob):
     every vertex must sit on the engine's chart point of its UV (after undoing
     the tile rect this add-on stored, if any).
     """
-    from .csg_export import primitive_tag
-    from .engine.csg_bake import chart_uv_error
+    from .csg import primitive_tag
+    from ..engine.csg_bake import chart_uv_error
 
     tag = primitive_tag(ob)
     if tag is None:

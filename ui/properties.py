@@ -1,28 +1,36 @@
-"""Settings stored in .blend files: `Scene.photon_lightmaps` and `Object.photon_lightmaps`."""
+"""Settings stored in .blend files: `Scene.photon_lightmaps` and `Object.photon_lightmaps`.
+
+The scene defaults are engine.session.Settings' (one copy): code reads the
+PropertyGroup into that typed object, never into a dict of its own.
+"""
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
+
+from ..engine.session import Settings
+
+_D = Settings()
 
 
 class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
     photons: IntProperty(
-        name="Photons", default=1_000_000, min=0, soft_max=100_000_000,
+        name="Photons", default=_D.photons, min=0, soft_max=100_000_000,
         description="Photons shot from the lights in the photon pass")
     max_bounces: IntProperty(
-        name="Max Bounces", default=8, min=0, max=256,
+        name="Max Bounces", default=_D.max_bounces, min=0, max=256,
         description="Longest photon path; energy still carried at the cap is booked as truncated")
     texel_density: FloatProperty(
-        name="Texel Density", default=16.0, min=0.01, soft_max=1024.0, unit='NONE',
+        name="Texel Density", default=_D.texel_density, min=0.01, soft_max=1024.0, unit='NONE',
         description="Lightmap texels per metre for surfaces without a forced resolution")
     reconstruction: EnumProperty(
-        name="Reconstruction", default='BILINEAR',
+        name="Reconstruction", default=_D.reconstruction,
         items=(('BILINEAR', "Bilinear", "Interpolate irradiance between texel centres"),
                ('CONSTANT', "Constant", "One irradiance value per texel (shows the texels)")),
         description="How the renderer reads indirect light from the lightmaps")
     samples: IntProperty(
-        name="Samples", default=16, min=1, soft_max=4096,
+        name="Samples", default=_D.samples, min=1, soft_max=4096,
         description="Camera samples per pixel in the render pass")
     seed: IntProperty(
-        name="Seed", default=0, min=0,
+        name="Seed", default=_D.seed, min=0,
         description="Random seed; the same seed gives the same image")
 
 
@@ -35,7 +43,7 @@ class PhotonLightmapsObjectSettings(bpy.types.PropertyGroup):
         name="Lightmap Resolution", default=0, min=0, soft_max=4096,
         description="Texels per side of each lightmap of this object; 0 uses the scene's texel density")
     # Orientation lightmap (thesis ch. 6), read on Empties only: an Empty is an OL
-    # exactly when `orientation_lightmap` is set (export.is_orientation_lightmap), so
+    # exactly when `orientation_lightmap` is set (export/ol_routing.is_orientation_lightmap), so
     # a stray pointer on some other object never turns it into one.
     orientation_lightmap: BoolProperty(
         name="Orientation Lightmap", default=False,

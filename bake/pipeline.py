@@ -1,0 +1,387 @@
+"""The lightmap bake: prepare (main thread) -> compute (any thread) -> commit (main thread).
+
+prepare_bake chooses the objects, makes their Lightmap UV layers and exports
+the scene; compute_bake runs engine/session.py (photon pass, direct gather) and
+turns lightmaps into RGBA arrays; commit_bake writes images, files and hooks.
+A failed or cancelled compute or commit is undone by rollback_bake.
+"""
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..engine import lightmap as LM
+from ..engine import session
+from ..engine.scene import SceneError
+from ..export import csg as csg_export
+from ..export import uv_layers
+from ..export.ol_routing import OLRouter
+from . import csg_atlas, hooks, images
+from .images import BakedMap
+
+
+@dataclass
+class BakeSettings(session.Settings):
+    """Scene settings (session.Settings, read from Scene.photon_lightmaps) plus the bake's options."""
+    resolution: int = 0          # R x R texels per object; 0: each object's setting or the texel density
+    indirect_only: bool = False  # leave the gathered direct light out
+    overwrite: bool = False
+    save_dir: str = ""
+    pack: bool = False
+    hook_materials: bool = False
+
+
+def bscene_props(bscene):
+    """Scene.photon_lightmaps, or None where the add-on's properties are not registered."""
+    return getattr(bscene, "photon_lightmaps", None)
+
+
+@dataclass
+class BakeResult:
+    maps: dict = field(default_factory=dict)      # object name -> BakedMap
+    images: dict = field(default_factory=dict)    # object name -> bpy image name
+    paths: dict = field(default_factory=dict)     # object name -> saved file (None: unsaved/packed)
+    skipped: dict = field(default_factory=dict)   # object name -> why it was not baked
+    hooked: list = field(default_factory=list)    # materials given a lightmap hook
+    warnings: list = field(default_factory=list)
+    stats: object = None                          # PhotonStats of the photon pass
+    seconds: dict = field(default_factory=dict)   # export, photon_pass, bake, total
+    lightmap_bytes: int = 0
+    uv_layers: dict = field(default_factory=dict)  # mesh name -> uv_layers.ensure_lightmap_uv status
+    # CSG solid name -> {"leaves": baked leaf names, "skipped": {leaf: why}, "split_texels",
+    # "boundary_texels", "atlas": (w, h)}
+    csg: dict = field(default_factory=dict)
+
+
+@dataclass
+class BakeJob:
+    """A bake split in three, so an operator can run the photon pass off the UI thread."""
+    scene: object                 # engine Scene (plain data)
+    export_map: object
+    targets: dict                 # object name -> engine instance id
+    settings: BakeSettings
+    direct: bool                  # gather direct light (False: --indirect-only)
+    result: BakeResult
+    t_start: float
+    cs: object = None
+    # CSG solid name -> {leaf object name: None (bake it) or why it is skipped}
+    csg: dict = field(default_factory=dict)
+    primitives: set = field(default_factory=set)   # stand-alone tagged primitives among targets
+    # mesh name -> its Lightmap layer state before prepare_bake (rollback_bake puts it back)
+    uv_undo: dict = field(default_factory=dict)
+
+
+def _original(ob):
+    return getattr(ob, "original", None) or ob
+
+
+def _is_excluded(ob):
+    props = getattr(ob, "photon_lightmaps", None)
+    return bool(props is not None and props.exclude)
+
+
+def _depsgraph(context_or_depsgraph):
+    import bpy
+    if isinstance(context_or_depsgraph, bpy.types.Depsgraph):
+        return context_or_depsgraph
+    return context_or_depsgraph.evaluated_depsgraph_get()
+
+
+def _world_area(ob):
+    """Surface area of a mesh object in world units (as the lightmap allocator measures it)."""
+    v, tv, _, _ = uv_layers.mesh_triangles(ob.data)
+    if tv.shape[0] == 0:
+        return 0.0
+    M = np.array(ob.matrix_world, np.float64)[:3, :3]
+    return float(LM.triangle_world_areas(v[tv], M).sum())
+
+
+def layout_resolution(ob, texel_density, resolution=None):
+    """Lightmap texels per side the engine will give mesh object `ob` (what its UV layout is for)."""
+    if resolution:
+        return int(resolution)
+    props = getattr(ob, "photon_lightmaps", None)
+    if props is not None and int(props.lightmap_resolution) > 0:
+        return int(props.lightmap_resolution)
+    return LM.resolution_for(_world_area(ob), texel_density)
+
+
+def _covering_ol(router, ob):
+    """Name of the (non-backup) OL empty that takes this object's hits, else None."""
+    key = router.route(ob) if router else None
+    if key is None:
+        return None
+    empty = router.colls[key][1]
+    return None if empty.photon_lightmaps.ol_backup else empty.name
+
+
+def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
+                 indirect_only=False):
+    """Main thread: Lightmap UV layers for the objects, then the scene export.
+
+    On failure the UV layers are as they were; after it, rollback_bake(job) puts them
+    back (a failed or cancelled compute or commit)."""
+    t0 = time.perf_counter()
+    result = BakeResult()
+    depsgraph = _depsgraph(context_or_depsgraph)
+    bscene = depsgraph.scene
+    props = bscene_props(bscene)
+    density = session.Settings.read(props).texel_density
+    if resolution is not None and int(resolution) < 1:
+        raise SceneError(f"resolution: must be a positive number of texels, got {resolution}")
+    wanted = []
+    seen = set()
+    operands = {o.name: solid for o, solid in csg_export.find_operands(depsgraph).items()}
+    ol_router = OLRouter(bscene, lambda level, msg: None)
+    for ob in objects:
+        ob = _original(ob)
+        if ob.name in seen:
+            continue
+        seen.add(ob.name)
+        if ob.type != "MESH":
+            result.skipped[ob.name] = f"a {ob.type.lower()}, not a mesh"
+        elif _is_excluded(ob):
+            result.skipped[ob.name] = "excluded from lightmaps (Object > Photon Lightmaps)"
+        elif ob.name in operands:
+            result.skipped[ob.name] = (f"a Boolean operand of '{operands[ob.name]}': it is baked into "
+                                       "that solid's lightmap")
+        elif _covering_ol(ol_router, ob) is not None:
+            # no Lightmap UV layer either: its light lives in the OL, indexed by normal
+            result.skipped[ob.name] = (f"covered by orientation lightmap '{_covering_ol(ol_router, ob)}': "
+                                       "use Bake Orientation Lightmaps")
+        else:
+            wanted.append(ob)
+    for ob in wanted:
+        _check_finite(ob)
+    uv_undo = _uv_snapshot({ob.data.name: ob.data for ob in wanted}.values())
+    try:
+        job = _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution)
+    except BaseException:
+        _uv_restore(uv_undo)
+        raise
+    job.uv_undo = uv_undo
+    job.settings = BakeSettings.read(props, photons=photons, seed=seed, resolution=resolution,
+                                     indirect_only=indirect_only)
+    job.direct, job.t_start = not indirect_only, t0
+    result.seconds["export"] = time.perf_counter() - t0
+    return job
+
+
+def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution):
+    """prepare_bake after choosing the objects: their Lightmap UV layers, then the export."""
+    from ..engine.uv_atlas import UnwrapError
+    from ..export import export_scene
+    bscene = depsgraph.scene
+    changed = False
+    for ob in list(wanted):
+        try:
+            status = uv_layers.ensure_lightmap_uv(ob, resolution=layout_resolution(ob, density, resolution))
+        except UnwrapError as exc:
+            # xatlas failed (or crashed in its worker) on this mesh alone: bake the others
+            wanted.remove(ob)
+            result.skipped[ob.name] = (f"no Lightmap UV layer: {exc.reason}; add a UV layer named "
+                                       f"'{uv_layers.LAYER_NAME}' (e.g. UV > Lightmap Pack) and bake again")
+            result.warnings.append(f"object '{ob.name}': {result.skipped[ob.name]}")
+            continue
+        except (ValueError, RuntimeError) as exc:
+            # xatlas refusals (UnwrapError), Edit Mode, a linked mesh: the user's to fix, so
+            # say which object (unless the message does already).
+            if isinstance(exc, SceneError) and f"'{ob.name}'" in str(exc):
+                raise
+            raise SceneError(f"object '{ob.name}': cannot make its Lightmap UV layer: {exc}") from exc
+        result.uv_layers[ob.data.name] = status
+        changed |= status in (uv_layers.CREATED, uv_layers.UPDATED)
+    if changed:
+        # The export reads evaluated meshes: let them pick up the new layers.
+        if context_or_depsgraph is depsgraph:
+            depsgraph.update()
+        else:
+            context_or_depsgraph.view_layer.update()
+            depsgraph = context_or_depsgraph.evaluated_depsgraph_get()
+
+    warnings = result.warnings
+    scene, emap = export_scene(depsgraph, report=lambda level, msg: None)
+    warnings.extend(emap.warnings)
+    targets = {}
+    csg = {}
+    primitives = set()
+    for ob in wanted:
+        ids = [i for i in emap.object_instances(ob.name) if emap.instances[i].lightmap]
+        if not ids:
+            result.skipped[ob.name] = "not in the rendered scene (hidden from render, or no faces)"
+            continue
+        i = ids[0]
+        rec = emap.prototypes[emap.instances[i].prototype]
+        if rec.uv_source == "csg":
+            csg[ob.name] = csg_atlas.leaf_plan(scene.prototypes[emap.instances[i].prototype], ob.name,
+                                          csg, warnings)
+            targets[ob.name] = i
+            continue
+        if emap.csg_solids.get(ob.name) == "primitive":
+            primitives.add(ob.name)
+        if rec.uv_source != uv_layers.LAYER_NAME:
+            result.skipped[ob.name] = (f"its UV layer '{uv_layers.LAYER_NAME}' leaves [0,1]², so the "
+                                       "lightmap would not match it; fix or rename that layer")
+            continue
+        targets[ob.name] = i
+    # Only baked objects record photons: the others' lightmaps would cost memory and
+    # time, and recording never changes where photons go.
+    for i, inst in enumerate(scene.instances):
+        inst.lightmap = i in targets.values()
+        if inst.lightmap and resolution:
+            inst.lightmap_resolution = int(resolution)
+    return BakeJob(scene, emap, targets, BakeSettings.read(bscene_props(bscene)), True, result, 0.0, csg=csg,
+                   primitives=primitives)
+
+
+def _check_finite(ob):
+    """A NaN or infinite vertex would fail deep in the unwrap or the kernels: refuse it by name."""
+    co = np.empty(len(ob.data.vertices) * 3, np.float32)
+    ob.data.vertices.foreach_get("co", co)
+    bad = ~np.isfinite(co.reshape(-1, 3)).all(axis=1)
+    if bad.any():
+        raise SceneError(f"object '{ob.name}': vertex {int(np.argmax(bad))} of mesh '{ob.data.name}' is NaN "
+                         f"or infinite ({int(bad.sum())} such vertices); move it to a finite position or "
+                         "delete it")
+
+
+def _uv_props():
+    return uv_layers.HASH_PROP, uv_layers.DIGEST_PROP, uv_layers.MIN_RES_PROP
+
+
+def _uv_snapshot(meshes):
+    """What uv_layers.ensure_lightmap_uv may change on each mesh, to put back on failure."""
+    snap = {}
+    for me in meshes:
+        layer = me.uv_layers.get(uv_layers.LAYER_NAME)
+        snap[me.name] = dict(uv=None if layer is None else uv_layers.read_uvs(layer).copy(),
+                             props={k: me[k] for k in _uv_props() if k in me},
+                             active=me.uv_layers.active_index,
+                             render=[l.name for l in me.uv_layers if l.active_render])
+    return snap
+
+
+def _uv_restore(snap):
+    """Puts back what _uv_snapshot saw: a layer we added goes, a layer we rewrote gets its UVs back."""
+    import bpy
+    for name, s in snap.items():
+        me = bpy.data.meshes.get(name)
+        if me is None:
+            continue
+        layer = me.uv_layers.get(uv_layers.LAYER_NAME)
+        if layer is not None and s["uv"] is None:
+            me.uv_layers.remove(layer)
+        elif layer is not None and not np.array_equal(uv_layers.read_uvs(layer), s["uv"]):
+            layer.uv.foreach_set("vector", s["uv"].reshape(-1))
+        for k in _uv_props():
+            if k in s["props"]:
+                me[k] = s["props"][k]
+            elif k in me:
+                del me[k]
+        if len(me.uv_layers):
+            me.uv_layers.active_index = s["active"]
+            for l in me.uv_layers:
+                if l.name in s["render"]:
+                    l.active_render = True
+        me.update()
+
+
+def rollback_bake(job):
+    """After a failed or cancelled bake: the Lightmap UV layers as they were before prepare_bake."""
+    _uv_restore(job.uv_undo)
+    job.uv_undo = {}
+
+
+def compute_bake(job, progress=None):
+    """Any thread: photon pass and per-object RGBA arrays. Raises Cancelled."""
+    result = job.result
+    t0 = time.perf_counter()
+    if not job.targets:
+        result.seconds["photon_pass"] = 0.0
+        return job
+    cs, stats = session.compile_and_trace(job.scene, job.settings, progress=progress)
+    result.stats = stats
+    result.lightmap_bytes = cs.lightmap_bytes()
+    result.seconds["photon_pass"] = time.perf_counter() - t0
+    solids = {name: csg_atlas.solid_leaves(cs, job, name) for name in job.csg}
+    if job.direct:
+        ids = [cs.instance_lightmaps[i][0] for n, i in job.targets.items() if n not in job.csg]
+        result.seconds["direct"] = session.bake_direct(cs, ids, job.settings) if ids else 0.0
+        leaves = [(job.targets[n], d) for n, ls in solids.items() for d in ls]
+        if leaves:
+            result.seconds["direct"] += session.bake_direct_csg(cs, leaves, job.settings)
+    if cs.lights.total_power <= 0.0:
+        result.warnings.append("no photons were traced (no lights): lightmaps are black")
+    elif stats.photons == 0:
+        result.warnings.append("no photons were traced (zero photons): lightmaps hold "
+                               + ("direct light only" if job.direct else "no light"))
+    t1 = time.perf_counter()
+    for name, i in job.targets.items():
+        if name in job.csg:
+            bm = csg_atlas.atlas(cs, job, name, solids[name])
+            if bm is not None:
+                result.maps[name] = bm
+            continue
+        lm_id = cs.instance_lightmaps[i][0]
+        result.maps[name] = BakedMap(name, images.lightmap_rgba(cs.lightmaps, lm_id), lm_id)
+    result.seconds["extract"] = time.perf_counter() - t1
+    job.cs = cs
+    return job
+
+
+def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materials=False):
+    """Main thread: writes the computed maps to images (and files, and material hooks)."""
+    import bpy
+    result = job.result
+    t0 = time.perf_counter()
+    if result.maps:
+        # A folder that cannot take the files fails here, before any image is touched.
+        images.check_output(save_dir, pack)
+    for name, bm in result.maps.items():
+        ob = bpy.data.objects[name]
+        img = images.target_image(ob, bm.width, bm.height, overwrite, result.warnings)
+        images.write_pixels(img, bm.rgba)
+        result.images[name] = img.name
+        result.paths[name] = images.store(img, name, save_dir=save_dir, pack=pack)
+        if bm.tiles is not None:
+            csg_atlas.place_leaf_uvs(name, bm, result.warnings)
+        elif name in job.primitives:
+            csg_atlas.place_leaf_uvs(name, BakedMap(name, bm.rgba, bm.lightmap_id, {name: None}),
+                                     result.warnings)
+    if result.maps and images.in_memory_only(save_dir, pack):
+        result.warnings.append("the .blend is not saved yet: the lightmap images live only in memory "
+                               "(save the .blend and bake again, or pack them)")
+    if hook_materials and result.maps:
+        baked = set(result.maps)
+        for name, bm in result.maps.items():
+            ob = bpy.data.objects[name]
+            parts = sorted(bm.tiles) if bm.tiles else ()
+            result.hooked += hooks.add_lightmap_hook(ob, bpy.data.images[result.images[name]],
+                                               baked_objects=baked, warnings=result.warnings,
+                                               parts=parts, materials=csg_atlas.solid_materials(ob, parts))
+    result.seconds["bake"] = result.seconds.get("extract", 0.0) + time.perf_counter() - t0
+    result.seconds["total"] = time.perf_counter() - job.t_start
+    return result
+
+
+def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
+                 indirect_only=False, progress=None, overwrite=False, save_dir=None, pack=False,
+                 hook_materials=False):
+    """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
+
+    One photon pass (indirect light) for all of them, plus the direct light
+    gathered per texel unless `indirect_only`. `resolution` forces R x R texels per object; otherwise the object's
+    own setting or the scene's texel density decides. `progress(done, total)`
+    may return False to cancel: Cancelled is raised before any image changes.
+    See the module docstring for image naming, overwriting and saving.
+    """
+    job = prepare_bake(context_or_depsgraph, objects, photons=photons, seed=seed,
+                       resolution=resolution, indirect_only=indirect_only)
+    try:
+        compute_bake(job, progress)
+    except BaseException:
+        rollback_bake(job)
+        raise
+    return commit_bake(job, overwrite=overwrite, save_dir=save_dir, pack=pack,
+                       hook_materials=hook_materials)
+

@@ -1,0 +1,271 @@
+"""Rendering: export -> engine/session.py -> the Render Result, for the RenderEngine and the CLI.
+
+`run_render` is the whole pipeline with host callbacks; the RenderEngine
+(operators/render_engine.py) and `python -m photon_lightmaps render` both go
+through it (the CLI by calling bpy.ops.render.render, which lands in
+PhotonLightmapsRenderEngine.render -> render() here), and the last run's
+numbers are kept in LAST_RUN for the JSON report. It sits in bake/ because,
+like a bake, it turns engine results into a Blender image.
+"""
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..engine import session
+from ..engine.photon_tracer import Cancelled
+from ..export import export_scene
+from ..messages import describe, is_user_error, record
+
+TILE = 64
+
+
+@dataclass
+class RenderRun:
+    """What one render did; headless.py turns it into the JSON report."""
+    scene: str = ""
+    width: int = 0
+    height: int = 0
+    photons: int = 0
+    rays: int = 0
+    photons_per_second: float = 0.0
+    samples: int = 0
+    seconds: dict = field(default_factory=dict)
+    lightmap_bytes: int = 0
+    lightmaps: int = 0
+    texels: int = 0
+    warnings: list = field(default_factory=list)
+    cancelled: bool = False
+    image: np.ndarray = None
+    orientation_lightmaps: list = field(default_factory=list)   # ol_bake.summarize rows
+
+    def as_dict(self):
+        return {"scene": self.scene, "width": self.width, "height": self.height,
+                "photons": self.photons, "rays": self.rays,
+                "photons_per_second": self.photons_per_second, "samples": self.samples,
+                "seconds": dict(self.seconds),
+                "memory": {"lightmap_bytes": self.lightmap_bytes, "peak_rss_bytes": peak_rss_bytes()},
+                "lightmaps": self.lightmaps, "texels": self.texels,
+                "warnings": list(self.warnings), "cancelled": self.cancelled,
+                "orientation_lightmaps": [dict(r) for r in self.orientation_lightmaps]}
+
+
+LAST_RUN = None
+# The exception the last render() failed with (headless.py raises it again), and
+# whether render() re-raises a bug itself (headless.py turns that off while it waits).
+LAST_ERROR = None
+RAISE_BUGS = True
+
+
+def peak_rss_bytes():
+    """Peak resident memory of this process in bytes (0 where the platform will not say)."""
+    if sys.platform == "win32":
+        import ctypes
+        from ctypes import wintypes
+
+        class Counters(ctypes.Structure):
+            _fields_ = [("cb", wintypes.DWORD), ("PageFaultCount", wintypes.DWORD)] + [
+                (name, ctypes.c_size_t) for name in (
+                    "PeakWorkingSetSize", "WorkingSetSize", "QuotaPeakPagedPoolUsage",
+                    "QuotaPagedPoolUsage", "QuotaPeakNonPagedPoolUsage", "QuotaNonPagedPoolUsage",
+                    "PagefileUsage", "PeakPagefileUsage")]
+
+        c = Counters()
+        c.cb = ctypes.sizeof(c)
+        proc = ctypes.windll.kernel32.GetCurrentProcess()
+        ok = ctypes.windll.psapi.GetProcessMemoryInfo(proc, ctypes.byref(c), c.cb)
+        return int(c.PeakWorkingSetSize) if ok else 0
+    import resource
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    # ru_maxrss is in KiB on Linux, in bytes on macOS.
+    return int(rss if sys.platform == "darwin" else rss * 1024)
+
+
+def _mib(n):
+    return n / (1024.0 * 1024.0)
+
+
+def _export(depsgraph, run, report, camera_override, resolution):
+    """Phase 1: the engine scene, with a warning where nothing would show."""
+    scene, _ = export_scene(depsgraph, report=report, camera_override=camera_override, resolution=resolution)
+    run.width, run.height = scene.camera.width, scene.camera.height
+    has_light = bool(scene.lights) or np.any(np.asarray(scene.environment) > 0) or any(
+        np.any(np.asarray(m.emission) > 0) for m in scene.materials)
+    if not scene.instances:
+        report("WARNING", "Photon Lightmaps: the scene has no renderable geometry")
+    if not has_light:
+        report("WARNING", "Photon Lightmaps: the scene has no lights, emissive materials or world light; "
+                          "the image is black")
+    return scene
+
+
+def _compile(scene, run, report):
+    """Phase 2: the compiled scene, its warnings and lightmap numbers."""
+    cs = session.compile(scene)
+    for text in cs.info.get("warnings", ()):   # dropped triangles, unwrap fallbacks, clamped UVs
+        report("WARNING", f"Photon Lightmaps: {text}")
+    run.lightmap_bytes = cs.lightmap_bytes()
+    if cs.info.get("csg_ties"):
+        report("WARNING", f"Photon Lightmaps: coincident CSG operand faces ({cs.info['csg_ties']:,} ties on "
+                          f"{cs.info['csg_tie_texels']:,} texels), resolved by the tie rule (thesis 4.1.2)")
+    run.lightmaps, run.texels = int(cs.info.get("lightmaps", 0)), int(cs.info.get("texels", 0))
+    return cs
+
+
+def _photons(cs, scene, settings, run, report, stats, progress, should_stop, lm_text):
+    """Phase 3: the photon pass (indirect light only: the render gathers direct light itself)."""
+    t0 = time.perf_counter()
+
+    def photon_progress(done, total):
+        rate = done / max(time.perf_counter() - t0, 1e-9)
+        stats(f"Photons {done:,}/{total:,} | {rate:,.0f} photons/s | {lm_text}")
+        progress(0.5 * done / max(total, 1))
+        return not should_stop()
+
+    if scene.instances and settings.photons > 0 and cs.lights.total_power > 0.0:
+        ps = session.photon_pass(cs, settings, progress=photon_progress)
+        run.photons, run.rays = ps.photons, ps.rays
+        run.photons_per_second = ps.photons / max(ps.seconds, 1e-9)
+    if cs.info.get("orientation_lightmaps"):   # also the automatic ones (unwrap fallbacks)
+        # Per-OL numbers for the JSON report and the OL panel; averaging warnings to the user.
+        from .orientation import record_report
+        run.orientation_lightmaps = record_report(cs, run.scene, "render", report)
+    if should_stop():
+        raise Cancelled("stopped after the photon pass")
+    return t0
+
+
+def _render(cs, settings, run, stats, progress, on_tile, should_stop, lm_text):
+    """Phase 4: the render pass, tile by tile."""
+    n_tiles = max(1, -(-run.width // TILE) * -(-run.height // TILE))
+    done_tiles = [0]
+
+    def tile_progress(x0, y0, tile, img):
+        done_tiles[0] += 1
+        if on_tile is not None:
+            on_tile(x0, y0, tile)
+        progress(0.5 + 0.5 * done_tiles[0] / n_tiles)
+        stats(f"Rendering tile {done_tiles[0]}/{n_tiles} | {run.samples} samples | "
+              f"{run.photons:,} photons | {lm_text}")
+        return not should_stop()
+
+    return session.render(cs, settings, tile=TILE, progress=tile_progress)
+
+
+def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=None, should_stop=None,
+               camera_override=None, resolution=None):
+    """Renders the evaluated depsgraph with the scene's Photon Lightmaps settings.
+
+    report(level, msg); stats(text); progress(fraction in [0, 1]);
+    on_tile(x0, y0, tile) with y0 counted from the top and tile (h, w, 3);
+    should_stop() -> True cancels (the run returns with cancelled=True).
+    Returns a RenderRun whose image is (H, W, 3) linear radiance (None if cancelled).
+    """
+    global LAST_RUN
+    host_report = report or (lambda level, msg: None)
+    stats = stats or (lambda text: None)
+    progress = progress or (lambda f: None)
+    should_stop = should_stop or (lambda: False)
+    settings = session.Settings.read(depsgraph.scene.photon_lightmaps)
+    run = RenderRun(scene=depsgraph.scene.name, samples=settings.samples)
+    LAST_RUN = run
+    t0 = time.perf_counter()
+
+    def report(level, msg):
+        if level == "WARNING" and msg not in run.warnings:
+            run.warnings.append(msg)
+        host_report(level, msg)
+
+    stats("Exporting scene")
+    scene = _export(depsgraph, run, report, camera_override, resolution)
+    t_export = time.perf_counter()
+    stats("Compiling scene")
+    cs = _compile(scene, run, report)
+    lm_text = f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB ({run.texels:,} texels)"
+    t_compile = time.perf_counter()
+    try:
+        t_photon0 = _photons(cs, scene, settings, run, report, stats, progress, should_stop, lm_text)
+        t_photons = time.perf_counter()
+        img = _render(cs, settings, run, stats, progress, on_tile, should_stop, lm_text)
+        t_render = time.perf_counter()
+    except Cancelled:
+        run.cancelled = True
+        run.seconds = {"total": time.perf_counter() - t0}
+        return run
+    run.image = img
+    run.seconds = {"export": t_export - t0, "compile": t_compile - t_export,
+                   "photon_pass": t_photons - t_photon0, "render": t_render - t_photons,
+                   "total": t_render - t0}
+    return run
+
+
+def render_region(render, width, height):
+    """Pixel rectangle (x, y from the bottom, w, h) that Blender's render result covers.
+
+    With a render region (border) the result holds only that part of the frame;
+    Blender truncates border * size in single precision, so the same is done here.
+    """
+    if not render.use_border:
+        return 0, 0, width, height
+    f = np.float32
+    x0, x1 = (int(f(v) * f(width)) for v in (render.border_min_x, render.border_max_x))
+    y0, y1 = (int(f(v) * f(height)) for v in (render.border_min_y, render.border_max_y))
+    x0, y0 = min(max(x0, 0), width), min(max(y0, 0), height)
+    return x0, y0, max(min(x1, width) - x0, 0), max(min(y1, height) - y0, 0)
+
+
+def render(self, depsgraph):
+    """PhotonLightmapsRenderEngine.render: runs run_render, writing tiles into Blender's result."""
+    global LAST_RUN, LAST_ERROR
+    LAST_RUN = LAST_ERROR = None
+    scene = depsgraph.scene
+    width, height = int(self.resolution_x), int(self.resolution_y)
+    layer = depsgraph.view_layer.name
+    rx, ry, rw, rh = render_region(scene.render, width, height)
+
+    def on_tile(x0, y0, tile):
+        th, tw = tile.shape[:2]
+        # Blender's rows run bottom to top; the renderer's run top to bottom.
+        bx, by = x0, height - y0 - th
+        ix0, ix1 = max(bx, rx), min(bx + tw, rx + rw)
+        iy0, iy1 = max(by, ry), min(by + th, ry + rh)
+        if ix1 <= ix0 or iy1 <= iy0:
+            return
+        rgba = np.ones((th, tw, 4), np.float32)
+        rgba[..., :3] = tile[..., :3] if tile.shape[2] >= 3 else tile[..., :1]
+        sub = np.ascontiguousarray(rgba[::-1][iy0 - by:iy1 - by, ix0 - bx:ix1 - bx])
+        # Result coordinates are relative to the render region.
+        result = self.begin_result(ix0 - rx, iy0 - ry, ix1 - ix0, iy1 - iy0, layer=layer)
+        result.layers[0].passes["Combined"].rect.foreach_set(sub.reshape(-1))
+        self.end_result(result)
+
+    try:
+        run = run_render(depsgraph,
+                         report=lambda level, msg: self.report({level}, msg),
+                         stats=lambda text: self.update_stats("", text),
+                         progress=self.update_progress,
+                         on_tile=on_tile,
+                         should_stop=self.test_break,
+                         camera_override=self.camera_override,
+                         resolution=(width, height))
+    except Exception as exc:  # noqa: BLE001 - shown to the user instead of a silent black frame
+        LAST_ERROR = exc
+        text = describe(exc)
+        self.error_set(text)
+        record(scene.name, "render", LAST_RUN.warnings if LAST_RUN is not None else [], error=text)
+        # A user error is told by error_set alone (raising would add Blender's traceback);
+        # a bug is raised so its traceback reaches the console, except when headless.py
+        # re-raises it itself.
+        if RAISE_BUGS and not is_user_error(exc):
+            raise
+        return
+    record(scene.name, "render", run.warnings)
+    if run.cancelled:
+        return
+    self.update_memory_stats(memory_used=_mib(run.lightmap_bytes), memory_peak=_mib(peak_rss_bytes()))
+    self.update_stats("", f"Done | {run.photons:,} photons in {run.seconds['photon_pass']:.2f} s "
+                          f"({run.photons_per_second:,.0f} photons/s) | render {run.seconds['render']:.2f} s | "
+                          f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB"
+                          + (f" | {len(run.orientation_lightmaps)} orientation lightmaps"
+                             if run.orientation_lightmaps else ""))

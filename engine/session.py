@@ -1,0 +1,110 @@
+"""The one pipeline every entry point runs: compile -> photon pass -> direct gather -> render | bake.
+
+The render engine, the lightmap bake, the orientation-lightmap bake and the OL
+suggestion all go through here, so a change of order or of a default (which
+pass records direct light, how many light samples a texel gets) is made once.
+No bpy: the Blender layer reads its PropertyGroup into a `Settings` and hands
+over a plain engine Scene.
+"""
+import time
+from dataclasses import dataclass, fields
+
+from . import lightmap as LM
+
+# Light-sampled points per texel for the direct part of a bake; one unstratified
+# light sample per point, so this sets the direct term's noise (~1/sqrt(n)).
+DIRECT_SAMPLES = 64
+
+
+@dataclass
+class Settings:
+    """The scene's Photon Lightmaps settings; the defaults are the PropertyGroup's (ui/properties.py)."""
+    photons: int = 1_000_000
+    max_bounces: int = 8
+    seed: int = 0
+    texel_density: float = 16.0
+    samples: int = 16
+    reconstruction: str = "BILINEAR"
+
+    @classmethod
+    def read(cls, props, **overrides):
+        """From anything with these attributes (Scene.photon_lightmaps; None: the defaults).
+
+        overrides: values that replace the stored ones unless they are None
+        (a CLI flag or operator option left unset)."""
+        kw = {}
+        for f in fields(cls):
+            value = overrides.get(f.name)
+            if value is None and props is not None:
+                value = getattr(props, f.name, None)
+            if value is not None:
+                kw[f.name] = type(f.default)(value)
+        return cls(**kw)
+
+    @property
+    def mode(self):
+        """Lightmap reconstruction mode of the renderer."""
+        return LM.MODE_CONSTANT if self.reconstruction == "CONSTANT" else LM.MODE_BILINEAR
+
+
+def compile(scene):
+    """Plain engine Scene -> compiled scene (flat arrays, BVHs, empty lightmaps)."""
+    from .compile import compile_scene
+    return compile_scene(scene)
+
+
+def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=None):
+    """Traces the photons into cs.lightmaps -> PhotonStats. Raises Cancelled.
+
+    record_direct=False keeps first hits out (the direct part is gathered per
+    texel instead, see gather_direct); orientation-lightmap bakes record them.
+    """
+    from .photon_tracer import trace_photons
+    n = settings.photons if photons is None else photons
+    return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
+                         record_direct=record_direct, progress=progress)
+
+
+def compile_and_trace(scene, settings, *, record_direct=False, progress=None):
+    """compile + photon_pass -> (compiled scene, PhotonStats)."""
+    cs = compile(scene)
+    return cs, photon_pass(cs, settings, record_direct=record_direct, progress=progress)
+
+
+def gather_direct(cs, lightmap_ids, settings):
+    """Direct irradiance per texel of the given lightmaps -> (texel ids, E); add with add_direct."""
+    from . import texel_gather as TG
+    return TG.direct_texel_irradiance(cs, lightmap_ids, DIRECT_SAMPLES, seed=int(settings.seed))
+
+
+def gather_direct_csg(cs, leaves, settings):
+    """Direct irradiance of CSG leaf texels over their visible part -> (texel ids, E)."""
+    from . import csg_bake
+    return csg_bake.direct_csg_texels(cs, leaves, DIRECT_SAMPLES, seed=int(settings.seed))
+
+
+def add_direct(lightmaps, gathered):
+    """Adds a gather_direct result to `lightmaps` (cs.lightmaps or a copy) and re-finalizes them."""
+    from . import texel_gather as TG
+    TG.add_direct(lightmaps, *gathered)
+
+
+def bake_direct(cs, lightmap_ids, settings):
+    """gather_direct + add_direct into cs.lightmaps -> seconds taken."""
+    t0 = time.perf_counter()
+    add_direct(cs.lightmaps, gather_direct(cs, lightmap_ids, settings))
+    return time.perf_counter() - t0
+
+
+def bake_direct_csg(cs, leaves, settings):
+    """gather_direct_csg + add_direct into cs.lightmaps -> seconds taken."""
+    t0 = time.perf_counter()
+    add_direct(cs.lightmaps, gather_direct_csg(cs, leaves, settings))
+    return time.perf_counter() - t0
+
+
+def render(cs, settings, *, tile=64, progress=None):
+    """The render pass over a traced compiled scene -> (H, W, n_bands) radiance."""
+    from .renderer import render as render_image
+    return render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
+                        max_depth=int(settings.max_bounces), tile=tile, progress=progress)

@@ -1,0 +1,193 @@
+"""Blender materials -> engine Materials: node inputs evaluated to constants, one converter per shader.
+
+The Principled BSDF (plus Diffuse, Glossy, Glass and Emission shaders) maps to
+diffuse/specular/transmission/emission weights; a linked input is followed
+through reroutes to an RGB/Value node or an image (averaged, with a warning).
+"""
+import numpy as np
+
+from ..engine.scene import Material
+from .context import DEFAULT_DIFFUSE, output_priority, srgb_to_linear
+
+
+def image_mean(ctx, image):
+    key = image.as_pointer()
+    if key in ctx.image_average:
+        return ctx.image_average[key]
+    mean = None
+    try:
+        n = len(image.pixels)
+    except RuntimeError:
+        n = 0
+    if n:
+        px = np.empty(n, np.float32)
+        image.pixels.foreach_get(px)
+        px = px.reshape(-1, image.channels).astype(np.float64)
+        rgba = np.ones((px.shape[0], 4))
+        rgba[:, :min(4, px.shape[1])] = px[:, :4]
+        if px.shape[1] < 3:
+            rgba[:, 1:3] = rgba[:, :1]
+        space = image.colorspace_settings.name
+        # Byte images hold colour-space-encoded values; float buffers are already scene linear.
+        if not image.is_float and space == "sRGB":
+            rgba[:, :3] = srgb_to_linear(rgba[:, :3])
+        elif not image.is_float and space not in ("Non-Color", "Raw") and not space.startswith("Linear"):
+            ctx.report("WARNING", f"image '{image.name}': colour space '{space}' is read as linear")
+        mean = rgba.mean(axis=0)
+    ctx.image_average[key] = mean
+    return mean
+
+
+def node_input(ctx, socket, what, owner):
+    """Value of a shader input: its own value, or what a simple linked node provides.
+
+    Returns a float for scalar sockets and an RGB(A) tuple for colour sockets.
+    """
+    node_socket = socket
+    seen = 0
+    while node_socket.is_linked and seen < 32:
+        seen += 1
+        link = node_socket.links[0]
+        node = link.from_node
+        if node.bl_idname == "NodeReroute":
+            node_socket = node.inputs[0]
+            continue
+        out = link.from_socket
+        if node.bl_idname in ("ShaderNodeRGB", "ShaderNodeValue"):
+            val = out.default_value
+            return _shape_like(socket, val)
+        if node.bl_idname in ("ShaderNodeTexImage", "ShaderNodeTexEnvironment") and node.image is not None:
+            mean = image_mean(ctx, node.image)
+            if mean is not None:
+                ctx.report("WARNING", f"{owner}: image '{node.image.name}' on {what} is averaged "
+                                       f"to one colour (per-texel textures are not supported yet)")
+                if out.identifier == "Alpha":
+                    return _shape_like(socket, float(mean[3]))
+                return _shape_like(socket, tuple(mean[:3]) + (1.0,))
+        ctx.report("WARNING", f"{owner}: {what} is driven by node '{node.name}' ({node.bl_idname}), "
+                               f"which is not evaluated; its unlinked value is used")
+        break
+    return _shape_like(socket, socket.default_value)
+
+
+def _shape_like(socket, val):
+    colour = socket.type in ("RGBA", "VECTOR")
+    if hasattr(val, "__len__"):
+        seq = tuple(float(x) for x in val)
+        return seq if colour else float(sum(seq[:3]) / min(len(seq), 3))
+    return (float(val),) * 3 + (1.0,) if colour else float(val)
+
+
+def material(ctx, mat):
+    key = 0 if mat is None else mat.original.as_pointer()
+    idx = ctx.material_index.get(key)
+    if idx is None:
+        m = Material(name="default", diffuse=ctx.bands(DEFAULT_DIFFUSE)) if mat is None else \
+            _convert(ctx, mat)
+        idx = ctx.scene.add_material(m)
+        ctx.map.materials.append(None if mat is None else mat.original.name)
+        ctx.material_index[key] = idx
+    return idx
+
+
+def surface_node(mat):
+    tree = mat.node_tree
+    if tree is None:
+        return None
+    outs = [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial"]
+    outs.sort(key=output_priority)
+    if not outs:
+        return None
+    sock = outs[0].inputs["Surface"]
+    node = None
+    while sock.is_linked:
+        node = sock.links[0].from_node
+        if node.bl_idname != "NodeReroute":
+            break
+        sock = node.inputs[0]
+        node = None
+    return node
+
+
+# Surface shader node type -> converter(inp, name, ctx, owner) -> engine Material, where
+# inp(socket name) is that input's value (node_input). A new shader is one entry here.
+CONVERTERS = {}
+
+
+def converter(*node_types):
+    def register(fn):
+        for t in node_types:
+            CONVERTERS[t] = fn
+        return fn
+    return register
+
+
+@converter("ShaderNodeBsdfPrincipled")
+def _principled(inp, name, ctx, owner):
+    base = np.asarray(inp("Base Color")[:3])
+    metallic = min(max(inp("Metallic"), 0.0), 1.0)
+    transmission = min(max(inp("Transmission Weight"), 0.0), 1.0)
+    emission = np.asarray(inp("Emission Color")[:3]) * inp("Emission Strength")
+    if inp("Alpha") < 1.0:
+        ctx.report("WARNING", f"{owner}: alpha below 1 is ignored (treated as opaque)")
+    diffuse = base * (1.0 - metallic) * (1.0 - transmission)
+    specular = base * metallic
+    trans = base * (1.0 - metallic) * transmission
+    return Material(name, diffuse=diffuse, specular=specular, transmission=trans,
+                    roughness=inp("Roughness"), ior=max(inp("IOR"), 1e-3), emission=emission)
+
+
+@converter("ShaderNodeBsdfDiffuse")
+def _diffuse(inp, name, ctx, owner):
+    return Material(name, diffuse=np.asarray(inp("Color")[:3]))
+
+
+@converter("ShaderNodeEmission")
+def _emission(inp, name, ctx, owner):
+    return Material(name, diffuse=0.0, emission=np.asarray(inp("Color")[:3]) * inp("Strength"))
+
+
+@converter("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic")
+def _glossy(inp, name, ctx, owner):
+    return Material(name, diffuse=0.0, specular=np.asarray(inp("Color")[:3]), roughness=inp("Roughness"))
+
+
+@converter("ShaderNodeBsdfGlass")
+def _glass(inp, name, ctx, owner):
+    return Material(name, diffuse=0.0, transmission=np.asarray(inp("Color")[:3]),
+                    roughness=inp("Roughness"), ior=max(inp("IOR"), 1e-3))
+
+
+def _convert(ctx, mat):
+    owner = f"material '{mat.original.name}'"
+    node = surface_node(mat)
+    name = mat.original.name
+    convert = CONVERTERS.get(node.bl_idname) if node is not None else None
+    if convert is not None:
+        m = convert(lambda key, what=None: node_input(ctx, node.inputs[key], what or key, owner), name, ctx, owner)
+    else:
+        why = "has no shader nodes" if mat.node_tree is None else \
+            "has no surface shader" if node is None else f"uses an unsupported shader ({node.bl_idname})"
+        ctx.report("WARNING", f"{owner} {why}; rendered as diffuse with its viewport colour")
+        m = Material(name, diffuse=np.asarray(tuple(mat.diffuse_color)[:3], dtype=np.float64))
+    return _physical(ctx, m, owner)
+
+
+def _physical(ctx, m, owner):
+    """Clamps to a material that conserves energy (weights in [0,1], sum <= 1 per band)."""
+    ks = {}
+    for key in ("diffuse", "specular", "transmission"):
+        ks[key] = np.clip(ctx.bands(np.broadcast_to(np.asarray(getattr(m, key), float), (3,))), 0.0, None)
+    total = ks["diffuse"] + ks["specular"] + ks["transmission"]
+    over = total.max()
+    if over > 1.0:
+        ctx.report("WARNING", f"{owner}: reflectance {over:.3f} > 1 is scaled down to 1 (energy conservation)")
+        for key in ks:
+            ks[key] = ks[key] / over
+    for key, val in ks.items():
+        setattr(m, key, val)
+    le = ctx.bands(np.broadcast_to(np.asarray(m.emission, float), (3,)))
+    m.emission = np.clip(np.nan_to_num(le), 0.0, None)
+    m.roughness = float(min(max(m.roughness, 0.0), 1.0))
+    return m
+

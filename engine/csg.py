@@ -49,6 +49,8 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
+from .affine import inverse, xform_ray
+from .jit import CORE, INLINE
 from .primitives import (BOX, CONE, CYLINDER, KIND_IDS, PARABOLOID, SPHERE, TORUS,
                          prim_hits, prim_inside, prim_local_bounds, prim_point, prim_surface)
 from .scene import CSGNode, Primitive, SceneError, TriangleMesh, _affine
@@ -119,14 +121,6 @@ class CSGTable:
 # --------------------------------------------------------------------------------------
 # Flattening (Python, compile time)
 # --------------------------------------------------------------------------------------
-
-def _inverse(a):
-    inv = np.empty((3, 4))
-    r = np.linalg.inv(a[:, :3])
-    inv[:, :3] = r
-    inv[:, 3] = -r @ a[:, 3]
-    return inv
-
 
 def _pad_box(lo, hi):
     mag = max(float(np.max(np.abs(lo))), float(np.max(np.abs(hi))), 1e-300)
@@ -205,7 +199,7 @@ def flatten_csg(roots, n_materials=0, owner="prototype", mesh_uvs=None):
             if n_materials and not 0 <= mat < n_materials:
                 raise SceneError(f"{what}: material index {mat} out of range")
             xf = _affine(obj.transform, what)
-            inv = _inverse(xf)
+            inv = inverse(xf)
             lb = prim_local_bounds(np.int32(kid), p4)
             c = np.array([[x, y, z] for x in (lb[0], lb[3]) for y in (lb[1], lb[4])
                           for z in (lb[2], lb[5])])
@@ -418,28 +412,16 @@ def csg_table(roots, n_materials=0):
 # Kernels
 # --------------------------------------------------------------------------------------
 
-_K = dict(cache=True, error_model="numpy", inline="always")
-_KC = dict(cache=True, error_model="numpy", _nrt=False)
 
 
-@njit(**_K)
+@njit(**INLINE)
 def csg_base(buf):
     """Byte offset of the CSG blob in a trace buffer (views (i64, f32, i32, f64))."""
     i64 = buf[0]
     return i64[H_F64] + 8 * i64[H_CSG]
 
 
-@njit(**_K)
-def _xf(f, m, ox, oy, oz, dx, dy, dz):
-    return (f[m] * ox + f[m + 1] * oy + f[m + 2] * oz + f[m + 3],
-            f[m + 4] * ox + f[m + 5] * oy + f[m + 6] * oz + f[m + 7],
-            f[m + 8] * ox + f[m + 9] * oy + f[m + 10] * oz + f[m + 11],
-            f[m] * dx + f[m + 1] * dy + f[m + 2] * dz,
-            f[m + 4] * dx + f[m + 5] * dy + f[m + 6] * dz,
-            f[m + 8] * dx + f[m + 9] * dy + f[m + 10] * dz)
-
-
-@njit(**_K)
+@njit(**INLINE)
 def _slab1(o, d, lo, hi, t0, t1):
     if d == 0.0:
         if o < lo or o > hi:
@@ -452,7 +434,7 @@ def _slab1(o, d, lo, hi, t0, t1):
     return max(t0, a), min(t1, b)
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _box_clip(f, b, ox, oy, oz, dx, dy, dz, t0, t1):
     """[t0, t1] clipped to the box f[b:b+6] (lo xyz, hi xyz); empty: t0 > t1."""
     t0, t1 = _slab1(ox, dx, f[b], f[b + 3], t0, t1)
@@ -461,23 +443,23 @@ def _box_clip(f, b, ox, oy, oz, dx, dy, dz, t0, t1):
     return t0, t1
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _lt(s0, L, k):
     """float64 index of boundary k of list L (scratch viewed as float64)."""
     return (s0 + SC_LISTS + L * LIST_WORDS) // 2 + k
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _lo(s0, L, k):
     return s0 + SC_LISTS + L * LIST_WORDS + 4 * MAX_INTERVALS + k
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _ls(s0, L, k):
     return s0 + SC_LISTS + L * LIST_WORDS + 6 * MAX_INTERVALS + k
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _emit(sf, sc, s0, L, n, t, owner, sub):
     sf[_lt(s0, L, n)] = t
     sc[_lo(s0, L, n)] = owner
@@ -485,7 +467,7 @@ def _emit(sf, sc, s0, L, n, t, owner, sub):
     return n + 1
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _prim_leaf(buf, cb, sf, sc, s0, L, k, ox, oy, oz, dx, dy, dz, tlo, thi):
     """Intervals of primitive leaf k into list L; returns the boundary count."""
     i64, _f32, i32, f64 = buf
@@ -493,7 +475,7 @@ def _prim_leaf(buf, cb, sf, sc, s0, L, k, ox, oy, oz, dx, dy, dz, tlo, thi):
     c32 = cb >> 2
     kind = i32[c32 + i64[h + B_LEAF_KIND] + k]
     m = h + i64[h + B_LEAF_INV] + 12 * k
-    lox, loy, loz, ldx, ldy, ldz = _xf(f64, m, ox, oy, oz, dx, dy, dz)
+    lox, loy, loz, ldx, ldy, ldz = xform_ray(f64, m, ox, oy, oz, dx, dy, dz)
     pp = h + i64[h + B_LEAF_PARAMS] + 4 * k
     n, t0, t1, t2, t3 = prim_hits(kind, (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3]),
                                   lox, loy, loz, ldx, ldy, ldz)
@@ -508,7 +490,7 @@ def _prim_leaf(buf, cb, sf, sc, s0, L, k, ox, oy, oz, dx, dy, dz, tlo, thi):
     return c
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _mesh_leaf(buf, cb, sf, sc, s0, L, k, ox, oy, oz, dx, dy, dz, tol):
     """Intervals of closed-mesh leaf k into list L from all crossings of the
     line (mesh BVH walk), by winding number of the oriented crossings."""
@@ -610,7 +592,7 @@ def _mesh_leaf(buf, cb, sf, sc, s0, L, k, ox, oy, oz, dx, dy, dz, tol):
     return out
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _member(op, a, b):
     if op == UNION:
         return a or b
@@ -619,7 +601,7 @@ def _member(op, a, b):
     return a and not b
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _combine(sf, sc, s0, op, A, nA, B, nB, T, tol):
     """Merges boundary lists A and B (nA, nB boundaries) under op into list T.
     Coincident boundaries (within tol) are one event; see the module docstring."""
@@ -665,7 +647,7 @@ def _combine(sf, sc, s0, op, A, nA, B, nB, T, tol):
     return n
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _copy_list(sf, sc, s0, src, dst, n):
     for k in range(n):
         sf[_lt(s0, dst, k)] = sf[_lt(s0, src, k)]
@@ -673,7 +655,7 @@ def _copy_list(sf, sc, s0, src, dst, n):
         sc[_ls(s0, dst, k)] = sc[_ls(s0, src, k)]
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _evaluate(buf, cb, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Interval list of the CSG tree at node `root` along the ray, restricted
     to what can matter inside [tmin, tmax]. Left in list 0 of the scratch;
@@ -747,7 +729,7 @@ def _evaluate(buf, cb, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return sc[len_], tol
 
 
-@njit(**_K)
+@njit(**INLINE)
 def leaf_surface(buf, cb, leaf, sub, ox, oy, oz, dx, dy, dz, t, entering):
     """(face, u, v, nx, ny, nz) of a boundary point of the solid owned by
     `leaf` (mesh leaves: triangle `sub`, face = sub, (u, v) barycentrics).
@@ -768,7 +750,7 @@ def leaf_surface(buf, cb, leaf, sub, ox, oy, oz, dx, dy, dz, t, entering):
         face = sub
     else:
         m = h + i64[h + B_LEAF_INV] + 12 * leaf
-        lox, loy, loz, ldx, ldy, ldz = _xf(f64, m, ox, oy, oz, dx, dy, dz)
+        lox, loy, loz, ldx, ldy, ldz = xform_ray(f64, m, ox, oy, oz, dx, dy, dz)
         pp = h + i64[h + B_LEAF_PARAMS] + 4 * leaf
         face, u, v, lx, ly, lz = prim_surface(kind, (f64[pp], f64[pp + 1], f64[pp + 2],
                                                      f64[pp + 3]),
@@ -787,7 +769,7 @@ def leaf_surface(buf, cb, leaf, sub, ox, oy, oz, dx, dy, dz, t, entering):
     return face, u, v, nx, ny, nz
 
 
-@njit(**_K)
+@njit(**INLINE)
 def csg_first_boundary(buf, cb, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Nearest boundary of the solid in (tmin, tmax): (t, leaf, sub, entering);
     leaf -1 if none. The cheap part of a hit: no surface chart."""
@@ -802,7 +784,7 @@ def csg_first_boundary(buf, cb, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax
     return math.inf, -1, -1, False
 
 
-@njit(**_K)
+@njit(**INLINE)
 def csg_vshape(buf, cb, leaf, sub):
     """Virtual shape id of a hit owned by (leaf, sub)."""
     i64, _f32, i32, _f64 = buf
@@ -814,7 +796,7 @@ def csg_vshape(buf, cb, leaf, sub):
     return v
 
 
-@njit(**_K)
+@njit(**INLINE)
 def csg_vshape_leaf(buf, cb, vshape):
     """(leaf, sub) of a virtual shape id (inverse of csg_vshape)."""
     i64, _f32, i32, _f64 = buf
@@ -829,7 +811,7 @@ def csg_vshape_leaf(buf, cb, vshape):
     return leaf, sub
 
 
-@njit(**_KC)
+@njit(**CORE)
 def csg_first_hit_core(buf, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """csg_first_hit on a trace buffer with caller scratch sc[s0 : s0+CSG_SCRATCH_WORDS]."""
     cb = csg_base(buf)
@@ -841,14 +823,14 @@ def csg_first_hit_core(buf, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return True, t, leaf, face, u, v, nx, ny, nz, entering
 
 
-@njit(**_K)
+@njit(**INLINE)
 def csg_vs0(buf):
     """First virtual shape id: shape ids from here on are CSG leaf hits."""
     i64 = buf[0]
     return i64[(csg_base(buf) >> 3) + B_VS0]
 
 
-@njit(**_KC)
+@njit(**CORE)
 def csg_closest_core(buf, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """For the traversal: nearest boundary of solid `root` in (tmin, tmax) as
     (t, virtual shape id); (inf, -1) if none. A real call, so the BVH loops
@@ -861,7 +843,7 @@ def csg_closest_core(buf, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return t, csg_vshape(buf, cb, leaf, sub)
 
 
-@njit(**_KC)
+@njit(**CORE)
 def csg_surface_core(buf, vshape, ox, oy, oz, dx, dy, dz, t):
     """(face, u, v, nx, ny, nz) of a hit on virtual shape `vshape` at t of a
     prototype-space ray: the owning primitive's chart, or (0, b1, b2) of a
@@ -920,7 +902,7 @@ def csg_all_intervals(table, root, o, d, tmin=-math.inf, tmax=math.inf):
 # Brute-force point membership (tests, texel splitting)
 # --------------------------------------------------------------------------------------
 
-@njit(**_K)
+@njit(**INLINE)
 def _mesh_winding(buf, cb, k, px, py, pz):
     """Signed crossings of a fixed skew ray from p with leaf k's triangles (brute force)."""
     i64, _f32, i32, f64 = buf
@@ -949,7 +931,7 @@ def _mesh_winding(buf, cb, k, px, py, pz):
     return w * sgn > 0
 
 
-@njit(**_K)
+@njit(**INLINE)
 def _leaf_ntri(buf, cb, k):
     """Triangles of mesh leaf k: its virtual shapes are one per triangle."""
     i64, _f32, i32, _f64 = buf
@@ -993,7 +975,7 @@ def _inside(buf, cb, root, px, py, pz, bits, force_leaf=-1, force_val=False):
                 r = _mesh_winding(buf, cb, k, px, py, pz)
             else:
                 m = h + i64[h + B_LEAF_INV] + 12 * k
-                lx, ly, lz, a, b, c = _xf(f64, m, px, py, pz, 0.0, 0.0, 0.0)
+                lx, ly, lz, a, b, c = xform_ray(f64, m, px, py, pz, 0.0, 0.0, 0.0)
                 pp = h + i64[h + B_LEAF_PARAMS] + 4 * k
                 r = prim_inside(kind, (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3]),
                                 lx, ly, lz)
@@ -1010,15 +992,6 @@ def _inside(buf, cb, root, px, py, pz, bits, force_leaf=-1, force_val=False):
             nv -= 1
             vals[nv - 1] = 1 if _member(op, a, b) else 0
     return vals[0] != 0
-
-
-@njit(cache=True, error_model="numpy")
-def csg_inside(g, root, px, py, pz):
-    """Brute-force membership of a prototype-space point in solid `root`:
-    prim_inside of every primitive leaf, winding number of every mesh leaf."""
-    bits = np.empty(3 * MAX_WORK + 8, np.int32)
-    buf = (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)
-    return _inside(buf, csg_base(buf), root, px, py, pz, bits)
 
 
 @njit(cache=True, error_model="numpy")

@@ -25,6 +25,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from .affine import inverse
 from .bvh import REC_WORDS, STACK_BUDGET, aligned_empty, build_bvh, pack_bvh
 from .csg import CSG, CSG_SCRATCH_WORDS, H_CSG, MESH, flatten_csg, pack_blob
 from .primitives import KIND_IDS, prim_local_bounds
@@ -203,14 +204,6 @@ def _fail(what, msg):
     raise SceneError(f"{what}: {msg}")
 
 
-def _inverse(a):
-    inv = np.empty((3, 4))
-    r = np.linalg.inv(a[:, :3])
-    inv[:, :3] = r
-    inv[:, 3] = -r @ a[:, 3]
-    return inv
-
-
 def _box_corners_through(lo, hi, xf):
     """World bounds of the 8 corners of [lo, hi] under affine xf (3x4)."""
     c = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
@@ -354,7 +347,7 @@ def _check_primitive(prim, what, kind_ids, n_materials):
     if n_materials and not (0 <= mat < n_materials):
         _fail(what, f"material index {mat} out of range (scene has {n_materials} materials)")
     xf = _affine(prim.transform, what)
-    return kind_ids[kind], p4, xf, _inverse(xf), mat
+    return kind_ids[kind], p4, xf, inverse(xf), mat
 
 
 def compile_geometry(scene):

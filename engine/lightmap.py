@@ -45,6 +45,7 @@ EMPTY_AREA_FRACTION = 1e-3
 # neither owns area nor records photons (a photon there would land in some
 # neighbouring chart's texel). Far below any real triangle of a 4096² atlas.
 MIN_UV_AREA2 = 1e-15
+MAX_PIECE_VERTICES = 7   # a triangle clipped by the four sides of a square
 DILATION_PASSES = 4
 
 Lightmaps = namedtuple("Lightmaps", [
@@ -228,10 +229,9 @@ def _clip_unit_square(x0, y0, x1, y1, x2, y2, px, py, qx, qy):
     return _clip_axis(qx, qy, n, px, py, 1, 1.0, True)
 
 
-@njit(cache=True)
-def _clipped_area_unit_square(x0, y0, x1, y1, x2, y2, px, py, qx, qy):
-    """Area of the triangle (in texel units, relative to the texel corner) inside [0,1]²."""
-    n = _clip_unit_square(x0, y0, x1, y1, x2, y2, px, py, qx, qy)
+@njit(cache=True, inline="always")
+def _polygon_area(px, py, n):
+    """Area of the convex polygon px, py[:n] (0 for fewer than 3 vertices)."""
     if n < 3:
         return 0.0
     s = 0.0
@@ -248,59 +248,82 @@ def has_uv_area(uv):
                - (uv[2, 0] - uv[0, 0]) * (uv[1, 1] - uv[0, 1])) > MIN_UV_AREA2
 
 
+@njit(cache=True, inline="always")
+def _uv_triangle(uv, area3d, k, W, H):
+    """Triangle k in texel units and its box of texels -> (cells, x0..y2, bx0, by0, bx1, by1);
+    cells = 0 when it covers none: no world area, no UV area (has_uv_area), not finite."""
+    x0, y0 = uv[k, 0, 0] * W, uv[k, 0, 1] * H
+    x1, y1 = uv[k, 1, 0] * W, uv[k, 1, 1] * H
+    x2, y2 = uv[k, 2, 0] * W, uv[k, 2, 1] * H
+    a3 = area3d[k]
+    if not (a3 > 0.0 and math.isfinite(a3) and math.isfinite(x0 + y0 + x1 + y1 + x2 + y2)
+            and has_uv_area(uv[k])):
+        return 0, x0, y0, x1, y1, x2, y2, 0, 0, -1, -1
+    bx0 = max(int(math.floor(min(x0, x1, x2))), 0)
+    by0 = max(int(math.floor(min(y0, y1, y2))), 0)
+    bx1 = min(int(math.floor(max(x0, x1, x2))), W - 1)
+    by1 = min(int(math.floor(max(y0, y1, y2))), H - 1)
+    cells = (bx1 - bx0 + 1) * (by1 - by0 + 1) if bx1 >= bx0 and by1 >= by0 else 0
+    return cells, x0, y0, x1, y1, x2, y2, bx0, by0, bx1, by1
+
+
+@njit(cache=True)
+def _piece_buffers(cap, with_bary):
+    """Per-triangle scratch: texel, clipped UV area, polygon size, polygon barycentrics."""
+    return (np.empty(cap, np.int64), np.empty(cap), np.empty(cap, np.int64),
+            np.empty((cap if with_bary else 0, MAX_PIECE_VERTICES, 2)))
+
+
+@njit(cache=True)
+def _clip_into_texels(x0, y0, x1, y1, x2, y2, bx0, by0, bx1, by1, W, buf_i, buf_a, buf_nv, buf_b,
+                      px, py, qx, qy):
+    """Clips a triangle (texel units) to every texel of its box, the one rasteriser
+    of the texel areas and pieces: texel ids, clipped UV areas and, when buf_b
+    has room, the clipped polygons as barycentrics -> (pieces, their total area)."""
+    det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+    with_bary = buf_b.shape[0] > 0
+    m = 0
+    total = 0.0
+    for ty in range(by0, by1 + 1):
+        for tx in range(bx0, bx1 + 1):
+            n = _clip_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty, x2 - tx, y2 - ty, px, py, qx, qy)
+            c = _polygon_area(px, py, n)
+            if c > 0.0:
+                buf_i[m] = ty * W + tx
+                buf_a[m] = c
+                buf_nv[m] = min(n, MAX_PIECE_VERTICES)
+                if with_bary:
+                    for i in range(buf_nv[m]):
+                        rx = px[i] + tx - x0
+                        ry = py[i] + ty - y0
+                        buf_b[m, i, 0] = (rx * (y2 - y0) - (x2 - x0) * ry) / det
+                        buf_b[m, i, 1] = ((x1 - x0) * ry - rx * (y1 - y0)) / det
+                total += c
+                m += 1
+    return m, total
+
+
 @njit(cache=True)
 def _triangle_texel_areas(uv, area3d, width, height):
     W = width
     H = height
     area = np.zeros(W * H)
     cov = np.zeros(W * H)
-    px = np.empty(16)
-    py = np.empty(16)
-    qx = np.empty(16)
-    qy = np.empty(16)
-    cap = 64
-    buf_i = np.empty(cap, np.int64)
-    buf_a = np.empty(cap)
+    px, py, qx, qy = np.empty(16), np.empty(16), np.empty(16), np.empty(16)
+    buf_i, buf_a, buf_nv, buf_b = _piece_buffers(64, False)
     for k in range(uv.shape[0]):
-        a3 = area3d[k]
-        if not (a3 > 0.0) or not math.isfinite(a3):
-            continue  # zero-area (or invalid) surface carries no photons
-        x0 = uv[k, 0, 0] * W
-        y0 = uv[k, 0, 1] * H
-        x1 = uv[k, 1, 0] * W
-        y1 = uv[k, 1, 1] * H
-        x2 = uv[k, 2, 0] * W
-        y2 = uv[k, 2, 1] * H
-        if not (math.isfinite(x0) and math.isfinite(y0) and math.isfinite(x1)
-                and math.isfinite(y1) and math.isfinite(x2) and math.isfinite(y2)):
-            continue
-        if not has_uv_area(uv[k]):
+        cells, x0, y0, x1, y1, x2, y2, bx0, by0, bx1, by1 = _uv_triangle(uv, area3d, k, W, H)
+        if cells == 0:
             continue  # no texels: it records no photons either (record_slot)
-        m = 0
-        total = 0.0
-        bx0 = max(int(math.floor(min(x0, x1, x2))), 0)
-        by0 = max(int(math.floor(min(y0, y1, y2))), 0)
-        bx1 = min(int(math.floor(max(x0, x1, x2))), W - 1)
-        by1 = min(int(math.floor(max(y0, y1, y2))), H - 1)
-        if bx1 >= bx0 and by1 >= by0:
-            need = (bx1 - bx0 + 1) * (by1 - by0 + 1)
-            if need > cap:
-                cap = max(need, 2 * cap)
-                buf_i = np.empty(cap, np.int64)
-                buf_a = np.empty(cap)
-            for ty in range(by0, by1 + 1):
-                for tx in range(bx0, bx1 + 1):
-                    c = _clipped_area_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
-                                                  x2 - tx, y2 - ty, px, py, qx, qy)
-                    if c > 0.0:
-                        buf_i[m] = ty * W + tx
-                        buf_a[m] = c
-                        total += c
-                        m += 1
+        if cells > buf_i.shape[0]:
+            buf_i, buf_a, buf_nv, buf_b = _piece_buffers(max(cells, 2 * buf_i.shape[0]), False)
+        m, total = _clip_into_texels(x0, y0, x1, y1, x2, y2, bx0, by0, bx1, by1, W,
+                                     buf_i, buf_a, buf_nv, buf_b, px, py, qx, qy)
         if m > 0 and total > 0.0:
             # Dividing by the sum of the clipped pieces (not the analytic UV area)
             # makes the triangle deposit exactly its world area, also for parts
             # that stick out of [0,1]².
+            a3 = area3d[k]
             for i in range(m):
                 area[buf_i[i]] += a3 * (buf_a[i] / total)
                 cov[buf_i[i]] += buf_a[i]
@@ -329,7 +352,6 @@ def triangle_texel_areas(uv, area3d, width, height):
     return _triangle_texel_areas(uv, area3d, width, height)
 
 
-MAX_PIECE_VERTICES = 7   # a triangle clipped by the four sides of a square
 
 TexelPieces = namedtuple("TexelPieces", [
     "start",  # int64[W*H+1] pieces of texel j: start[j] : start[j+1]
@@ -342,8 +364,8 @@ TexelPieces = namedtuple("TexelPieces", [
 
 @njit(cache=True)
 def _triangle_texel_pieces(uv, area3d, width, height):
-    # Mirrors _triangle_texel_areas exactly (same tests, same clipping, same shares)
-    # so the pieces of a texel add up to the area that kernel gives it.
+    # The same rasteriser as _triangle_texel_areas (_uv_triangle, _clip_into_texels,
+    # the same shares), so the pieces of a texel add up to the area it gets there.
     W = width
     H = height
     cap = 256
@@ -353,64 +375,20 @@ def _triangle_texel_pieces(uv, area3d, width, height):
     p_nv = np.empty(cap, np.int64)
     p_b = np.empty((cap, MAX_PIECE_VERTICES, 2))
     n_p = 0
-    px = np.empty(16)
-    py = np.empty(16)
-    qx = np.empty(16)
-    qy = np.empty(16)
-    tcap = 64
-    buf_i = np.empty(tcap, np.int64)
-    buf_a = np.empty(tcap)
-    buf_nv = np.empty(tcap, np.int64)
-    buf_b = np.empty((tcap, MAX_PIECE_VERTICES, 2))
+    px, py, qx, qy = np.empty(16), np.empty(16), np.empty(16), np.empty(16)
+    buf_i, buf_a, buf_nv, buf_b = _piece_buffers(64, True)
     for k in range(uv.shape[0]):
-        a3 = area3d[k]
-        if not (a3 > 0.0) or not math.isfinite(a3):
+        cells, x0, y0, x1, y1, x2, y2, bx0, by0, bx1, by1 = _uv_triangle(uv, area3d, k, W, H)
+        if cells == 0:
             continue
-        x0 = uv[k, 0, 0] * W
-        y0 = uv[k, 0, 1] * H
-        x1 = uv[k, 1, 0] * W
-        y1 = uv[k, 1, 1] * H
-        x2 = uv[k, 2, 0] * W
-        y2 = uv[k, 2, 1] * H
-        if not (math.isfinite(x0) and math.isfinite(y0) and math.isfinite(x1)
-                and math.isfinite(y1) and math.isfinite(x2) and math.isfinite(y2)):
+        if cells > buf_i.shape[0]:
+            buf_i, buf_a, buf_nv, buf_b = _piece_buffers(max(cells, 2 * buf_i.shape[0]), True)
+        m, total = _clip_into_texels(x0, y0, x1, y1, x2, y2, bx0, by0, bx1, by1, W,
+                                     buf_i, buf_a, buf_nv, buf_b, px, py, qx, qy)
+        if m == 0 or not total > 0.0:
             continue
-        if not has_uv_area(uv[k]):
-            continue  # as in _triangle_texel_areas: no texels, no pieces
-        det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-        m = 0
-        total = 0.0
-        bx0 = max(int(math.floor(min(x0, x1, x2))), 0)
-        by0 = max(int(math.floor(min(y0, y1, y2))), 0)
-        bx1 = min(int(math.floor(max(x0, x1, x2))), W - 1)
-        by1 = min(int(math.floor(max(y0, y1, y2))), H - 1)
-        if bx1 >= bx0 and by1 >= by0:
-            need = (bx1 - bx0 + 1) * (by1 - by0 + 1)
-            if need > tcap:
-                tcap = max(need, 2 * tcap)
-                buf_i = np.empty(tcap, np.int64)
-                buf_a = np.empty(tcap)
-                buf_nv = np.empty(tcap, np.int64)
-                buf_b = np.empty((tcap, MAX_PIECE_VERTICES, 2))
-            for ty in range(by0, by1 + 1):
-                for tx in range(bx0, bx1 + 1):
-                    c = _clipped_area_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
-                                                  x2 - tx, y2 - ty, px, py, qx, qy)
-                    if c > 0.0:
-                        nv = _clip_unit_square(x0 - tx, y0 - ty, x1 - tx, y1 - ty,
-                                               x2 - tx, y2 - ty, px, py, qx, qy)
-                        buf_i[m] = ty * W + tx
-                        buf_a[m] = c
-                        buf_nv[m] = min(nv, MAX_PIECE_VERTICES)
-                        for i in range(buf_nv[m]):
-                            rx = px[i] + tx - x0
-                            ry = py[i] + ty - y0
-                            buf_b[m, i, 0] = (rx * (y2 - y0) - (x2 - x0) * ry) / det
-                            buf_b[m, i, 1] = ((x1 - x0) * ry - rx * (y1 - y0)) / det
-                        total += c
-                        m += 1
-        if n_p + max(m, 1) > cap:
-            cap = max(2 * cap, n_p + m + 1)
+        if n_p + m > cap:
+            cap = max(2 * cap, n_p + m)
             t_tri = np.empty(cap, np.int64)
             t_tex = np.empty(cap, np.int64)
             t_area = np.empty(cap)
@@ -422,14 +400,14 @@ def _triangle_texel_pieces(uv, area3d, width, height):
             t_nv[:n_p] = p_nv[:n_p]
             t_b[:n_p] = p_b[:n_p]
             p_tri, p_tex, p_area, p_nv, p_b = t_tri, t_tex, t_area, t_nv, t_b
-        if m > 0 and total > 0.0:
-            for i in range(m):
-                p_tri[n_p] = k
-                p_tex[n_p] = buf_i[i]
-                p_area[n_p] = a3 * (buf_a[i] / total)
-                p_nv[n_p] = buf_nv[i]
-                p_b[n_p] = buf_b[i]
-                n_p += 1
+        a3 = area3d[k]
+        for i in range(m):
+            p_tri[n_p] = k
+            p_tex[n_p] = buf_i[i]
+            p_area[n_p] = a3 * (buf_a[i] / total)
+            p_nv[n_p] = buf_nv[i]
+            p_b[n_p] = buf_b[i]
+            n_p += 1
     return p_tri[:n_p], p_tex[:n_p], p_area[:n_p], p_nv[:n_p], p_b[:n_p]
 
 

@@ -37,6 +37,8 @@ from numba import njit, prange, types
 from numba.extending import intrinsic
 
 from . import geometry as G
+from .affine import normal_through, xform_ray
+from .jit import CORE, INLINE
 from .geometry import STACK_WORDS, TRI_LEAF, new_stack  # noqa: F401  (re-exported)
 from .csg import csg_closest_core, csg_surface_core, csg_vs0
 from .primitives import prim_hits, prim_surface
@@ -48,9 +50,6 @@ _ROBUST = 1.0 + 1e-15
 # copy never exceeds the true value (culling stays conservative).
 _LOWER = 2.0 ** -22
 _CHUNK = 256
-
-_INLINE = dict(cache=True, error_model="numpy", inline="always")
-_CORE = dict(cache=True, error_model="numpy", _nrt=False)
 
 _V4F = ir.VectorType(ir.FloatType(), 4)
 _V4D = ir.VectorType(ir.DoubleType(), 4)
@@ -183,38 +182,19 @@ def _woop4(typingctx, f64a, base, kx, ky, kz, sx, sy, sz, okx, oky, okz, tmin, t
 
 # ------------------------------------------------------------- scalar helpers
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _inv(d):
     # d = +-0 gives +-inf; _slab4 reads the 0 * inf of a ray lying in a
     # box plane as "no limit"
     return 1.0 / d
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _valid_ray(ox, oy, oz, dx, dy, dz):
     """Finite origin, finite non-zero direction. (A NaN ray would enter every
     box, since NaN slab distances read as "no limit".)"""
     s = ox + oy + oz + dx + dy + dz
     return (s - s == 0.0) and (dx != 0.0 or dy != 0.0 or dz != 0.0)
-
-
-@njit(**_INLINE)
-def _xform(f, m, ox, oy, oz, dx, dy, dz):
-    """Ray through the 3x4 row-major affine at f[m:m+12]: point and vector."""
-    return (f[m] * ox + f[m + 1] * oy + f[m + 2] * oz + f[m + 3],
-            f[m + 4] * ox + f[m + 5] * oy + f[m + 6] * oz + f[m + 7],
-            f[m + 8] * ox + f[m + 9] * oy + f[m + 10] * oz + f[m + 11],
-            f[m] * dx + f[m + 1] * dy + f[m + 2] * dz,
-            f[m + 4] * dx + f[m + 5] * dy + f[m + 6] * dz,
-            f[m + 8] * dx + f[m + 9] * dy + f[m + 10] * dz)
-
-
-@njit(**_INLINE)
-def _normal_through(f, m, nx, ny, nz):
-    """Normal through the inverse-transpose, given the inverse at f[m:m+12]."""
-    return (f[m] * nx + f[m + 4] * ny + f[m + 8] * nz,
-            f[m + 1] * nx + f[m + 5] * ny + f[m + 9] * nz,
-            f[m + 2] * nx + f[m + 6] * ny + f[m + 10] * nz)
 
 
 @intrinsic
@@ -231,13 +211,13 @@ def _ctz(typingctx, x):
     return sig, codegen
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _pick4(k, a0, a1, a2, a3):
     # a select chain (no memory, no branches)
     return a0 if k == 0 else (a1 if k == 1 else (a2 if k == 2 else a3))
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _nearest_lane(m, t0, t1, t2, t3):
     """Lane and t of the smallest t among the set bits of m (m != 0)."""
     lane = -1
@@ -257,14 +237,14 @@ def _nearest_lane(m, t0, t1, t2, t3):
     return lane, t
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _push(stack, fstack, sp, node, near):
     stack[sp] = node
     fstack[sp + 1] = np.float32(near - abs(near) * _LOWER)
     return sp + 2
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _sort_top(stack, fstack, lo, sp):
     """One bubble pass over the entries pushed by this step (at most three),
     leaving the nearest on top so it is popped first."""
@@ -280,7 +260,7 @@ def _sort_top(stack, fstack, lo, sp):
         j -= 2
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _lane_test(f64, base, q, kx, ky, kz, sx, sy, sz, okx, oky, okz, tmin, tmax):
     """Scalar watertight test of lane q of the packet at f64[base:]."""
     return woop_test(f64[base + 4 * kx + q] - okx, f64[base + 4 * ky + q] - oky,
@@ -292,7 +272,7 @@ def _lane_test(f64, base, q, kx, ky, kz, sx, sy, sz, okx, oky, okz, tmin, tmax):
                      sx, sy, sz, tmin, tmax)
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _layout(buf):
     """The trace views (see geometry.trace_views) and the element offsets of
     the records, int32 and float64 sections."""
@@ -300,11 +280,11 @@ def _layout(buf):
     return (i64, f32, i32, f64, i64[G.H_REC] >> 2, i64[G.H_I32] >> 2, i64[G.H_F64] >> 3)
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _prim_first(i32, f64, ib, fb, i64, j, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Nearest crossing of primitive row j in (tmin, tmax), prototype-space ray; inf if none."""
     m = fb + i64[G.H_PRIM_INV] + 12 * j
-    lox, loy, loz, ldx, ldy, ldz = _xform(f64, m, ox, oy, oz, dx, dy, dz)
+    lox, loy, loz, ldx, ldy, ldz = xform_ray(f64, m, ox, oy, oz, dx, dy, dz)
     pp = fb + i64[G.H_PRIM_PARAMS] + 4 * j
     n, t0, t1, t2, t3 = prim_hits(i32[ib + i64[G.H_PRIM_KIND] + j],
                                   (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3]),
@@ -322,7 +302,7 @@ def _prim_first(i32, f64, ib, fb, i64, j, ox, oy, oz, dx, dy, dz, tmin, tmax):
 
 # ------------------------------------------------------------------ traversal
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _woop(ox, oy, oz, dx, dy, dz):
     """Per-ray (and per-space) constants of the triangle test."""
     kx, ky, kz, sx, sy, sz = woop_setup(dx, dy, dz)
@@ -330,7 +310,7 @@ def _woop(ox, oy, oz, dx, dy, dz):
             pick(kx, ox, oy, oz), pick(ky, ox, oy, oz), pick(kz, ox, oy, oz))
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _descend(stack, fstack, sp, rec_i, b, mi, n0, n1, n2, n3, tbest):
     """Next record among the hit interior children `mi` of the record at b:
     the nearest; the others are pushed, nearest on top. Returns (node, sp),
@@ -360,7 +340,7 @@ def _descend(stack, fstack, sp, rec_i, b, mi, n0, n1, n2, n3, tbest):
     return node, sp
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _pop(stack, fstack, sp, sp0, tbest):
     """Top entry not beyond tbest, or -1 when the stack (above sp0) runs out."""
     while sp > sp0:
@@ -370,7 +350,7 @@ def _pop(stack, fstack, sp, sp0, tbest):
     return -1, sp
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _drop_far(mi, n0, n1, n2, n3, tbest):
     """Clears children of mask mi whose entry lies beyond tbest."""
     if n0 > tbest:
@@ -384,7 +364,7 @@ def _drop_far(mi, n0, n1, n2, n3, tbest):
     return mi
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _blas_closest(buf, stack, fstack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tbest,
                   code, b1, b2):
     """Closest hit in prototype p for a prototype-space ray, improving on
@@ -473,7 +453,7 @@ def _blas_closest(buf, stack, fstack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tbes
     return tbest, code, b1, b2
 
 
-@njit(**_CORE)
+@njit(**CORE)
 def _instance_closest(buf, stack, sp, i, ox, oy, oz, dx, dy, dz, tmin, tbest,
                       inst, code, b1, b2):
     """Instance i against the world ray. A real call (not inlined): it keeps
@@ -482,7 +462,7 @@ def _instance_closest(buf, stack, sp, i, ox, oy, oz, dx, dy, dz, tmin, tbest,
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
     p = i32[ib + i64[G.H_INST_PROTO] + i]
     if i32[ib + i64[G.H_INST_IDENT] + i] == 0:
-        ox, oy, oz, dx, dy, dz = _xform(f64, fb + i64[G.H_INST_INV] + 12 * i,
+        ox, oy, oz, dx, dy, dz = xform_ray(f64, fb + i64[G.H_INST_INV] + 12 * i,
                                         ox, oy, oz, dx, dy, dz)
     t0 = tbest
     tbest, code, b1, b2 = _blas_closest(buf, stack, stack.view(np.float32), sp, p,
@@ -492,17 +472,17 @@ def _instance_closest(buf, stack, sp, i, ox, oy, oz, dx, dy, dz, tmin, tbest,
     return tbest, inst, code, b1, b2
 
 
-@njit(**_CORE)
+@njit(**CORE)
 def _instance_any(buf, stack, sp, i, ox, oy, oz, dx, dy, dz, tmin, tmax):
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
     p = i32[ib + i64[G.H_INST_PROTO] + i]
     if i32[ib + i64[G.H_INST_IDENT] + i] == 0:
-        ox, oy, oz, dx, dy, dz = _xform(f64, fb + i64[G.H_INST_INV] + 12 * i,
+        ox, oy, oz, dx, dy, dz = xform_ray(f64, fb + i64[G.H_INST_INV] + 12 * i,
                                         ox, oy, oz, dx, dy, dz)
     return _blas_any(buf, stack, sp, p, ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _resolve(i64, i32, ib, tbest, inst, code, b1, b2):
     """Final (t, inst, shape, b1, b2) from a traversal's packet/shape code."""
     if inst < 0:
@@ -514,7 +494,7 @@ def _resolve(i64, i32, ib, tbest, inst, code, b1, b2):
     return tbest, inst, shape, b1, b2
 
 
-@njit(**_CORE)
+@njit(**CORE)
 def closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit in (tmin, tmax) on a trace buffer: (t, inst, shape, b1, b2);
     inst = shape = -1 on a miss. b1, b2: triangle barycentrics (0 otherwise)."""
@@ -568,7 +548,7 @@ def closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return _resolve(i64, i32, ib, tbest, inst, code, b1, b2)
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _any_next(stack, sp, sp0, rec_i, b, mi):
     """Occlusion needs no order: descend into the first hit interior child,
     push the rest; pop when there is none. Returns (node, sp), -1: done."""
@@ -587,7 +567,7 @@ def _any_next(stack, sp, sp0, rec_i, b, mi):
     return node, sp
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _blas_any(buf, stack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
     tri4 = fb + i64[G.H_TRI4]
@@ -641,7 +621,7 @@ def _blas_any(buf, stack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
             return False
 
 
-@njit(**_CORE)
+@njit(**CORE)
 def occluded_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """True if anything lies on the ray strictly between tmin and tmax."""
     if not _valid_ray(ox, oy, oz, dx, dy, dz):
@@ -677,7 +657,7 @@ def occluded_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
             return False
 
 
-@njit(**_CORE)
+@njit(**CORE)
 def surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
     """(face, u, v, nx, ny, nz) of a hit from `closest_core`, world unit normal."""
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
@@ -686,7 +666,7 @@ def surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
     r = 0 if is_csg else i32[ib + i64[G.H_SHAPE_REF] + shape]
     if is_csg:
         # CSG leaf hit: the owning primitive's chart, the solid's normal
-        ux, uy, uz, vx, vy, vz = _xform(f64, m_inst, ox, oy, oz, dx, dy, dz)
+        ux, uy, uz, vx, vy, vz = xform_ray(f64, m_inst, ox, oy, oz, dx, dy, dz)
         face, u, v, px, py, pz = csg_surface_core(buf, shape, ux, uy, uz, vx, vy, vz, t)
     elif r >= 0:
         base = fb + i64[G.H_TRI4] + 36 * (r >> 2) + (r & 3)
@@ -699,15 +679,15 @@ def surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
     else:
         j = -1 - r
         # the same local ray as in the traversal, so the point is the hit point
-        ux, uy, uz, vx, vy, vz = _xform(f64, m_inst, ox, oy, oz, dx, dy, dz)
+        ux, uy, uz, vx, vy, vz = xform_ray(f64, m_inst, ox, oy, oz, dx, dy, dz)
         m_prim = fb + i64[G.H_PRIM_INV] + 12 * j
-        lox, loy, loz, ldx, ldy, ldz = _xform(f64, m_prim, ux, uy, uz, vx, vy, vz)
+        lox, loy, loz, ldx, ldy, ldz = xform_ray(f64, m_prim, ux, uy, uz, vx, vy, vz)
         pp = fb + i64[G.H_PRIM_PARAMS] + 4 * j
         face, u, v, lnx, lny, lnz = prim_surface(
             i32[ib + i64[G.H_PRIM_KIND] + j], (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3]),
             lox + t * ldx, loy + t * ldy, loz + t * ldz)
-        px, py, pz = _normal_through(f64, m_prim, lnx, lny, lnz)
-    nx, ny, nz = _normal_through(f64, m_inst, px, py, pz)
+        px, py, pz = normal_through(f64, m_prim, lnx, lny, lnz)
+    nx, ny, nz = normal_through(f64, m_inst, px, py, pz)
     ln = math.sqrt(nx * nx + ny * ny + nz * nz)
     if ln > 0.0:
         nx /= ln
@@ -716,7 +696,7 @@ def surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
     return face, u, v, nx, ny, nz
 
 
-@njit(**_CORE)
+@njit(**CORE)
 def intersect_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     t, inst, shape, b1, b2 = closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if shape < 0:
@@ -728,12 +708,12 @@ def intersect_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
 # -------------------------------------------------------------- entry points
 # Thin wrappers inlined into the caller: only the trace views cross the call.
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def _buf(g):
     return (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def closest_hit(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit in (tmin, tmax): (t, inst, shape, b1, b2); inst = shape = -1 on a miss.
 
@@ -743,13 +723,13 @@ def closest_hit(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return closest_core(_buf(g), stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def hit_surface(g, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
     """Surface data of a hit from `closest_hit`: (face, u, v, nx, ny, nz), world unit normal."""
     return surface_core(_buf(g), t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz)
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def intersect_closest(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit in (tmin, tmax): (hit, t, inst, shape, face, u, v, nx, ny, nz).
 
@@ -762,7 +742,7 @@ def intersect_closest(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return intersect_core(_buf(g), stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
-@njit(**_INLINE)
+@njit(**INLINE)
 def occluded(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """True if anything lies on the ray strictly between tmin and tmax (any hit)."""
     return occluded_core(_buf(g), stack, ox, oy, oz, dx, dy, dz, tmin, tmax)

@@ -14,7 +14,6 @@ already permuted vertices (`woop_test`) lets the traversal do the setup once
 per ray and space. Everything is float64 and must not be compiled with
 fastmath: contraction into FMAs would break the exact negation above.
 """
-import math
 
 from numba import njit
 
@@ -105,15 +104,3 @@ def triangle_normal(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z):
     ex, ey, ez = p1x - p0x, p1y - p0y, p1z - p0z
     fx, fy, fz = p2x - p0x, p2y - p0y, p2z - p0z
     return ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
-
-
-@njit(cache=True, error_model="numpy")
-def geometric_normal(tri_p, j):
-    """Unit geometric normal of triangle j of a (T, 3, 3) vertex array."""
-    nx, ny, nz = triangle_normal(tri_p[j, 0, 0], tri_p[j, 0, 1], tri_p[j, 0, 2],
-                                 tri_p[j, 1, 0], tri_p[j, 1, 1], tri_p[j, 1, 2],
-                                 tri_p[j, 2, 0], tri_p[j, 2, 1], tri_p[j, 2, 2])
-    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-    if ln > 0.0:
-        return nx / ln, ny / ln, nz / ln
-    return 0.0, 0.0, 0.0

@@ -13,8 +13,10 @@ import numpy as np
 from . import csg as CSG
 from . import memory_budget
 from . import lightmap as LM
+from . import texel_areas as TA
 from . import orientation_lightmap as OL
 from . import primitives as P
+from . import split_texels as ST
 from .area_estimation import estimate_areas
 from .geometry import check_mesh_arrays, compile_geometry, nondegenerate
 from .lights import compile_lights
@@ -97,7 +99,7 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
                                  f"texel density) to {MAX_RESOLUTION}, got {forced}")
             for kind, data in surfaces[int(geom.inst_proto[i])]:
                 if kind == "mesh":
-                    area3d = LM.triangle_world_areas(geom.tri_p[data], M)
+                    area3d = TA.triangle_world_areas(geom.tri_p[data], M)
                     res = forced or LM.resolution_for(area3d.sum(), texel_density, max_res=max_resolution)
                     layouts.append((res, res, 1))
                     fills.append(("mesh", data, area3d))
@@ -105,7 +107,7 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
                     pk = int(geom.prim_kind[data])
                     M3 = M @ geom.prim_xf[data][:, :3]
                     nf = int(P.N_FACES[pk])
-                    face_area = LM.primitive_texel_areas(pk, geom.prim_params[data], M3, 2).sum() / nf
+                    face_area = TA.primitive_texel_areas(pk, geom.prim_params[data], M3, 2).sum() / nf
                     res = forced or LM.resolution_for(face_area, texel_density, max_res=max_resolution)
                     layouts.append((nf * res, res, nf))
                     fills.append(("prim", data, M3))
@@ -113,7 +115,7 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
         per_instance.append(ids)
     _check_lightmap_memory(scene, layouts, per_instance, texel_density, forced_any=any(
         int(inst.lightmap_resolution) for inst in scene.instances))
-    plan, n_sub, t_plan = CSG.plan_csg_lightmaps(csg if csg_split else None, fills, layouts)
+    plan, n_sub, t_plan = ST.plan_csg_lightmaps(csg if csg_split else None, fills, layouts)
     ols = list(scene.orientation_lightmaps)
     ol_lids = []
     for ol in ols:
@@ -130,7 +132,7 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
         else:
             LM.set_primitive_areas(lm, lid, int(geom.prim_kind[data]), geom.prim_params[data], extra)
     if plan:
-        lm, st = CSG.apply_csg_lightmaps(lm, plan, fills, csg["flat"], extra_lid)
+        lm, st = ST.apply_csg_lightmaps(lm, plan, fills, csg["flat"], extra_lid)
         st["csg_setup_seconds"] = t_plan + st.pop("csg_apply_seconds")
         if info is not None:
             info.update(st)

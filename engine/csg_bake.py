@@ -27,6 +27,7 @@ from numba import njit, prange
 
 from . import csg as CSG
 from . import lightmap as LM
+from . import texel_areas as TA
 from . import primitives as P
 from .raycast import STACK_WORDS
 from .renderer import direct_irradiance
@@ -126,7 +127,7 @@ def full_primitive_areas(cs, inst, row, R):
     g = cs.geometry
     kind = int(g.prim_kind[row])
     M3 = g.inst_xf[inst][:, :3] @ g.prim_xf[row][:, :3]
-    a = LM.primitive_texel_areas(kind, g.prim_params[row], M3, int(R))
+    a = TA.primitive_texel_areas(kind, g.prim_params[row], M3, int(R))
     return LM.faces_to_rows(a, int(P.N_FACES[kind]), int(R))
 
 
@@ -196,7 +197,7 @@ def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, 
     texel that lie on the solid's boundary as part of the item's leaf (rows of
     a split texel by the region label of the sample's cell)."""
     cb = CSG.csg_base(buf)
-    S = CSG.SPLIT_SUB
+    S = LM.SPLIT_SUB
     K = item_lm.shape[0]
     nb = acc.shape[1]
     k = _grid_side(n_samples)
@@ -314,7 +315,7 @@ def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
         pl["pxf"].append(pxf)
         pl["pinv"].append(np.ascontiguousarray(g.prim_inv[row]))
         pl["wxf"].append(wxf)
-        pl["ncof"].append(LM.cofactor(wxf) * (1.0 if det >= 0.0 else -1.0))
+        pl["ncof"].append(TA.cofactor(wxf) * (1.0 if det >= 0.0 else -1.0))
         pl["res"].append(r)
         pl["flip"].append(int(cb_flip[d["leaf"]]))
         pl["eps"].append(float(_root_eps(buf, np.int64(d["root"]))))

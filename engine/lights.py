@@ -160,7 +160,7 @@ def _emissive_rows(scene, geom, materials, row, cells):
     emissive = np.where(materials.emission.max(axis=1) > 0)[0]
     if emissive.size == 0:
         return
-    from .lightmap import primitive_texel_areas  # exact cell areas by quadrature
+    from .texel_areas import primitive_texel_areas  # exact cell areas by quadrature
 
     shape_emits = np.isin(geom.shape_material, emissive)
     proto_shapes = {}

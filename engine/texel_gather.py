@@ -40,6 +40,7 @@ import numpy as np
 from numba import njit, prange
 
 from . import lightmap as LM
+from . import texel_areas as TA
 from . import primitives as P
 from .lights import AREA, EMISSIVE, POINT, SPOT
 from .raycast import STACK_WORDS
@@ -317,8 +318,8 @@ def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAM
         xf = g.inst_xf[inst]
         if skind == "mesh":
             rows = np.asarray(data, np.int64)
-            area3d = LM.triangle_world_areas(g.tri_p[rows], xf[:, :3])
-            pcs = LM.triangle_texel_pieces(g.tri_uv[rows], area3d, w, h)
+            area3d = TA.triangle_world_areas(g.tri_p[rows], xf[:, :3])
+            pcs = TA.triangle_texel_pieces(g.tri_uv[rows], area3d, w, h)
             cnt = pcs.start[local + 1] - pcs.start[local]
             # Piece rows of the measured texels, in texel order (vectorised CSR gather).
             sel = np.arange(int(cnt.sum())) + np.repeat(pcs.start[local] - (np.cumsum(cnt) - cnt), cnt)
@@ -339,7 +340,7 @@ def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAM
             params[:] = g.prim_params[row][:4]
             wxf = _affine_compose(xf, g.prim_xf[row])
             det = float(np.linalg.det(wxf[:, :3]))
-            ncof = LM.cofactor(wxf) * (1.0 if det >= 0.0 else -1.0)
+            ncof = TA.cofactor(wxf) * (1.0 if det >= 0.0 else -1.0)
             closed = pk not in (P.DISK, P.QUAD)
             sides = 2 if (not closed or _needs_inner_side(cs, pk, params, wxf)) else 1
             r = w // f

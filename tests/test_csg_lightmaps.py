@@ -124,7 +124,8 @@ def test_cut_sphere_visible_area_and_unbiased_irradiance():
     split = ball_full & (lm.area > 0)
     # boundary texels: visible area below the full texel area
     from photon_lightmaps.engine import lightmap as LM
-    full = LM.faces_to_rows(LM.primitive_texel_areas(P.SPHERE, np.zeros(4), np.eye(3), R), 1, R)
+    from photon_lightmaps.engine import texel_areas as TA
+    full = LM.faces_to_rows(TA.primitive_texel_areas(P.SPHERE, np.zeros(4), np.eye(3), R), 1, R)
     partial = np.zeros_like(split)
     partial[sl] = (lm.area[sl] > 0) & (lm.area[sl] < 0.999 * full)
     assert partial.sum() > 5

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine import lightmap as LM
+from photon_lightmaps.engine import texel_areas as TA
 from photon_lightmaps.engine import primitives as P
 
 ALL_KINDS = (P.SPHERE, P.BOX, P.CYLINDER, P.CONE, P.TORUS, P.PARABOLOID, P.DISK, P.QUAD)
@@ -33,7 +34,7 @@ def test_triangle_areas_sum_to_world_area():
     uv[:50] *= 0.02                     # many tiny triangles inside one texel
     area3d = rng.random(500) * 10.0
     for w, h in ((1, 1), (7, 5), (64, 64), (33, 90)):
-        area, cov = LM.triangle_texel_areas(uv, area3d, w, h)
+        area, cov = TA.triangle_texel_areas(uv, area3d, w, h)
         assert area.shape == (w * h,) and cov.shape == (w * h,)
         assert abs(area.sum() - area3d.sum()) <= 1e-12 * area3d.sum()
         assert np.all(area >= 0) and np.all((cov >= 0) & (cov <= 1))
@@ -43,12 +44,12 @@ def test_half_grid_triangles_exact():
     # Lower-left half of the unit square on a 2x2 grid: texel (0,0) full, (1,0) and
     # (0,1) half, (1,1) untouched.
     uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
-    area, cov = LM.triangle_texel_areas(uv, [2.0], 2, 2)
+    area, cov = TA.triangle_texel_areas(uv, [2.0], 2, 2)
     np.testing.assert_array_equal(cov, [1.0, 0.5, 0.5, 0.0])
     np.testing.assert_array_equal(area, [1.0, 0.5, 0.5, 0.0])
     # The other diagonal half: cut through texels (0,0) and (1,1).
     uv = np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]])
-    area, cov = LM.triangle_texel_areas(uv, [4.0], 2, 2)
+    area, cov = TA.triangle_texel_areas(uv, [4.0], 2, 2)
     np.testing.assert_array_equal(cov, [0.5, 1.0, 0.0, 0.5])
     np.testing.assert_array_equal(area, [1.0, 2.0, 0.0, 1.0])
 
@@ -65,7 +66,7 @@ def test_triangle_coverage_matches_supersampling():
         if ua < 1e-3:
             continue
         # area3d = UV area in texel units, so texel area == covered texel fraction.
-        area, cov = LM.triangle_texel_areas(tri, [ua * w * h], w, h)
+        area, cov = TA.triangle_texel_areas(tri, [ua * w * h], w, h)
         a, b, c = tri[0]
         d1 = (gx - b[0]) * (a[1] - b[1]) - (a[0] - b[0]) * (gy - b[1])
         d2 = (gx - c[0]) * (b[1] - c[1]) - (b[0] - c[0]) * (gy - c[1])
@@ -86,10 +87,10 @@ def test_zero_uv_area_triangles_own_no_texels():
         [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],     # zero world area: adds nothing
         [[0.0, 0.0], [0.5, 0.0], [0.0, 0.5]],     # a real one
     ])
-    area, cov = LM.triangle_texel_areas(uv, [1.5, 0.25, 0.0, 2.0], 4, 4)
+    area, cov = TA.triangle_texel_areas(uv, [1.5, 0.25, 0.0, 2.0], 4, 4)
     assert area.sum() == pytest.approx(2.0, rel=1e-12)
     assert area[[0, 1, 4]].sum() == pytest.approx(2.0, rel=1e-12)   # texels under the real one
-    pcs = LM.triangle_texel_pieces(uv, [1.5, 0.25, 0.0, 2.0], 4, 4)
+    pcs = TA.triangle_texel_pieces(uv, [1.5, 0.25, 0.0, 2.0], 4, 4)
     assert set(pcs.tri.tolist()) == {3}
 
 
@@ -98,7 +99,7 @@ def test_triangle_world_areas_affine():
     p = rng.normal(size=(20, 3, 3))
     M = rng.normal(size=(3, 3))
     ref = 0.5 * np.linalg.norm(np.cross((p[:, 1] - p[:, 0]) @ M.T, (p[:, 2] - p[:, 0]) @ M.T), axis=1)
-    np.testing.assert_allclose(LM.triangle_world_areas(p, M), ref, rtol=1e-12)
+    np.testing.assert_allclose(TA.triangle_world_areas(p, M), ref, rtol=1e-12)
 
 
 # ------------------------------------------------------------------ primitive texel areas
@@ -111,7 +112,7 @@ def test_primitive_areas_uniform_scale(kind):
     exact = P.prim_area(kind, _params(kind)) * s * s
     nf = int(P.prim_nfaces(kind))
     for R in (1, 2, 5, 16):
-        a = LM.primitive_texel_areas(kind, _params(kind), M, R)
+        a = TA.primitive_texel_areas(kind, _params(kind), M, R)
         assert a.shape == (nf * R * R,)
         assert np.all(a > 0)
         assert abs(a.sum() - exact) <= 1e-9 * exact, (R, a.sum(), exact)
@@ -122,8 +123,8 @@ def test_primitive_areas_nonuniform_scale_per_texel(kind):
     M = np.array([[2.0, 0.3, 0.0], [0.0, 0.5, 0.2], [0.1, 0.0, 1.3]])
     R, k = 6, 8
     nf = int(P.prim_nfaces(kind))
-    a = LM.primitive_texel_areas(kind, _params(kind), M, R)
-    fine = LM.primitive_texel_areas(kind, _params(kind), M, R * k, order=8)
+    a = TA.primitive_texel_areas(kind, _params(kind), M, R)
+    fine = TA.primitive_texel_areas(kind, _params(kind), M, R * k, order=8)
     ref = fine.reshape(nf, R, k, R, k).sum(axis=(2, 4)).reshape(-1)
     np.testing.assert_allclose(a, ref, rtol=1e-6)
     assert abs(a.sum() - fine.sum()) <= 1e-9 * fine.sum()
@@ -131,7 +132,7 @@ def test_primitive_areas_nonuniform_scale_per_texel(kind):
 
 def test_box_face_layout_exact():
     # Box [-1,1]^3 scaled by (1,2,3): faces ±x have area 2·2·(2·3) = 24, ±y 12, ±z 8.
-    a = LM.primitive_texel_areas(P.BOX, np.zeros(4), np.diag([1.0, 2.0, 3.0]), 4)
+    a = TA.primitive_texel_areas(P.BOX, np.zeros(4), np.diag([1.0, 2.0, 3.0]), 4)
     faces = a.reshape(6, 16).sum(axis=1)
     np.testing.assert_allclose(faces, [24, 24, 12, 12, 8, 8], rtol=1e-13)
     # Row layout of the lightmap puts the tiles side by side.
@@ -144,7 +145,7 @@ def test_set_primitive_areas_matches_texel_index():
     lm = LM.allocate([(3, 3, 1), (3 * 4, 4, 3)], 1)
     M = np.diag([1.0, 2.0, 0.5])
     LM.set_primitive_areas(lm, 1, P.CYLINDER, np.zeros(4), M)
-    a = LM.primitive_texel_areas(P.CYLINDER, np.zeros(4), M, 4).reshape(3, 4, 4)
+    a = TA.primitive_texel_areas(P.CYLINDER, np.zeros(4), M, 4).reshape(3, 4, 4)
     for f in range(3):
         for y in range(4):
             for x in range(4):

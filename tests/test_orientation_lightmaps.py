@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine import lightmap as LM
+from photon_lightmaps.engine import texel_areas as TA
 from photon_lightmaps.engine import orientation_lightmap as OL
 from photon_lightmaps.engine.area_estimation import estimate_areas
 from photon_lightmaps.engine.compile import compile_scene
@@ -133,7 +134,7 @@ def _box_bins(xf, R):
 
 def _reference_bins(case, g, R):
     if case == "sphere":
-        return 0.49 * LM.primitive_texel_areas(1, np.zeros(4), np.eye(3), R).reshape(-1)
+        return 0.49 * TA.primitive_texel_areas(1, np.zeros(4), np.eye(3), R).reshape(-1)
     if case == "box":
         return _box_bins(AREA_CASES["box"][0][1], R)
     return estimate_areas(g, [0], R, 4_000_000, seed=99, openness_samples=0).area
@@ -185,7 +186,7 @@ def test_parts_of_very_different_size_share_samples_by_area():
     exact = 4 * math.pi * (big ** 2 + (small ** 2).sum())
     assert abs(est.total / exact - 1.0) < min(0.01, 5 * est.total_rel_error)
     ref = 4 * math.pi * (big ** 2 + (small ** 2).sum()) / (4 * math.pi) * \
-        LM.primitive_texel_areas(1, np.zeros(4), np.eye(3), 8).reshape(-1)
+        TA.primitive_texel_areas(1, np.zeros(4), np.eye(3), 8).reshape(-1)
     # ~31 samples a bin: each bin within 5 of its reported standard errors
     z = (est.area - ref) / (est.rel_error * est.area)
     assert np.abs(z).max() < 5.0 and np.abs(est.area / ref - 1.0).mean() < 0.2
@@ -196,7 +197,7 @@ def test_sphere_bin_areas_are_the_solid_angle_shares():
     sphere's exact texel areas (quadrature) give independently."""
     g = _geometry([("sphere", np.eye(4)[:3], ())])
     est = estimate_areas(g, [0], 8, 1_000_000, seed=1, openness_samples=0)
-    exact = LM.primitive_texel_areas(1, np.zeros(4), np.eye(3), 8).reshape(-1)
+    exact = TA.primitive_texel_areas(1, np.zeros(4), np.eye(3), 8).reshape(-1)
     assert exact.sum() == pytest.approx(4 * math.pi, rel=1e-9)
     z = (est.area - exact) / (est.rel_error * est.area)
     assert np.abs(z).max() < 5.0

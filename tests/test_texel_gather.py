@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine import lightmap as LM
+from photon_lightmaps.engine import texel_areas as TA
 from photon_lightmaps.engine import texel_gather as TG
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.demo_scenes import furnace_sphere
@@ -198,11 +199,11 @@ def test_texel_pieces_add_up_to_texel_areas():
     uv = rng.random((40, 3, 2)) * 1.1 - 0.05                       # some stick out of [0,1]²
     uv[5] = [[0.3, 0.3], [0.3, 0.3], [0.31, 0.3]]                  # degenerate UV triangle
     area3d = rng.random(40) + 0.1
-    area, _ = LM.triangle_texel_areas(uv, area3d, 9, 7)
-    pcs = LM.triangle_texel_pieces(uv, area3d, 9, 7)
+    area, _ = TA.triangle_texel_areas(uv, area3d, 9, 7)
+    pcs = TA.triangle_texel_pieces(uv, area3d, 9, 7)
     sums = np.array([pcs.area[pcs.start[j]:pcs.start[j + 1]].sum() for j in range(63)])
     np.testing.assert_allclose(sums, area, rtol=1e-12, atol=1e-15)
-    assert pcs.nv.min() >= 3 and pcs.nv.max() <= LM.MAX_PIECE_VERTICES
+    assert pcs.nv.min() >= 3 and pcs.nv.max() <= TA.MAX_PIECE_VERTICES
     # Every piece lies inside its triangle (barycentrics) and inside its texel (UV).
     for p in range(pcs.tri.size):
         b = pcs.bary[p, :pcs.nv[p]]

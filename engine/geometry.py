@@ -350,6 +350,172 @@ def _check_primitive(prim, what, kind_ids, n_materials):
     return kind_ids[kind], p4, xf, inverse(xf), mat
 
 
+def _pack_blas(proto_root, n_nodes, blas_min, blas_max, blas_a, blas_count, shape_kind,
+               shape_index, tri_p, n_shapes):
+    """4-wide traversal records of every prototype's BLAS (absolute record ids),
+    and the triangles of pure-triangle leaves as 4-lane packets."""
+    non_tri_before = np.concatenate([[0], np.cumsum(shape_kind != 0)])
+    leaf_first, leaf_count, leaf_pk = [], [], []
+    n_packets = 0
+    rec_parts = []
+    proto_slot = np.zeros(len(proto_root), np.int32)
+    n_rec = 0
+    blas_need = 0
+    for p in range(len(proto_root)):
+        r0 = proto_root[p]
+        r1 = proto_root[p + 1] if p + 1 < len(proto_root) else n_nodes
+        cnt = blas_count[r0:r1]
+        a_local = blas_a[r0:r1].copy()
+        a_local[cnt == 0] -= r0               # interior children: local node index
+        _, pi, m, need = pack_bvh(blas_min[r0:r1], blas_max[r0:r1], a_local, cnt)
+        pi = pi.reshape(m, REC_WORDS).copy()
+        refs = pi[:, 24:28]
+        cnts = pi[:, 28:32]
+        refs[cnts == 0] += n_rec              # child records become absolute
+        leaf = cnts > 0
+        first = refs[leaf].astype(np.int64)
+        c = cnts[leaf].astype(np.int64)
+        n_tri = c - (non_tri_before[first + c] - non_tri_before[first])
+        n_pk = (n_tri + 3) // 4
+        pk_first = n_packets + np.concatenate([[0], np.cumsum(n_pk)[:-1]]).astype(np.int64)
+        n_packets += int(n_pk.sum())
+        leaf_first.append(first)
+        leaf_count.append(c)
+        leaf_pk.append(pk_first)
+        pure = n_tri == c
+        refs[leaf] = np.where(pure, pk_first, first)
+        cnts[leaf] = np.where(pure, n_pk + TRI_LEAF, c)
+        rec_parts.append(pi)
+        proto_slot[p] = n_rec
+        n_rec += m
+        blas_need = max(blas_need, need)
+    tri4 = np.full(n_packets * 36, np.nan)    # unused lanes are NaN: they never hit
+    lane_shape = np.full(n_packets * 4, -1, np.int32)
+    shape_ref = np.zeros(n_shapes, np.int32)
+    if leaf_first:
+        _fill_packets(np.concatenate(leaf_first), np.concatenate(leaf_count),
+                      np.concatenate(leaf_pk), shape_kind, shape_index, tri_p,
+                      tri4, lane_shape, shape_ref)
+    is_csg = shape_kind[:n_shapes] == CSG
+    shape_ref[is_csg] = CSG_REF - shape_index[:n_shapes][is_csg]
+
+    return rec_parts, proto_slot, blas_need, tri4, lane_shape, shape_ref, n_packets
+
+
+def _place_instances(scene, proto_root, proto_n_surfaces, blas_min, blas_max):
+    """Validated instance transforms, lightmap bases (running sum of surfaces)
+    and padded world boxes; refuses an instance beyond MAX_COORDINATE by name."""
+    n_inst = len(scene.instances)
+    inst_proto = np.zeros(n_inst, np.int32)
+    inst_xf = np.zeros((n_inst, 3, 4))
+    inst_inv = np.zeros((n_inst, 3, 4))
+    inst_lm_base = np.full(n_inst, -1, np.int32)
+    n_lightmaps = 0
+    t_lo = np.zeros((n_inst, 3))
+    t_hi = np.zeros((n_inst, 3))
+    n_protos = len(scene.prototypes)
+    _instance_transforms(scene.instances, n_protos, inst_proto, inst_xf, inst_inv)
+    for i, inst in enumerate(scene.instances):
+        if inst.lightmap:
+            inst_lm_base[i] = n_lightmaps
+            n_lightmaps += int(proto_n_surfaces[inst_proto[i]])
+    # World boxes: the 8 corners of each prototype's root box through its instance.
+    roots = np.asarray(proto_root, np.int64)[inst_proto] if n_inst else np.zeros(0, np.int64)
+    lo = blas_min[roots].astype(np.float64)
+    hi = blas_max[roots].astype(np.float64)
+    live = np.all(lo <= hi, axis=1)
+    sel = np.arange(8)
+    corners = np.stack([np.where(((sel >> k) & 1)[None, :], hi[:, None, k], lo[:, None, k])
+                        for k in range(3)], axis=-1)                       # (I, 8, 3)
+    world = np.einsum("ijk,ilk->ilj", inst_xf[:, :, :3], corners) + inst_xf[:, None, :, 3]
+    if n_inst:
+        t_lo[live], t_hi[live] = _pad(world.min(axis=1)[live], world.max(axis=1)[live])
+        far = live & (np.maximum(np.abs(t_lo), np.abs(t_hi)).max(axis=1) > MAX_COORDINATE)
+        if far.any():
+            i = int(np.argmax(far))
+            _fail(f"instance '{scene.instances[i].name}'",
+                  f"its transform puts it {np.abs(world[i]).max():.3g} m from the origin, beyond "
+                  f"the tracer's range of {MAX_COORDINATE:.0e} m; scale or move it closer")
+    return inst_proto, inst_xf, inst_inv, inst_lm_base, n_lightmaps, t_lo, t_hi, live
+
+
+def _prototype_shapes(proto, pi_, csg, n_csg, n_materials, degenerate, uv_clamped, leaf_slot,
+                      leaf_proto, leaf_root):
+    """A prototype's shapes in input order: mesh triangles, primitives, then one
+    shape per CSG solid (its roots start at csg.roots[n_csg]), with their surface
+    slots; records dropped and clamped triangles, and each CSG leaf's slot.
+    -> (kinds, materials, slots, lo, hi, triangles, uvs, primitive rows, CSG roots, surfaces)."""
+    pname = f"prototype '{proto.name}'"
+    # collect the prototype's shapes in input order
+    k_kind, k_mat, k_surf, k_lo, k_hi = [], [], [], [], []
+    k_tri, k_uv, k_prim = [], [], []
+    surf = []
+    for mi, mesh in enumerate(proto.meshes):
+        what = f"mesh '{mesh.name}' in {pname}"
+        p, uv, mats, dropped = _check_mesh(mesh, what, n_materials, uv_clamped)
+        if dropped:
+            degenerate[what] = dropped
+        T = p.shape[0]
+        if T == 0:
+            # nothing left to hit: no surface slot either, or every lightmap id after
+            # it would point one past its lightmap (slots count surfaces with shapes)
+            continue
+        slot = len(surf)
+        surf.append(("mesh", mesh.name))
+        k_kind.append(np.zeros(T, np.int32))
+        k_mat.append(mats.astype(np.int32))
+        k_surf.append(np.full(T, slot, np.int32))
+        k_lo.append(p.min(axis=1))
+        k_hi.append(p.max(axis=1))
+        k_tri.append(p)
+        k_uv.append(uv)
+    for prim in proto.primitives:
+        what = f"primitive '{prim.name}' in {pname}"
+        kid, params, xf, inv, mat = _check_primitive(prim, what, KIND_IDS, n_materials)
+        lb = prim_local_bounds(np.int32(kid), params)
+        lo, hi = _box_corners_through(np.array(lb[:3]), np.array(lb[3:]), xf)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            _fail(what, "bounds are not finite (check its parameters)")
+        lo, hi = _pad(lo, hi)
+        slot = len(surf)
+        surf.append((prim.kind, prim.name))
+        k_kind.append(np.array([kid], np.int32))
+        k_mat.append(np.array([mat], np.int32))
+        k_surf.append(np.array([slot], np.int32))
+        k_lo.append(lo[None])
+        k_hi.append(hi[None])
+        k_prim.append((kid, params, xf, inv))
+    # a CSG solid is one shape over its root box (after the primitives, so
+    # their rows are unchanged); its leaves get surface slots of their own
+    csg_roots = []
+    for j in range(len(proto.csg)):
+        root = int(csg.roots[n_csg + j])
+        leaves = csg.root_leaves[n_csg + j]
+        lo, hi = csg.node_box[root, :3], csg.node_box[root, 3:]
+        if np.any(lo > hi):                  # provably empty (disjoint intersection)
+            lo = hi = 0.5 * (lo + hi)
+        k_kind.append(np.array([CSG], np.int32))
+        k_mat.append(np.array([csg.leaf_material[leaves[0]]], np.int32))
+        k_surf.append(np.array([-1], np.int32))
+        k_lo.append(lo[None])
+        k_hi.append(hi[None])
+        csg_roots.append(root)
+        for k in leaves:
+            leaf_slot[k] = len(surf)
+            leaf_proto[k] = pi_
+            leaf_root[k] = root
+            surf.append(("mesh" if csg.leaf_kind[k] == MESH else "csg", csg.leaf_name[k]))
+
+    kinds = np.concatenate(k_kind) if k_kind else np.zeros(0, np.int32)
+    mats = np.concatenate(k_mat) if k_mat else np.zeros(0, np.int32)
+    surfs = np.concatenate(k_surf) if k_surf else np.zeros(0, np.int32)
+    lo = np.concatenate(k_lo) if k_lo else np.zeros((0, 3))
+    hi = np.concatenate(k_hi) if k_hi else np.zeros((0, 3))
+    tris = np.concatenate(k_tri) if k_tri else np.zeros((0, 3, 3))
+    uvs = np.concatenate(k_uv) if k_uv else np.zeros((0, 3, 2))
+    return kinds, mats, surfs, lo, hi, tris, uvs, k_prim, csg_roots, surf
+
+
 def compile_geometry(scene):
     """Flattens scene.prototypes / scene.instances; returns (Geometry, info)."""
     t0 = time.perf_counter()
@@ -376,76 +542,10 @@ def compile_geometry(scene):
     n_csg = 0
 
     for pi_, proto in enumerate(scene.prototypes):
-        pname = f"prototype '{proto.name}'"
-        # collect the prototype's shapes in input order
-        k_kind, k_mat, k_surf, k_lo, k_hi = [], [], [], [], []
-        k_tri, k_uv, k_prim = [], [], []
-        surf = []
-        for mi, mesh in enumerate(proto.meshes):
-            what = f"mesh '{mesh.name}' in {pname}"
-            p, uv, mats, dropped = _check_mesh(mesh, what, n_materials, uv_clamped)
-            if dropped:
-                degenerate[what] = dropped
-            T = p.shape[0]
-            if T == 0:
-                # nothing left to hit: no surface slot either, or every lightmap id after
-                # it would point one past its lightmap (slots count surfaces with shapes)
-                continue
-            slot = len(surf)
-            surf.append(("mesh", mesh.name))
-            k_kind.append(np.zeros(T, np.int32))
-            k_mat.append(mats.astype(np.int32))
-            k_surf.append(np.full(T, slot, np.int32))
-            k_lo.append(p.min(axis=1))
-            k_hi.append(p.max(axis=1))
-            k_tri.append(p)
-            k_uv.append(uv)
-        for prim in proto.primitives:
-            what = f"primitive '{prim.name}' in {pname}"
-            kid, params, xf, inv, mat = _check_primitive(prim, what, KIND_IDS, n_materials)
-            lb = prim_local_bounds(np.int32(kid), params)
-            lo, hi = _box_corners_through(np.array(lb[:3]), np.array(lb[3:]), xf)
-            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-                _fail(what, "bounds are not finite (check its parameters)")
-            lo, hi = _pad(lo, hi)
-            slot = len(surf)
-            surf.append((prim.kind, prim.name))
-            k_kind.append(np.array([kid], np.int32))
-            k_mat.append(np.array([mat], np.int32))
-            k_surf.append(np.array([slot], np.int32))
-            k_lo.append(lo[None])
-            k_hi.append(hi[None])
-            k_prim.append((kid, params, xf, inv))
-        # a CSG solid is one shape over its root box (after the primitives, so
-        # their rows are unchanged); its leaves get surface slots of their own
-        csg_roots = []
-        for _ in proto.csg:
-            root = int(csg.roots[n_csg])
-            leaves = csg.root_leaves[n_csg]
-            n_csg += 1
-            lo, hi = csg.node_box[root, :3], csg.node_box[root, 3:]
-            if np.any(lo > hi):                  # provably empty (disjoint intersection)
-                lo = hi = 0.5 * (lo + hi)
-            k_kind.append(np.array([CSG], np.int32))
-            k_mat.append(np.array([csg.leaf_material[leaves[0]]], np.int32))
-            k_surf.append(np.array([-1], np.int32))
-            k_lo.append(lo[None])
-            k_hi.append(hi[None])
-            csg_roots.append(root)
-            for k in leaves:
-                leaf_slot[k] = len(surf)
-                leaf_proto[k] = pi_
-                leaf_root[k] = root
-                surf.append(("mesh" if csg.leaf_kind[k] == MESH else "csg", csg.leaf_name[k]))
+        kinds, mats, surfs, lo, hi, tris, uvs, k_prim, csg_roots, surf = _prototype_shapes(
+            proto, pi_, csg, n_csg, n_materials, degenerate, uv_clamped, leaf_slot, leaf_proto, leaf_root)
+        n_csg += len(proto.csg)
         surfaces.append(surf)
-
-        kinds = np.concatenate(k_kind) if k_kind else np.zeros(0, np.int32)
-        mats = np.concatenate(k_mat) if k_mat else np.zeros(0, np.int32)
-        surfs = np.concatenate(k_surf) if k_surf else np.zeros(0, np.int32)
-        lo = np.concatenate(k_lo) if k_lo else np.zeros((0, 3))
-        hi = np.concatenate(k_hi) if k_hi else np.zeros((0, 3))
-        tris = np.concatenate(k_tri) if k_tri else np.zeros((0, 3, 3))
-        uvs = np.concatenate(k_uv) if k_uv else np.zeros((0, 3, 2))
         S = kinds.shape[0]
         # input-order row of each shape inside its kind's table
         is_tri = kinds == 0
@@ -549,84 +649,11 @@ def compile_geometry(scene):
     proto_root_a = np.array(proto_root, np.int32).reshape(-1)
     proto_n_surfaces = np.array(proto_n_surf, np.int32).reshape(-1)
 
-    # 4-wide traversal records, packed per prototype then concatenated
-    non_tri_before = np.concatenate([[0], np.cumsum(shape_kind != 0)])
-    leaf_first, leaf_count, leaf_pk = [], [], []
-    n_packets = 0
-    rec_parts = []
-    proto_slot = np.zeros(len(scene.prototypes), np.int32)
-    n_rec = 0
-    blas_need = 0
-    for p in range(len(scene.prototypes)):
-        r0 = proto_root[p]
-        r1 = proto_root[p + 1] if p + 1 < len(proto_root) else n_nodes
-        cnt = blas_count[r0:r1]
-        a_local = blas_a[r0:r1].copy()
-        a_local[cnt == 0] -= r0               # interior children: local node index
-        _, pi, m, need = pack_bvh(blas_min[r0:r1], blas_max[r0:r1], a_local, cnt)
-        pi = pi.reshape(m, REC_WORDS).copy()
-        refs = pi[:, 24:28]
-        cnts = pi[:, 28:32]
-        refs[cnts == 0] += n_rec              # child records become absolute
-        leaf = cnts > 0
-        first = refs[leaf].astype(np.int64)
-        c = cnts[leaf].astype(np.int64)
-        n_tri = c - (non_tri_before[first + c] - non_tri_before[first])
-        n_pk = (n_tri + 3) // 4
-        pk_first = n_packets + np.concatenate([[0], np.cumsum(n_pk)[:-1]]).astype(np.int64)
-        n_packets += int(n_pk.sum())
-        leaf_first.append(first)
-        leaf_count.append(c)
-        leaf_pk.append(pk_first)
-        pure = n_tri == c
-        refs[leaf] = np.where(pure, pk_first, first)
-        cnts[leaf] = np.where(pure, n_pk + TRI_LEAF, c)
-        rec_parts.append(pi)
-        proto_slot[p] = n_rec
-        n_rec += m
-        blas_need = max(blas_need, need)
-    tri4 = np.full(n_packets * 36, np.nan)    # unused lanes are NaN: they never hit
-    lane_shape = np.full(n_packets * 4, -1, np.int32)
-    shape_ref = np.zeros(n_shapes, np.int32)
-    if leaf_first:
-        _fill_packets(np.concatenate(leaf_first), np.concatenate(leaf_count),
-                      np.concatenate(leaf_pk), shape_kind, shape_index, tri_p_a,
-                      tri4, lane_shape, shape_ref)
-    is_csg = shape_kind[:n_shapes] == CSG
-    shape_ref[is_csg] = CSG_REF - shape_index[:n_shapes][is_csg]
-
-    # instances
-    n_inst = len(scene.instances)
-    inst_proto = np.zeros(n_inst, np.int32)
-    inst_xf = np.zeros((n_inst, 3, 4))
-    inst_inv = np.zeros((n_inst, 3, 4))
-    inst_lm_base = np.full(n_inst, -1, np.int32)
-    n_lightmaps = 0
-    t_lo = np.zeros((n_inst, 3))
-    t_hi = np.zeros((n_inst, 3))
-    n_protos = len(scene.prototypes)
-    _instance_transforms(scene.instances, n_protos, inst_proto, inst_xf, inst_inv)
-    for i, inst in enumerate(scene.instances):
-        if inst.lightmap:
-            inst_lm_base[i] = n_lightmaps
-            n_lightmaps += int(proto_n_surfaces[inst_proto[i]])
-    # World boxes: the 8 corners of each prototype's root box through its instance.
-    roots = np.asarray(proto_root, np.int64)[inst_proto] if n_inst else np.zeros(0, np.int64)
-    lo = blas_min[roots].astype(np.float64)
-    hi = blas_max[roots].astype(np.float64)
-    live = np.all(lo <= hi, axis=1)
-    sel = np.arange(8)
-    corners = np.stack([np.where(((sel >> k) & 1)[None, :], hi[:, None, k], lo[:, None, k])
-                        for k in range(3)], axis=-1)                       # (I, 8, 3)
-    world = np.einsum("ijk,ilk->ilj", inst_xf[:, :, :3], corners) + inst_xf[:, None, :, 3]
-    if n_inst:
-        t_lo[live], t_hi[live] = _pad(world.min(axis=1)[live], world.max(axis=1)[live])
-        far = live & (np.maximum(np.abs(t_lo), np.abs(t_hi)).max(axis=1) > MAX_COORDINATE)
-        if far.any():
-            i = int(np.argmax(far))
-            _fail(f"instance '{scene.instances[i].name}'",
-                  f"its transform puts it {np.abs(world[i]).max():.3g} m from the origin, beyond "
-                  f"the tracer's range of {MAX_COORDINATE:.0e} m; scale or move it closer")
+    rec_parts, proto_slot, blas_need, tri4, lane_shape, shape_ref, n_packets = _pack_blas(
+        proto_root, n_nodes, blas_min, blas_max, blas_a, blas_count, shape_kind, shape_index,
+        tri_p_a, n_shapes)
+    inst_proto, inst_xf, inst_inv, inst_lm_base, n_lightmaps, t_lo, t_hi, live = _place_instances(
+        scene, proto_root, proto_n_surfaces, blas_min, blas_max)
     live_ids = np.nonzero(live)[0].astype(np.int32)
     tl = build_bvh(t_lo[live_ids], t_hi[live_ids])
     tlas_items = live_ids[tl.items] if live_ids.size else np.zeros(0, np.int32)
@@ -677,7 +704,7 @@ def compile_geometry(scene):
         "n_degenerate": int(sum(degenerate.values())),
         "degenerate": degenerate,                 # {"mesh 'x' in prototype 'y'": dropped}
         "uv_clamped": uv_clamped,                 # {mesh: triangles whose UVs left [0,1]²}
-        "n_instances": n_inst,
+        "n_instances": len(scene.instances),
         "n_lightmaps": n_lightmaps,
         "surfaces": surfaces,                     # per prototype: [(kind, name)] by slot
         "blas_nodes": n_nodes,

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..engine import lightmap as LM
 from ..engine import session
+from ..engine import texel_areas as TA
 from ..engine.scene import SceneError
 from ..export import csg as csg_export
 from ..export import uv_layers
@@ -93,7 +94,7 @@ def _world_area(ob):
     if tv.shape[0] == 0:
         return 0.0
     M = np.array(ob.matrix_world, np.float64)[:3, :3]
-    return float(LM.triangle_world_areas(v[tv], M).sum())
+    return float(TA.triangle_world_areas(v[tv], M).sum())
 
 
 def layout_resolution(ob, texel_density, resolution=None):

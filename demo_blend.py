@@ -13,6 +13,7 @@ import bmesh
 import bpy
 import numpy as np
 
+from .engine.demo_scenes import CORNELL_WALLS  # noqa: E402
 from .operators.render_engine import ENGINE_ID  # noqa: E402
 LIGHTMAP_UV = "Lightmap"
 # Texel inset of the unit-square lightmap UVs, so bilinear lookups never clamp at borders.
@@ -228,16 +229,9 @@ def build_cornell_blend(path=None, *, light_type="AREA", power=None, width=128, 
     white = principled("white", (0.73, 0.73, 0.73))
     red = principled("red", (0.65, 0.05, 0.05))
     green = principled("green", (0.12, 0.45, 0.15))
-    A, B = -1.0, 1.0
-    walls = [
-        ("floor", [(A, A, 0), (B, A, 0), (B, B, 0), (A, B, 0)], white),
-        ("ceiling", [(A, A, 2), (A, B, 2), (B, B, 2), (B, A, 2)], white),
-        ("back", [(A, B, 0), (B, B, 0), (B, B, 2), (A, B, 2)], white),
-        ("left", [(A, A, 0), (A, B, 0), (A, B, 2), (A, A, 2)], red),
-        ("right", [(B, A, 0), (B, A, 2), (B, B, 2), (B, B, 0)], green),
-    ]
-    for name, corners, mat in walls:
-        mesh_object(name, corners, [(0, 1, 2, 3)], mat, uvs=quad_uvs())
+    mats = {"white": white, "red": red, "green": green}
+    for name, corners, colour in CORNELL_WALLS:
+        mesh_object(name, corners, [(0, 1, 2, 3)], mats[colour], uvs=quad_uvs())
     if box:
         v, f = box_mesh_data()
         ob = mesh_object("tall_box", v, f, white)

@@ -16,8 +16,6 @@ Its nodes carry HOOK_PROP too (so Remove Lightmap Hook treats them as ours)
 plus OL_HOOK_PROP = the empty's name, which `remove_ol_hook` uses to delete
 exactly them.
 """
-import math
-
 from ..export.context import LIGHTMAP_UV, output_priority
 
 HOOK_PROP = "photon_lightmaps_hook"
@@ -68,15 +66,24 @@ def _sock(sockets, identifier):
     return next(s for s in sockets if s.identifier == identifier)
 
 
-def hook_group():
-    """The shared node group: mixes emission = base colour x lightmap over the original surface."""
+def _find_or_new_group(prop, name, description):
+    """Our shader node group tagged `prop` (local, not linked) -> (group, made now)."""
     import bpy
     for ng in bpy.data.node_groups:
-        if ng.get(HOOK_PROP) and ng.library is None and ng.bl_idname == "ShaderNodeTree":
-            return ng
-    ng = bpy.data.node_groups.new(HOOK_GROUP, "ShaderNodeTree")
-    ng[HOOK_PROP] = 1
-    ng.description = "Photon Lightmaps: baked light (base colour x lightmap) shown in EEVEE"
+        if ng.get(prop) and ng.library is None and ng.bl_idname == "ShaderNodeTree":
+            return ng, False
+    ng = bpy.data.node_groups.new(name, "ShaderNodeTree")
+    ng[prop] = 1
+    ng.description = description
+    return ng, True
+
+
+def hook_group():
+    """The shared node group: mixes emission = base colour x lightmap over the original surface."""
+    ng, new = _find_or_new_group(HOOK_PROP, HOOK_GROUP,
+                                 "Photon Lightmaps: baked light (base colour x lightmap) shown in EEVEE")
+    if not new:
+        return ng
     io = ng.interface
     io.new_socket("Shader", in_out="INPUT", socket_type="NodeSocketShader")
     base = io.new_socket("Base Color", in_out="INPUT", socket_type="NodeSocketColor")
@@ -248,14 +255,11 @@ def _ol_tag(node, role, owner):
 
 def ol_group():
     """The shared group: world normal (Geometry node) -> octahedral (s, t, 0), with math nodes."""
-    import bpy
-    for ng in bpy.data.node_groups:
-        if ng.get(OL_HOOK_PROP) and ng.library is None and ng.bl_idname == "ShaderNodeTree":
-            return ng
-    ng = bpy.data.node_groups.new(OL_GROUP, "ShaderNodeTree")
-    ng[OL_HOOK_PROP] = 1
-    ng.description = ("Photon Lightmaps: octahedral coordinates of the world-space normal, "
-                      "for looking up an orientation lightmap image")
+    ng, new = _find_or_new_group(OL_HOOK_PROP, OL_GROUP,
+                                 "Photon Lightmaps: octahedral coordinates of the world-space normal, "
+                                 "for looking up an orientation lightmap image")
+    if not new:
+        return ng
     ng.interface.new_socket("Vector", in_out="OUTPUT", socket_type="NodeSocketVector")
     n, links = ng.nodes, ng.links
     geo = n.new("ShaderNodeNewGeometry")
@@ -314,7 +318,6 @@ def remove_ol_nodes(mat, owner=None):
 
 def add_ol_hook(empty, image, objects, warnings=None):
     """Adds (or refreshes) the OL lookup in every material of `objects`; returns the material names."""
-    import bpy
     warnings = warnings if warnings is not None else []
     coords = ol_group()
     shade = hook_group()

@@ -1,5 +1,7 @@
 """Affine 3x4 maps [R|t] (row-major, p -> R p + t): inverses at compile time,
 rays and normals through the flat copies the kernels read."""
+import math
+
 import numpy as np
 from numba import njit
 
@@ -32,3 +34,12 @@ def normal_through(f, m, nx, ny, nz):
     return (f[m] * nx + f[m + 4] * ny + f[m + 8] * nz,
             f[m + 1] * nx + f[m + 5] * ny + f[m + 9] * nz,
             f[m + 2] * nx + f[m + 6] * ny + f[m + 10] * nz)
+
+
+@njit(**INLINE)
+def unit(nx, ny, nz):
+    """The vector scaled to length 1 (a zero vector stays zero)."""
+    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if ln > 0.0:
+        return nx / ln, ny / ln, nz / ln
+    return nx, ny, nz

@@ -48,7 +48,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from .affine import inverse, xform_ray
+from .affine import inverse, normal_through, unit, xform_ray
 from .jit import CORE, INLINE
 from .primitives import (BOX, CONE, CYLINDER, KIND_IDS, PARABOLOID, SPHERE, TORUS,
                          prim_hits, prim_inside, prim_local_bounds, prim_surface)
@@ -754,17 +754,10 @@ def leaf_surface(buf, cb, leaf, sub, ox, oy, oz, dx, dy, dz, t, entering):
         face, u, v, lx, ly, lz = prim_surface(kind, (f64[pp], f64[pp + 1], f64[pp + 2],
                                                      f64[pp + 3]),
                                               lox + t * ldx, loy + t * ldy, loz + t * ldz)
-        # normals map with the inverse transpose
-        nx = f64[m] * lx + f64[m + 4] * ly + f64[m + 8] * lz
-        ny = f64[m + 1] * lx + f64[m + 5] * ly + f64[m + 9] * lz
-        nz = f64[m + 2] * lx + f64[m + 6] * ly + f64[m + 10] * lz
+        nx, ny, nz = normal_through(f64, m, lx, ly, lz)
     if flip:
         nx, ny, nz = -nx, -ny, -nz
-    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-    if ln > 0.0:
-        nx /= ln
-        ny /= ln
-        nz /= ln
+    nx, ny, nz = unit(nx, ny, nz)
     return face, u, v, nx, ny, nz
 
 

@@ -45,6 +45,18 @@ def uv_sphere_mesh(radius=1.0, n_theta=32, n_phi=64, inward=False, material=0, u
     return TriangleMesh(verts, tris, material=material, uvs=uvs, name="uv_sphere")
 
 
+# The Cornell room's walls: name, corners (counter-clockwise seen from inside,
+# so normals point in), colour. Shared with the Blender demo (demo_blend.py).
+_A, _B = -1.0, 1.0
+CORNELL_WALLS = (
+    ("floor", [(_A, _A, 0), (_B, _A, 0), (_B, _B, 0), (_A, _B, 0)], "white"),
+    ("ceiling", [(_A, _A, 2), (_A, _B, 2), (_B, _B, 2), (_B, _A, 2)], "white"),
+    ("back", [(_A, _B, 0), (_B, _B, 0), (_B, _B, 2), (_A, _B, 2)], "white"),
+    ("left", [(_A, _A, 0), (_A, _B, 0), (_A, _B, 2), (_A, _A, 2)], "red"),
+    ("right", [(_B, _A, 0), (_B, _A, 2), (_B, _B, 2), (_B, _B, 0)], "green"),
+)
+
+
 def cornell_box(n_bands=3, light_power=25.0, width=128, height=128, with_primitives=True):
     """A Cornell-like room: 2 m cube, red/green side walls, area light under the ceiling.
 
@@ -59,16 +71,9 @@ def cornell_box(n_bands=3, light_power=25.0, width=128, height=128, with_primiti
     green = s.add_material(Material("green", diffuse=col(0.12, 0.45, 0.15)))
     mirror = s.add_material(Material("mirror", diffuse=0.0, specular=col(0.9, 0.9, 0.9)))
     glass = s.add_material(Material("glass", diffuse=0.0, transmission=col(0.98, 0.98, 0.98), ior=1.5))
-    A, B = -1.0, 1.0
-    walls = [
-        ("floor", [(A, A, 0), (B, A, 0), (B, B, 0), (A, B, 0)], white),
-        ("ceiling", [(A, A, 2), (A, B, 2), (B, B, 2), (B, A, 2)], white),
-        ("back", [(A, B, 0), (B, B, 0), (B, B, 2), (A, B, 2)], white),
-        ("left", [(A, A, 0), (A, B, 0), (A, B, 2), (A, A, 2)], red),
-        ("right", [(B, A, 0), (B, A, 2), (B, B, 2), (B, B, 0)], green),
-    ]
-    for name, corners, mat in walls:
-        s.add_object(quad_mesh(*corners, material=mat, name=name), name=name)
+    mats = {"white": white, "red": red, "green": green}
+    for name, corners, colour in CORNELL_WALLS:
+        s.add_object(quad_mesh(*corners, material=mats[colour], name=name), name=name)
     if with_primitives:
         s.add_object(Primitive("box", material=white, name="tall_box"),
                      compose(translate(-0.35, 0.3, 0.6), rotate("z", 18), scale(0.3, 0.3, 0.6)),

@@ -160,17 +160,18 @@ def faces_to_rows(face_major, n_faces, r):
 # --------------------------------------------------------------------------------------
 
 @njit(cache=True, inline="always")
+def _tile_of(lm, lm_id, face):
+    """(width, height, tile side, face clamped to the tiles) of lightmap lm_id."""
+    w = np.int64(lm.width[lm_id])
+    nt = np.int64(lm.tiles[lm_id])
+    f = min(max(np.int64(face), 0), nt - 1)
+    return w, np.int64(lm.height[lm_id]), w // nt, f
+
+
+@njit(cache=True, inline="always")
 def texel_index(lm, lm_id, face, s, t):
     """Texel hit at chart coordinate (s, t) in [0,1]² of tile `face` (clamped)."""
-    w = np.int64(lm.width[lm_id])
-    h = np.int64(lm.height[lm_id])
-    nt = np.int64(lm.tiles[lm_id])
-    r = w // nt
-    f = np.int64(face)
-    if f < 0:
-        f = 0
-    elif f >= nt:
-        f = nt - 1
+    w, h, r, f = _tile_of(lm, lm_id, face)
     if not (s > 0.0):   # also catches NaN
         s = 0.0
     if not (t > 0.0):
@@ -412,15 +413,7 @@ def lookup_constant(lm, lm_id, face, s, t, out):
 @njit(cache=True)
 def lookup_bilinear(lm, lm_id, face, s, t, out):
     """Bilinear E between texel centres, clamped to the tile, skipping empty texels."""
-    w = np.int64(lm.width[lm_id])
-    h = np.int64(lm.height[lm_id])
-    nt = np.int64(lm.tiles[lm_id])
-    r = w // nt
-    f = np.int64(face)
-    if f < 0:
-        f = 0
-    elif f >= nt:
-        f = nt - 1
+    w, h, r, f = _tile_of(lm, lm_id, face)
     if not (s > 0.0):
         s = 0.0
     if not (t > 0.0):

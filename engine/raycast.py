@@ -37,7 +37,7 @@ from numba import njit, prange, types
 from numba.extending import intrinsic
 
 from . import geometry as G
-from .affine import normal_through, xform_ray
+from .affine import normal_through, unit, xform_ray
 from .jit import CORE, INLINE
 from .geometry import STACK_WORDS, TRI_LEAF, new_stack  # noqa: F401  (re-exported)
 from .csg import csg_closest_core, csg_surface_core, csg_vs0
@@ -687,12 +687,7 @@ def surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
             i32[ib + i64[G.H_PRIM_KIND] + j], (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3]),
             lox + t * ldx, loy + t * ldy, loz + t * ldz)
         px, py, pz = normal_through(f64, m_prim, lnx, lny, lnz)
-    nx, ny, nz = normal_through(f64, m_inst, px, py, pz)
-    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-    if ln > 0.0:
-        nx /= ln
-        ny /= ln
-        nz /= ln
+    nx, ny, nz = unit(*normal_through(f64, m_inst, px, py, pz))
     return face, u, v, nx, ny, nz
 
 

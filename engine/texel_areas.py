@@ -189,6 +189,18 @@ def _triangle_texel_areas(uv, area3d, width, height):
     return area, cov
 
 
+def _atlas_inputs(uv, area3d, width, height):
+    """Checked kernel inputs: uv (T,3,2) and area3d (T,) float64, a W×H atlas."""
+    uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 3, 2)
+    area3d = np.ascontiguousarray(area3d, dtype=np.float64).reshape(-1)
+    if area3d.shape[0] != uv.shape[0]:
+        raise ValueError(f"{uv.shape[0]} UV triangles but {area3d.shape[0]} areas")
+    width, height = int(width), int(height)
+    if width < 1 or height < 1:
+        raise ValueError(f"invalid atlas size {width}x{height}")
+    return uv, area3d, width, height
+
+
 def triangle_texel_areas(uv, area3d, width, height):
     """Exact world area and UV coverage of every texel of a W×H atlas.
 
@@ -199,14 +211,7 @@ def triangle_texel_areas(uv, area3d, width, height):
     with UV area. Triangles without UV area (has_uv_area) or world area add
     nothing, and record no photons (record_slot).
     """
-    uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 3, 2)
-    area3d = np.ascontiguousarray(area3d, dtype=np.float64).reshape(-1)
-    if area3d.shape[0] != uv.shape[0]:
-        raise ValueError(f"{uv.shape[0]} UV triangles but {area3d.shape[0]} areas")
-    width, height = int(width), int(height)
-    if width < 1 or height < 1:
-        raise ValueError(f"invalid atlas size {width}x{height}")
-    return _triangle_texel_areas(uv, area3d, width, height)
+    return _triangle_texel_areas(*_atlas_inputs(uv, area3d, width, height))
 
 
 
@@ -279,13 +284,7 @@ def triangle_texel_pieces(uv, area3d, width, height):
     within a texel in triangle order; per texel the piece areas sum to the
     texel's area from `triangle_texel_areas`.
     """
-    uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 3, 2)
-    area3d = np.ascontiguousarray(area3d, dtype=np.float64).reshape(-1)
-    if area3d.shape[0] != uv.shape[0]:
-        raise ValueError(f"{uv.shape[0]} UV triangles but {area3d.shape[0]} areas")
-    width, height = int(width), int(height)
-    if width < 1 or height < 1:
-        raise ValueError(f"invalid atlas size {width}x{height}")
+    uv, area3d, width, height = _atlas_inputs(uv, area3d, width, height)
     tri, tex, area, nv, bary = _triangle_texel_pieces(uv, area3d, width, height)
     order = np.argsort(tex, kind="stable")
     start = np.zeros(width * height + 1, np.int64)

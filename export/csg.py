@@ -186,6 +186,14 @@ def _mat4(m):
     return np.array(m, dtype=np.float64).reshape(4, 4)
 
 
+def _checked_tag(ob):
+    """The object's Photon CSG primitive tag; a malformed tag makes the solid fall back."""
+    try:
+        return primitive_tag(ob)
+    except ValueError as exc:
+        raise CSGFallback(str(exc)) from None
+
+
 class CSGBuilder:
     """Builds one CSG solid per base object; the exporter supplies the conversions.
 
@@ -270,11 +278,7 @@ class CSGBuilder:
 
     def _leaf(self, ob):
         """An object without Boolean modifiers: its evaluated geometry (what Blender uses)."""
-        rel = self._relative(ob)
-        try:
-            tag = primitive_tag(ob)
-        except ValueError as exc:
-            raise CSGFallback(str(exc)) from None
+        rel, tag = self._relative(ob), _checked_tag(ob)
         if tag is not None and not other_modifiers(ob):
             return self._primitive(ob, tag, rel)
         if tag is not None:
@@ -285,11 +289,7 @@ class CSGBuilder:
 
     def _own_geometry(self, ob):
         """An object with Boolean modifiers: its geometry before the stack (the original data)."""
-        rel = self._relative(ob)
-        try:
-            tag = primitive_tag(ob)
-        except ValueError as exc:
-            raise CSGFallback(str(exc)) from None
+        rel, tag = self._relative(ob), _checked_tag(ob)
         if tag is not None:
             return self._primitive(ob, tag, rel)
         return self._mesh(ob, ob.data, rel)

@@ -206,9 +206,4 @@ class PHOTON_LIGHTMAPS_OT_csg_primitive_add(bpy.types.Operator):
         return {"FINISHED"}
 
 
-def menu_add(self, context):
-    self.layout.operator_menu_enum(PHOTON_LIGHTMAPS_OT_csg_primitive_add.bl_idname, "kind",
-                                   text="Photon CSG Primitive", icon="MOD_BOOLEAN")
-
-
 classes = (PHOTON_LIGHTMAPS_OT_csg_primitive_add,)

@@ -291,13 +291,3 @@ class PHOTON_LIGHTMAPS_OT_bake_orientation_lightmaps(bpy.types.Operator):
 
 classes = (PHOTON_LIGHTMAPS_OT_add_orientation_lightmap, PHOTON_LIGHTMAPS_OT_remove_orientation_lightmap,
            PHOTON_LIGHTMAPS_OT_suggest_orientation_lightmaps, PHOTON_LIGHTMAPS_OT_bake_orientation_lightmaps)
-
-
-def menu(self, context):
-    layout = self.layout
-    layout.separator()
-    layout.operator(PHOTON_LIGHTMAPS_OT_add_orientation_lightmap.bl_idname, icon="SPHERE")
-    layout.operator(PHOTON_LIGHTMAPS_OT_remove_orientation_lightmap.bl_idname)
-    layout.operator_context = "INVOKE_DEFAULT"
-    layout.operator(PHOTON_LIGHTMAPS_OT_suggest_orientation_lightmaps.bl_idname)
-    layout.operator(PHOTON_LIGHTMAPS_OT_bake_orientation_lightmaps.bl_idname, icon="LIGHT")

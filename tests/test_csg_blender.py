@@ -157,7 +157,8 @@ def test_operator_display_mesh_matches_engine_charts(kind):
             checked_surface += t
     assert checked_surface > len(me.loops) // 3
     # the operator is reachable from Add
-    assert csg_primitives.menu_add in bpy.types.VIEW3D_MT_add._dyn_ui_initialize()
+    from photon_lightmaps.ui import menus
+    assert menus.menu_add in bpy.types.VIEW3D_MT_add._dyn_ui_initialize()
 
 
 def test_display_mesh_normals_point_outward():

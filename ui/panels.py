@@ -13,10 +13,20 @@ from ..operators.render_engine import ENGINE_ID
 class _EnginePanel:
     bl_space_type = 'PROPERTIES'
     bl_region_type = 'WINDOW'
+    needs = None        # a context member the panel shows (e.g. "light"); None: always
 
     @classmethod
     def poll(cls, context):
-        return context.engine == ENGINE_ID
+        return context.engine == ENGINE_ID and (cls.needs is None or getattr(context, cls.needs, None) is not None)
+
+
+def _draw_surface(layout, owner, output_type, what_is_read, fallback):
+    """The 'Surface' panel of a material or world: what the engine reads, then the
+    shader at the active output (or the owner's plain colour without nodes)."""
+    layout.use_property_split = True
+    layout.label(text=f"Read: {what_is_read}", icon='INFO')
+    if owner.node_tree is None or not _draw_output(layout, owner.node_tree, output_type, "Surface"):
+        layout.prop(owner, fallback)
 
 
 def _draw_output(layout, tree, output_type, input_name):
@@ -211,21 +221,14 @@ class PHOTON_LIGHTMAPS_PT_material_surface(_EnginePanel, bpy.types.Panel):
         return super().poll(context) and mat is not None and not mat.grease_pencil
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        mat = context.material
-        layout.label(text="Read: Principled, Diffuse, Glossy, Glass or Emission", icon='INFO')
-        if mat.node_tree is None or not _draw_output(layout, mat.node_tree, "ShaderNodeOutputMaterial", "Surface"):
-            layout.prop(mat, "diffuse_color")
+        _draw_surface(self.layout, context.material, "ShaderNodeOutputMaterial",
+                      "Principled, Diffuse, Glossy, Glass or Emission", "diffuse_color")
 
 
 class PHOTON_LIGHTMAPS_PT_light(_EnginePanel, bpy.types.Panel):
     bl_label = "Light"
     bl_context = "data"
-
-    @classmethod
-    def poll(cls, context):
-        return super().poll(context) and context.light is not None
+    needs = "light"
 
     def draw(self, context):
         layout = self.layout
@@ -267,18 +270,11 @@ class PHOTON_LIGHTMAPS_PT_light(_EnginePanel, bpy.types.Panel):
 class PHOTON_LIGHTMAPS_PT_world(_EnginePanel, bpy.types.Panel):
     bl_label = "Surface"
     bl_context = "world"
-
-    @classmethod
-    def poll(cls, context):
-        return super().poll(context) and context.world is not None
+    needs = "world"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        world = context.world
-        layout.label(text="Read: a constant Background colour x strength", icon='INFO')
-        if world.node_tree is None or not _draw_output(layout, world.node_tree, "ShaderNodeOutputWorld", "Surface"):
-            layout.prop(world, "color")
+        _draw_surface(self.layout, context.world, "ShaderNodeOutputWorld",
+                      "a constant Background colour x strength", "color")
 
 
 classes = (

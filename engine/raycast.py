@@ -687,7 +687,8 @@ def surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
             i32[ib + i64[G.H_PRIM_KIND] + j], (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3]),
             lox + t * ldx, loy + t * ldy, loz + t * ldz)
         px, py, pz = normal_through(f64, m_prim, lnx, lny, lnz)
-    nx, ny, nz = unit(*normal_through(f64, m_inst, px, py, pz))
+    nx, ny, nz = normal_through(f64, m_inst, px, py, pz)
+    nx, ny, nz = unit(nx, ny, nz)
     return face, u, v, nx, ny, nz
 
 

@@ -63,6 +63,143 @@ def _halving_levels(count, max_leaf):
     return lv
 
 
+@njit(cache=True, inline="always")
+def _node_bounds(idx, start, end, lo, hi, cen):
+    """Box of the items idx[start:end] and box of their centroids (12 scalars)."""
+    bx0 = by0 = bz0 = np.inf
+    bx1 = by1 = bz1 = -np.inf
+    cx0 = cy0 = cz0 = np.inf
+    cx1 = cy1 = cz1 = -np.inf
+    for j in range(start, end):
+        it = idx[j]
+        bx0 = min(bx0, lo[it, 0])
+        by0 = min(by0, lo[it, 1])
+        bz0 = min(bz0, lo[it, 2])
+        bx1 = max(bx1, hi[it, 0])
+        by1 = max(by1, hi[it, 1])
+        bz1 = max(bz1, hi[it, 2])
+        cx0 = min(cx0, cen[it, 0])
+        cy0 = min(cy0, cen[it, 1])
+        cz0 = min(cz0, cen[it, 2])
+        cx1 = max(cx1, cen[it, 0])
+        cy1 = max(cy1, cen[it, 1])
+        cz1 = max(cz1, cen[it, 2])
+    return bx0, by0, bz0, bx1, by1, bz1, cx0, cy0, cz0, cx1, cy1, cz1
+
+
+@njit(cache=True, inline="always")
+def _best_sah_split(idx, start, end, lo, hi, cen, cmin, cext, depth, max_leaf, n_bins,
+                    bcnt, blo, bhi, right_area):
+    """Binned SAH over the three axes -> (cost, axis (-1: none), split bin, bin scale per axis).
+    Splits that would push a subtree past MAX_DEPTH are not considered."""
+    count = end - start
+    best_cost = np.inf
+    best_axis = -1
+    best_split = 0
+    # ks[ax] == 0 marks an axis that cannot be binned (flat or so
+    # thin that the bin scale overflows)
+    ks = np.zeros(3)
+    if cext[0] > 0.0 or cext[1] > 0.0 or cext[2] > 0.0:
+        bcnt[:, :] = 0
+        blo[:, :, :] = np.inf
+        bhi[:, :, :] = -np.inf
+        for ax in range(3):
+            if cext[ax] > 0.0:
+                kk = n_bins * (1.0 - 1e-9) / cext[ax]
+                if kk < np.inf:
+                    ks[ax] = kk
+        for j in range(start, end):
+            it = idx[j]
+            for ax in range(3):
+                if ks[ax] > 0.0:
+                    b = _bin_of(cen[it, ax], cmin[ax], ks[ax], n_bins)
+                    bcnt[ax, b] += 1
+                    for k in range(3):
+                        if lo[it, k] < blo[ax, b, k]:
+                            blo[ax, b, k] = lo[it, k]
+                        if hi[it, k] > bhi[ax, b, k]:
+                            bhi[ax, b, k] = hi[it, k]
+        for ax in range(3):
+            if ks[ax] == 0.0:
+                continue
+            # sweep from the right: area of bins b..n_bins-1
+            x0 = y0 = z0 = np.inf
+            x1 = y1 = z1 = -np.inf
+            for b in range(n_bins - 1, 0, -1):
+                if bcnt[ax, b] > 0:
+                    x0 = min(x0, blo[ax, b, 0])
+                    y0 = min(y0, blo[ax, b, 1])
+                    z0 = min(z0, blo[ax, b, 2])
+                    x1 = max(x1, bhi[ax, b, 0])
+                    y1 = max(y1, bhi[ax, b, 1])
+                    z1 = max(z1, bhi[ax, b, 2])
+                right_area[b] = _half_area(x0, y0, z0, x1, y1, z1) if x1 >= x0 else 0.0
+            # sweep from the left, evaluating the split before bin b
+            x0 = y0 = z0 = np.inf
+            x1 = y1 = z1 = -np.inf
+            nl = 0
+            for b in range(1, n_bins):
+                if bcnt[ax, b - 1] > 0:
+                    x0 = min(x0, blo[ax, b - 1, 0])
+                    y0 = min(y0, blo[ax, b - 1, 1])
+                    z0 = min(z0, blo[ax, b - 1, 2])
+                    x1 = max(x1, bhi[ax, b - 1, 0])
+                    y1 = max(y1, bhi[ax, b - 1, 1])
+                    z1 = max(z1, bhi[ax, b - 1, 2])
+                nl += bcnt[ax, b - 1]
+                nr = count - nl
+                if nl == 0 or nr == 0:
+                    continue
+                if depth + 1 + _halving_levels(max(nl, nr), max_leaf) > MAX_DEPTH:
+                    continue
+                cost = nl * _half_area(x0, y0, z0, x1, y1, z1) + nr * right_area[b]
+                if cost < best_cost:
+                    best_cost = cost
+                    best_axis = ax
+                    best_split = b
+    return best_cost, best_axis, best_split, ks
+
+
+@njit(cache=True, inline="always")
+def _partition(idx, start, end, cen, ax, c0, k, n_bins, split):
+    """Reorders idx[start:end] so items of bins < split come first -> the first of the rest
+    (the same bin formula as the binning pass)."""
+    l = start
+    r = end - 1
+    while l <= r:
+        if _bin_of(cen[idx[l], ax], c0, k, n_bins) < split:
+            l += 1
+        else:
+            tmp = idx[l]
+            idx[l] = idx[r]
+            idx[r] = tmp
+            r -= 1
+    return l
+
+
+@njit(cache=True, inline="always")
+def _median_split(idx, start, end, cen, cext):
+    """Depth-limited fallback: object median along the widest centroid axis -> mid.
+    When all centroids coincide any halving is as good as another."""
+    count = end - start
+    mid = (start + end + 1) // 2
+    if cext[0] > 0.0 or cext[1] > 0.0 or cext[2] > 0.0:
+        ax = 0
+        if cext[1] > cext[ax]:
+            ax = 1
+        if cext[2] > cext[ax]:
+            ax = 2
+        if cext[ax] > 0.0:
+            keys = np.empty(count)
+            for j in range(count):
+                keys[j] = cen[idx[start + j], ax]
+            order = np.argsort(keys)
+            sub = idx[start:end].copy()
+            for j in range(count):
+                idx[start + j] = sub[order[j]]
+    return mid
+
+
 @njit(cache=True)
 def _build(lo, hi, max_leaf, n_bins, c_trav):
     n = lo.shape[0]
@@ -114,25 +251,8 @@ def _build(lo, hi, max_leaf, n_bins, c_trav):
         if parent >= 0:
             na[parent] = i
 
-        # bounds of the items and of their centroids
-        bx0 = by0 = bz0 = np.inf
-        bx1 = by1 = bz1 = -np.inf
-        cx0 = cy0 = cz0 = np.inf
-        cx1 = cy1 = cz1 = -np.inf
-        for j in range(start, end):
-            it = idx[j]
-            bx0 = min(bx0, lo[it, 0])
-            by0 = min(by0, lo[it, 1])
-            bz0 = min(bz0, lo[it, 2])
-            bx1 = max(bx1, hi[it, 0])
-            by1 = max(by1, hi[it, 1])
-            bz1 = max(bz1, hi[it, 2])
-            cx0 = min(cx0, cen[it, 0])
-            cy0 = min(cy0, cen[it, 1])
-            cz0 = min(cz0, cen[it, 2])
-            cx1 = max(cx1, cen[it, 0])
-            cy1 = max(cy1, cen[it, 1])
-            cz1 = max(cz1, cen[it, 2])
+        bx0, by0, bz0, bx1, by1, bz1, cx0, cy0, cz0, cx1, cy1, cz1 = _node_bounds(
+            idx, start, end, lo, hi, cen)
         nmin[i, 0], nmin[i, 1], nmin[i, 2] = bx0, by0, bz0
         nmax[i, 0], nmax[i, 1], nmax[i, 2] = bx1, by1, bz1
         count = end - start
@@ -144,71 +264,9 @@ def _build(lo, hi, max_leaf, n_bins, c_trav):
 
         cmin = (cx0, cy0, cz0)
         cext = (cx1 - cx0, cy1 - cy0, cz1 - cz0)
-        best_cost = np.inf
-        best_axis = -1
-        best_split = 0
-        if cext[0] > 0.0 or cext[1] > 0.0 or cext[2] > 0.0:
-            bcnt[:, :] = 0
-            blo[:, :, :] = np.inf
-            bhi[:, :, :] = -np.inf
-            # ks[ax] == 0 marks an axis that cannot be binned (flat or so
-            # thin that the bin scale overflows)
-            ks = np.zeros(3)
-            for ax in range(3):
-                if cext[ax] > 0.0:
-                    kk = n_bins * (1.0 - 1e-9) / cext[ax]
-                    if kk < np.inf:
-                        ks[ax] = kk
-            for j in range(start, end):
-                it = idx[j]
-                for ax in range(3):
-                    if ks[ax] > 0.0:
-                        b = _bin_of(cen[it, ax], cmin[ax], ks[ax], n_bins)
-                        bcnt[ax, b] += 1
-                        for k in range(3):
-                            if lo[it, k] < blo[ax, b, k]:
-                                blo[ax, b, k] = lo[it, k]
-                            if hi[it, k] > bhi[ax, b, k]:
-                                bhi[ax, b, k] = hi[it, k]
-            for ax in range(3):
-                if ks[ax] == 0.0:
-                    continue
-                # sweep from the right: area of bins b..n_bins-1
-                x0 = y0 = z0 = np.inf
-                x1 = y1 = z1 = -np.inf
-                for b in range(n_bins - 1, 0, -1):
-                    if bcnt[ax, b] > 0:
-                        x0 = min(x0, blo[ax, b, 0])
-                        y0 = min(y0, blo[ax, b, 1])
-                        z0 = min(z0, blo[ax, b, 2])
-                        x1 = max(x1, bhi[ax, b, 0])
-                        y1 = max(y1, bhi[ax, b, 1])
-                        z1 = max(z1, bhi[ax, b, 2])
-                    right_area[b] = _half_area(x0, y0, z0, x1, y1, z1) if x1 >= x0 else 0.0
-                # sweep from the left, evaluating the split before bin b
-                x0 = y0 = z0 = np.inf
-                x1 = y1 = z1 = -np.inf
-                nl = 0
-                for b in range(1, n_bins):
-                    if bcnt[ax, b - 1] > 0:
-                        x0 = min(x0, blo[ax, b - 1, 0])
-                        y0 = min(y0, blo[ax, b - 1, 1])
-                        z0 = min(z0, blo[ax, b - 1, 2])
-                        x1 = max(x1, bhi[ax, b - 1, 0])
-                        y1 = max(y1, bhi[ax, b - 1, 1])
-                        z1 = max(z1, bhi[ax, b - 1, 2])
-                    nl += bcnt[ax, b - 1]
-                    nr = count - nl
-                    if nl == 0 or nr == 0:
-                        continue
-                    if depth + 1 + _halving_levels(max(nl, nr), max_leaf) > MAX_DEPTH:
-                        continue
-                    cost = nl * _half_area(x0, y0, z0, x1, y1, z1) + nr * right_area[b]
-                    if cost < best_cost:
-                        best_cost = cost
-                        best_axis = ax
-                        best_split = b
-
+        best_cost, best_axis, best_split, ks = _best_sah_split(
+            idx, start, end, lo, hi, cen, cmin, cext, depth, max_leaf, n_bins,
+            bcnt, blo, bhi, right_area)
         area = _half_area(bx0, by0, bz0, bx1, by1, bz1)
         if best_axis >= 0:
             split_cost = c_trav * area + best_cost
@@ -216,43 +274,14 @@ def _build(lo, hi, max_leaf, n_bins, c_trav):
                 na[i] = start
                 nc[i] = count
                 continue
-            # partition idx[start:end] by bin (same formula as the binning pass)
-            ax = best_axis
-            k = ks[ax]
-            c0 = cmin[ax]
-            l = start
-            r = end - 1
-            while l <= r:
-                if _bin_of(cen[idx[l], ax], c0, k, n_bins) < best_split:
-                    l += 1
-                else:
-                    tmp = idx[l]
-                    idx[l] = idx[r]
-                    idx[r] = tmp
-                    r -= 1
-            mid = l
+            mid = _partition(idx, start, end, cen, best_axis, cmin[best_axis], ks[best_axis], n_bins,
+                             best_split)
         else:
             if count <= max_leaf:
                 na[i] = start
                 nc[i] = count
                 continue
-            mid = (start + end + 1) // 2
-            if cext[0] > 0.0 or cext[1] > 0.0 or cext[2] > 0.0:
-                # depth-limited: object median along the widest centroid axis
-                ax = 0
-                if cext[1] > cext[ax]:
-                    ax = 1
-                if cext[2] > cext[ax]:
-                    ax = 2
-                if cext[ax] > 0.0:
-                    keys = np.empty(count)
-                    for j in range(count):
-                        keys[j] = cen[idx[start + j], ax]
-                    order = np.argsort(keys)
-                    sub = idx[start:end].copy()
-                    for j in range(count):
-                        idx[start + j] = sub[order[j]]
-            # else: all centroids coincide; any halving is as good as another
+            mid = _median_split(idx, start, end, cen, cext)
 
         nc[i] = 0
         s_start[sp] = mid

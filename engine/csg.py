@@ -48,11 +48,11 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from .affine import inverse, normal_through, unit, xform_ray
+from .affine import normal_through, unit, xform_ray
 from .jit import CORE, INLINE
-from .primitives import (BOX, CONE, CYLINDER, KIND_IDS, PARABOLOID, SPHERE, TORUS,
-                         prim_hits, prim_inside, prim_local_bounds, prim_surface)
-from .scene import CSGNode, Primitive, SceneError, TriangleMesh, _affine
+from .primitives import (BOX, CONE, CYLINDER, PARABOLOID, SPHERE, TORUS, check_primitive, prim_hits,
+                         prim_inside, prim_local_bounds, prim_surface)
+from .scene import CSGNode, Primitive, SceneError, TriangleMesh
 from .triangle import intersect_triangle, triangle_normal
 
 CSG = 9                       # shape kind of a CSG solid (after the primitive ids)
@@ -180,25 +180,10 @@ def flatten_csg(roots, n_materials=0, owner="prototype", mesh_uvs=None):
         nonlocal n_tri, n_mnode
         k = len(leaf_kind)
         if isinstance(obj, Primitive):
-            kind = obj.kind.lower() if isinstance(obj.kind, str) else obj.kind
-            if kind not in KIND_IDS:
-                raise SceneError(f"{what}: unknown primitive kind {obj.kind!r}")
-            kid = KIND_IDS[kind]
+            kid, p4, xf, inv, mat = check_primitive(obj, what, n_materials)
             if kid not in SOLID_KINDS:
-                raise SceneError(f"{what}: a {kind} is an open surface and cannot be a CSG "
+                raise SceneError(f"{what}: a {obj.kind} is an open surface and cannot be a CSG "
                                  "operand (use a closed solid)")
-            params = np.asarray(obj.params if obj.params is not None else (), np.float64).reshape(-1)
-            if params.size > 4 or not np.all(np.isfinite(params)):
-                raise SceneError(f"{what}: invalid parameters {obj.params!r}")
-            p4 = np.zeros(4)
-            p4[:params.size] = params
-            if kid == TORUS and not 0.0 < p4[0] < 1.0:
-                raise SceneError(f"{what}: a torus needs params=(minor_radius,) with 0 < r < 1")
-            mat = int(obj.material)
-            if n_materials and not 0 <= mat < n_materials:
-                raise SceneError(f"{what}: material index {mat} out of range")
-            xf = _affine(obj.transform, what)
-            inv = inverse(xf)
             lb = prim_local_bounds(np.int32(kid), p4)
             c = np.array([[x, y, z] for x in (lb[0], lb[3]) for y in (lb[1], lb[4])
                           for z in (lb[2], lb[5])])

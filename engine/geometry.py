@@ -25,10 +25,9 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from .affine import inverse
 from .bvh import REC_WORDS, STACK_BUDGET, aligned_empty, build_bvh, pack_bvh
 from .csg import CSG, CSG_SCRATCH_WORDS, H_CSG, MESH, flatten_csg, pack_blob
-from .primitives import KIND_IDS, prim_local_bounds
+from .primitives import check_primitive, prim_local_bounds
 from .scene import SceneError, _affine
 
 Geometry = namedtuple("Geometry", [
@@ -330,26 +329,6 @@ def _check_mesh(mesh, what, n_materials, notes=None):
     return p[keep], uvs[keep], mats[keep], int(T - keep.sum())
 
 
-def _check_primitive(prim, what, kind_ids, n_materials):
-    kind = prim.kind.lower() if isinstance(prim.kind, str) else prim.kind
-    if kind not in kind_ids:
-        _fail(what, f"unknown primitive kind {prim.kind!r} (expected one of {', '.join(kind_ids)})")
-    params = np.asarray(prim.params if prim.params is not None else (), dtype=np.float64).reshape(-1)
-    if params.size > 4:
-        _fail(what, f"at most 4 parameters, got {params.size}")
-    if not np.all(np.isfinite(params)):
-        _fail(what, "parameters contain NaN or infinity")
-    p4 = np.zeros(4)
-    p4[:params.size] = params
-    if kind == "torus" and not (params.size >= 1 and 0.0 < p4[0] < 1.0):
-        _fail(what, "a torus needs params=(minor_radius,) with 0 < minor_radius < 1")
-    mat = int(prim.material)
-    if n_materials and not (0 <= mat < n_materials):
-        _fail(what, f"material index {mat} out of range (scene has {n_materials} materials)")
-    xf = _affine(prim.transform, what)
-    return kind_ids[kind], p4, xf, inverse(xf), mat
-
-
 def _pack_blas(proto_root, n_nodes, blas_min, blas_max, blas_a, blas_count, shape_kind,
                shape_index, tri_p, n_shapes):
     """4-wide traversal records of every prototype's BLAS (absolute record ids),
@@ -471,7 +450,7 @@ def _prototype_shapes(proto, pi_, csg, n_csg, n_materials, degenerate, uv_clampe
         k_uv.append(uv)
     for prim in proto.primitives:
         what = f"primitive '{prim.name}' in {pname}"
-        kid, params, xf, inv, mat = _check_primitive(prim, what, KIND_IDS, n_materials)
+        kid, params, xf, inv, mat = check_primitive(prim, what, n_materials)
         lb = prim_local_bounds(np.int32(kid), params)
         lo, hi = _box_corners_through(np.array(lb[:3]), np.array(lb[3:]), xf)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):

@@ -54,7 +54,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .affine import inverse
 from .sampling import concentric_disk
+from .scene import SceneError, _affine
 
 TRIANGLE = 0
 SPHERE = 1
@@ -786,3 +788,26 @@ def prim_inside(kind, params, px, py, pz):
     elif kind == PARABOLOID:
         return px * px + py * py < pz and pz < 1.0
     return False
+
+
+def check_primitive(prim, what, n_materials=0):
+    """A scene.Primitive validated for the kernels -> (kind id, params (4,), xf, inverse, material);
+    raises SceneError naming `what` (bad kind, parameters, material or transform)."""
+    kind = prim.kind.lower() if isinstance(prim.kind, str) else prim.kind
+    if kind not in KIND_IDS:
+        raise SceneError(f"{what}: unknown primitive kind {prim.kind!r} "
+                         f"(expected one of {', '.join(KIND_IDS)})")
+    params = np.asarray(prim.params if prim.params is not None else (), dtype=np.float64).reshape(-1)
+    if params.size > 4:
+        raise SceneError(f"{what}: at most 4 parameters, got {params.size}")
+    if not np.all(np.isfinite(params)):
+        raise SceneError(f"{what}: parameters contain NaN or infinity")
+    p4 = np.zeros(4)
+    p4[:params.size] = params
+    if kind == "torus" and not (params.size >= 1 and 0.0 < p4[0] < 1.0):
+        raise SceneError(f"{what}: a torus needs params=(minor_radius,) with 0 < minor_radius < 1")
+    mat = int(prim.material)
+    if n_materials and not (0 <= mat < n_materials):
+        raise SceneError(f"{what}: material index {mat} out of range (scene has {n_materials} materials)")
+    xf = _affine(prim.transform, what)
+    return KIND_IDS[kind], p4, xf, inverse(xf), mat

@@ -18,6 +18,17 @@ def addon():
         photon_lightmaps.unregister()
 
 
+@pytest.fixture
+def bake_uv_cache(tmp_path_factory, monkeypatch):
+    """xatlas results go to a per-session folder, not the user's cache; the bake's
+    kept photon pass is dropped before and after the test."""
+    from photon_lightmaps import bake as B
+    monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(tmp_path_factory.getbasetemp() / "uvcache"))
+    B.clear_cache()
+    yield
+    B.clear_cache()
+
+
 def read_image(path):
     """(H, W, 4) float pixels, rows top to bottom (float EXR: linear; PNG: encoded bytes / 255)."""
     img = bpy.data.images.load(str(path), check_existing=False)

@@ -27,16 +27,12 @@ from photon_lightmaps.engine import session  # noqa: E402
 from photon_lightmaps.export import uv_layers  # noqa: E402
 from photon_lightmaps.engine.scene import SceneError  # noqa: E402
 
-from blender_session import addon  # noqa: E402,F401  (session-wide registration)
+from blender_session import addon, bake_uv_cache  # noqa: E402,F401  (session-wide registration)
 
 
 @pytest.fixture(autouse=True)
-def uv_cache(tmp_path_factory, monkeypatch):
-    # xatlas results go to a per-session folder, not the user's cache.
-    monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(tmp_path_factory.getbasetemp() / "uvcache"))
-    B.clear_cache()
+def uv_cache(bake_uv_cache):
     yield
-    B.clear_cache()
 
 
 def _mesh_object(name, verts, faces, sc):

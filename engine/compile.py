@@ -113,8 +113,7 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
                     fills.append(("prim", data, M3))
                 ids.append(len(layouts) - 1)
         per_instance.append(ids)
-    _check_lightmap_memory(scene, layouts, per_instance, texel_density, forced_any=any(
-        int(inst.lightmap_resolution) for inst in scene.instances))
+    _check_lightmap_memory(scene, layouts, per_instance, texel_density)
     plan, n_sub, t_plan = ST.plan_csg_lightmaps(csg if csg_split else None, fills, layouts)
     ols = list(scene.orientation_lightmaps)
     ol_lids = []
@@ -148,7 +147,7 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
 MAX_RESOLUTION = 16384
 # Bytes per texel while rendering: the Lightmaps arrays (area, coverage, flux,
 # flux², hits, irradiance, state, split) and finalize()'s copy of irradiance
-# and state; plus 16 per band.
+# and state; plus TEXEL_BAND_BYTES per band (flux, irradiance, its copy).
 TEXEL_BYTES = 46
 TEXEL_BAND_BYTES = 24
 
@@ -160,7 +159,7 @@ PIXEL_BAND_BYTES = 8
 PIXEL_BYTES = 32
 
 
-def _check_lightmap_memory(scene, layouts, per_instance, density, forced_any):
+def _check_lightmap_memory(scene, layouts, per_instance, density):
     """Refuses lightmaps the machine cannot hold, naming the largest object and
     the texel density that would fit, before anything is allocated."""
     texels = np.array([w * h for w, h, _ in layouts], np.float64)
@@ -175,7 +174,8 @@ def _check_lightmap_memory(scene, layouts, per_instance, density, forced_any):
         what = (f"the largest is '{scene.instances[big].name}' with {per_obj[big]:,.0f} texels; "
                 if per_obj else "")
         return (f"{what}lower the texel density to about {density * scale:.3g} texels/m"
-                + (" and the per-object lightmap resolutions" if forced_any else ""))
+                + (" and the per-object lightmap resolutions"
+                   if any(int(i.lightmap_resolution) for i in scene.instances) else ""))
 
     memory_budget.check(f"lightmaps ({texels.sum() + ols:,.0f} texels at {density:g} texels/m)",
                         need, fix)

@@ -43,3 +43,35 @@ def unit(nx, ny, nz):
     if ln > 0.0:
         return nx / ln, ny / ln, nz / ln
     return nx, ny, nz
+
+
+# Per-point maps through a (3, 4) or (3, 3) array; plain njit functions, which
+# LLVM inlines at their call sites without the compile cost of inline="always".
+
+@njit(cache=True)
+def apply_point(m, x, y, z):
+    """m [R|t] applied to the point (x, y, z)."""
+    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z + m[0, 3],
+            m[1, 0] * x + m[1, 1] * y + m[1, 2] * z + m[1, 3],
+            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z + m[2, 3])
+
+
+@njit(cache=True)
+def apply_linear(m, x, y, z):
+    """R (the 3x3 part of m) applied to the vector (x, y, z)."""
+    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z,
+            m[1, 0] * x + m[1, 1] * y + m[1, 2] * z,
+            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z)
+
+
+@njit(cache=True)
+def apply_transposed(m, x, y, z):
+    """R^T applied to (x, y, z): a normal through the inverse-transpose, given the inverse."""
+    return (m[0, 0] * x + m[1, 0] * y + m[2, 0] * z,
+            m[0, 1] * x + m[1, 1] * y + m[2, 1] * z,
+            m[0, 2] * x + m[1, 2] * y + m[2, 2] * z)
+
+
+@njit(cache=True)
+def cross(ax, ay, az, bx, by, bz):
+    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx

@@ -32,10 +32,11 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
+from .affine import apply_point, apply_transposed, cross
 from . import csg as CSG
 from .primitives import _octa_encode, prim_area, prim_nfaces, prim_point
 from .raycast import STACK_WORDS, intersect_closest
-from .sampling import cosine_hemisphere, next_float, stream_state, to_world
+from .sampling import cosine_hemisphere, first_above, next_float, stream_state, to_world
 
 AreaEstimate = namedtuple("AreaEstimate", [
     "area",            # float64[R*R] estimated area per bin (m², row-major like a lightmap)
@@ -57,21 +58,6 @@ def _det3(m):
     return (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
             - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
             + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
-
-
-@njit(cache=True, inline="always")
-def _apply(m, x, y, z):
-    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z + m[0, 3],
-            m[1, 0] * x + m[1, 1] * y + m[1, 2] * z + m[1, 3],
-            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z + m[2, 3])
-
-
-@njit(cache=True, inline="always")
-def _normal(inv, x, y, z):
-    """Through the inverse-transpose, as the ray queries carry normals."""
-    return (inv[0, 0] * x + inv[1, 0] * y + inv[2, 0] * z,
-            inv[0, 1] * x + inv[1, 1] * y + inv[2, 1] * z,
-            inv[0, 2] * x + inv[1, 2] * y + inv[2, 2] * z)
 
 
 @njit(cache=True)
@@ -100,13 +86,7 @@ def _sample_kernel(g, insts, inst_cum, part_start, parts, part_acc, csg_roots_st
         state = stream_state(seed, k)
         x = (k + off) / n_s * total
         # instance: inst_cum[a] <= x < inst_cum[a+1] (cumulative size proxies)
-        lo, hi = 0, inst_cum.shape[0] - 2
-        while lo < hi:
-            mid = (lo + hi + 1) // 2
-            if inst_cum[mid] <= x:
-                lo = mid
-            else:
-                hi = mid - 1
+        lo = first_above(inst_cum, x, 0, inst_cum.shape[0] - 1) - 1
         inst = insts[lo]
         proto = g.inst_proto[inst]
         w_inst = inst_cum[lo + 1] - inst_cum[lo]
@@ -157,19 +137,17 @@ def _sample_kernel(g, insts, inst_cum, part_start, parts, part_acc, csg_roots_st
             r = prim_point(kind, (params[0], params[1], params[2], params[3]), face, u2, u3)
             pm = g.prim_xf[idx]
             # dp/du x dp/dv (outward), carried to prototype space like the normal
-            cx = r[4] * r[8] - r[5] * r[7]
-            cy = r[5] * r[6] - r[3] * r[8]
-            cz = r[3] * r[7] - r[4] * r[6]
-            cx, cy, cz = _normal(g.prim_inv[idx], cx, cy, cz)
+            cx, cy, cz = cross(r[3], r[4], r[5], r[6], r[7], r[8])
+            cx, cy, cz = apply_transposed(g.prim_inv[idx], cx, cy, cz)
             det_p = abs(_det3(pm))
-            lx, ly, lz = _apply(pm, r[0], r[1], r[2])
+            lx, ly, lz = apply_point(pm, r[0], r[1], r[2])
             area_local = float(nf)
         side = 1
         if has_csg and shape >= vs0:
             leaf, _sub = CSG.csg_vshape_leaf(buf, cb, shape)
             roots = csg_roots[csg_roots_start[proto]:csg_roots_start[proto + 1]]
             side = _csg_side(buf, cb, roots, leaf, lx, ly, lz, bits)
-        nx, ny, nz = _normal(inv, cx, cy, cz)
+        nx, ny, nz = apply_transposed(inv, cx, cy, cz)
         ln = math.sqrt(nx * nx + ny * ny + nz * nz)
         # |M^-T c| |det M| = |cof(M) c|: the world area element
         val = area_local * ln * det_i * det_p * scale
@@ -183,7 +161,7 @@ def _sample_kernel(g, insts, inst_cum, part_start, parts, part_acc, csg_roots_st
         by_ = min(np.int64(t * res), res - 1)
         out_bin[k] = by_ * res + bx_
         out_val[k] = val
-        wx, wy, wz = _apply(xf, lx, ly, lz)
+        wx, wy, wz = apply_point(xf, lx, ly, lz)
         out_pn[k, 0], out_pn[k, 1], out_pn[k, 2] = wx, wy, wz
         out_pn[k, 3], out_pn[k, 4], out_pn[k, 5] = nx, ny, nz
 

@@ -25,6 +25,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .affine import apply_linear, apply_point, apply_transposed, cross
 from . import csg as CSG
 from . import lightmap as LM
 from . import texel_areas as TA
@@ -230,16 +231,10 @@ def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, 
                 u1, u2 = j1, j2
             r = P.prim_point(kind, params, face, (item_x[it] + u1) * inv_r,
                              (item_y[it] + u2) * inv_r)
-            cx = r[4] * r[8] - r[5] * r[7]
-            cy = r[5] * r[6] - r[3] * r[8]
-            cz = r[3] * r[7] - r[4] * r[6]
+            cx, cy, cz = cross(r[3], r[4], r[5], r[6], r[7], r[8])
             # on the solid's boundary as part of this leaf (csg._visibility_kernel's test)
-            qx = pxf[0, 0] * r[0] + pxf[0, 1] * r[1] + pxf[0, 2] * r[2] + pxf[0, 3]
-            qy = pxf[1, 0] * r[0] + pxf[1, 1] * r[1] + pxf[1, 2] * r[2] + pxf[1, 3]
-            qz = pxf[2, 0] * r[0] + pxf[2, 1] * r[1] + pxf[2, 2] * r[2] + pxf[2, 3]
-            nx = pinv[0, 0] * cx + pinv[1, 0] * cy + pinv[2, 0] * cz
-            ny = pinv[0, 1] * cx + pinv[1, 1] * cy + pinv[2, 1] * cz
-            nz = pinv[0, 2] * cx + pinv[1, 2] * cy + pinv[2, 2] * cz
+            qx, qy, qz = apply_point(pxf, r[0], r[1], r[2])
+            nx, ny, nz = apply_transposed(pinv, cx, cy, cz)
             ln = math.sqrt(nx * nx + ny * ny + nz * nz)
             if not ln > 0.0:
                 continue   # crease or apex: no area there
@@ -254,15 +249,11 @@ def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, 
                 c = split_cell[ks, min(int(u2 * S), S - 1) * S + min(int(u1 * S), S - 1)]
                 if c > 0:
                     row = split_first[ks] + c - 1
-            wx = cof[0, 0] * cx + cof[0, 1] * cy + cof[0, 2] * cz
-            wy = cof[1, 0] * cx + cof[1, 1] * cy + cof[1, 2] * cz
-            wz = cof[2, 0] * cx + cof[2, 1] * cy + cof[2, 2] * cz
+            wx, wy, wz = apply_linear(cof, cx, cy, cz)
             jac = math.sqrt(wx * wx + wy * wy + wz * wz)
             if not jac > 0.0:
                 continue
-            px = wxf[0, 0] * r[0] + wxf[0, 1] * r[1] + wxf[0, 2] * r[2] + wxf[0, 3]
-            py = wxf[1, 0] * r[0] + wxf[1, 1] * r[1] + wxf[1, 2] * r[2] + wxf[1, 3]
-            pz = wxf[2, 0] * r[0] + wxf[2, 1] * r[1] + wxf[2, 2] * r[2] + wxf[2, 3]
+            px, py, pz = apply_point(wxf, r[0], r[1], r[2])
             f = sgn / jac
             for bb in range(nb):
                 e[bb] = 0.0

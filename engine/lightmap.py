@@ -17,6 +17,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
+from .sampling import first_above
 from .texel_areas import has_uv_area, primitive_texel_areas, triangle_texel_areas
 
 MODE_CONSTANT = 0
@@ -285,16 +286,9 @@ def clear(lm):
 
 @njit(cache=True, inline="always")
 def _owner(offset, i):
-    """Lightmap containing texel i (offsets ascending)."""
-    lo = 0
-    hi = offset.shape[0] - 1
-    while lo < hi:
-        mid = (lo + hi + 1) // 2
-        if offset[mid] <= i:
-            lo = mid
-        else:
-            hi = mid - 1
-    return lo
+    """Lightmap containing texel i (offsets ascending, no end sentinel: hi = L is
+    never read, and "none above" then means the last lightmap)."""
+    return first_above(offset, i, 0, offset.shape[0]) - 1
 
 
 # Parallel kernels take the texel arrays one by one: numba (0.68) silently drops

@@ -22,8 +22,9 @@ import numpy as np
 from numba import njit
 
 from . import primitives as P
-from .sampling import (concentric_disk, cosine_hemisphere, next_float, orthonormal_basis,
-                       sample_discrete, to_world, uniform_cone, uniform_sphere)
+from .affine import apply_linear, apply_point, apply_transposed
+from .sampling import (concentric_disk, cosine_hemisphere, first_above, next_float,
+                       orthonormal_basis, sample_discrete, to_world, uniform_cone, uniform_sphere)
 from .scene import AREA_SHAPES, SceneError, _affine, _bands
 
 POINT, SPOT, SUN, AREA, EMISSIVE, ENVIRONMENT = 0, 1, 2, 3, 4, 5
@@ -215,33 +216,23 @@ def _emissive_rows(scene, geom, materials, row, cells):
 # --------------------------------------------------------------------------------------
 
 @njit(cache=True)
-def _xf_point(xf, x, y, z):
-    return (xf[0, 0] * x + xf[0, 1] * y + xf[0, 2] * z + xf[0, 3],
-            xf[1, 0] * x + xf[1, 1] * y + xf[1, 2] * z + xf[1, 3],
-            xf[2, 0] * x + xf[2, 1] * y + xf[2, 2] * z + xf[2, 3])
-
-
-@njit(cache=True)
-def _xf_vec(xf, x, y, z):
-    return (xf[0, 0] * x + xf[0, 1] * y + xf[0, 2] * z,
-            xf[1, 0] * x + xf[1, 1] * y + xf[1, 2] * z,
-            xf[2, 0] * x + xf[2, 1] * y + xf[2, 2] * z)
-
-
-@njit(cache=True)
-def _xf_normal(inv, x, y, z):
-    """Normals transform by the inverse transpose: n' = inv^T n."""
-    return (inv[0, 0] * x + inv[1, 0] * y + inv[2, 0] * z,
-            inv[0, 1] * x + inv[1, 1] * y + inv[2, 1] * z,
-            inv[0, 2] * x + inv[1, 2] * y + inv[2, 2] * z)
-
-
-@njit(cache=True)
 def _normalize(x, y, z):
     ln = math.sqrt(x * x + y * y + z * z)
     if ln == 0.0:
         return 0.0, 0.0, 1.0, 0.0
     return x / ln, y / ln, z / ln, ln
+
+
+@njit(cache=True)
+def _area_point(ls, li, u1, u2):
+    """A uniform point on area light li (rectangle or ellipse), from two uniforms."""
+    if ls.shape[li] == ELLIPSE:
+        a, b = concentric_disk(u1, u2)
+    else:
+        a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
+    return (ls.pos[li, 0] + a * ls.axis_u[li, 0] + b * ls.axis_v[li, 0],
+            ls.pos[li, 1] + a * ls.axis_u[li, 1] + b * ls.axis_v[li, 1],
+            ls.pos[li, 2] + a * ls.axis_u[li, 2] + b * ls.axis_v[li, 2])
 
 
 @njit(cache=True)
@@ -266,23 +257,14 @@ def emissive_point(ls, g, li, u1, u2, u3):
         e1x, e1y, e1z = t[1, 0] - t[0, 0], t[1, 1] - t[0, 1], t[1, 2] - t[0, 2]
         e2x, e2y, e2z = t[2, 0] - t[0, 0], t[2, 1] - t[0, 1], t[2, 2] - t[0, 2]
         nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        px, py, pz = _xf_point(ixf, x, y, z)
-        wx, wy, wz = _xf_normal(iinv, nx, ny, nz)
+        px, py, pz = apply_point(ixf, x, y, z)
+        wx, wy, wz = apply_transposed(iinv, nx, ny, nz)
         wx, wy, wz, _ = _normalize(wx, wy, wz)
         # a triangle flattened to zero world area: pdf 0, callers drop the sample
         return px, py, pz, wx, wy, wz, 1.0, 1.0 / ls.area[li] if ls.area[li] > 0.0 else 0.0
     # Primitive: choose a cell by area, then (u,v) uniformly inside it.
     total = ls.cell_cdf[start + cnt - 1]
-    target = u3 * total
-    lo = start
-    hi = start + cnt - 1
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if ls.cell_cdf[mid] <= target:
-            lo = mid + 1
-        else:
-            hi = mid
-    c = lo
+    c = first_above(ls.cell_cdf, u3 * total, start, start + cnt - 1)
     prev = ls.cell_cdf[c - 1] if c > start else 0.0
     a_cell = ls.cell_cdf[c] - prev
     u = ls.cell_u0[c] + u1 * ls.cell_du[c]
@@ -293,19 +275,19 @@ def emissive_point(ls, g, li, u1, u2, u3):
     (x, y, z, ax, ay, az, bx, by, bz) = P.prim_point(kind, params, ls.cell_face[c], u, v)
     pxf = g.prim_xf[j]
     pinv = g.prim_inv[j]
-    x, y, z = _xf_point(pxf, x, y, z)
-    px, py, pz = _xf_point(ixf, x, y, z)
-    ax, ay, az = _xf_vec(pxf, ax, ay, az)
-    ax, ay, az = _xf_vec(ixf, ax, ay, az)
-    bx, by, bz = _xf_vec(pxf, bx, by, bz)
-    bx, by, bz = _xf_vec(ixf, bx, by, bz)
+    x, y, z = apply_point(pxf, x, y, z)
+    px, py, pz = apply_point(ixf, x, y, z)
+    ax, ay, az = apply_linear(pxf, ax, ay, az)
+    ax, ay, az = apply_linear(ixf, ax, ay, az)
+    bx, by, bz = apply_linear(pxf, bx, by, bz)
+    bx, by, bz = apply_linear(ixf, bx, by, bz)
     cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
     cx, cy, cz, jac = _normalize(cx, cy, cz)
     # Orient by the exact outward normal (parameterisations may be left-handed).
     lx, ly, lz = P.prim_point(kind, params, ls.cell_face[c], u, v)[:3]
     f, uu, vv, nx, ny, nz = P.prim_surface(kind, params, lx, ly, lz)
-    nx, ny, nz = _xf_normal(pinv, nx, ny, nz)
-    nx, ny, nz = _xf_normal(iinv, nx, ny, nz)
+    nx, ny, nz = apply_transposed(pinv, nx, ny, nz)
+    nx, ny, nz = apply_transposed(iinv, nx, ny, nz)
     if cx * nx + cy * ny + cz * nz < 0.0:
         cx, cy, cz = -cx, -cy, -cz
     du_dv = ls.cell_du[c] * ls.cell_dv[c]
@@ -368,13 +350,7 @@ def emit_photon(ls, g, state):
         dx, dy, dz = uniform_sphere(u1, u2)
         return state, li, cx, cy, cz, dx, dy, dz, weight
     if k == AREA:
-        if ls.shape[li] == ELLIPSE:
-            a, b = concentric_disk(u1, u2)
-        else:
-            a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
-        ox = ls.pos[li, 0] + a * ls.axis_u[li, 0] + b * ls.axis_v[li, 0]
-        oy = ls.pos[li, 1] + a * ls.axis_u[li, 1] + b * ls.axis_v[li, 1]
-        oz = ls.pos[li, 2] + a * ls.axis_u[li, 2] + b * ls.axis_v[li, 2]
+        ox, oy, oz = _area_point(ls, li, u1, u2)
         lx, ly, lz = cosine_hemisphere(u3, u4)
         dx, dy, dz = to_world(lx, ly, lz, ls.normal[li, 0], ls.normal[li, 1], ls.normal[li, 2])
         return state, li, ox, oy, oz, dx, dy, dz, weight
@@ -458,13 +434,7 @@ def sample_light(ls, g, li, px, py, pz, u1, u2, u3):
         pdf = 1.0 / (2.0 * math.pi * (1.0 - cos_max))
         return sx, sy, sz, ts, soft * mask / (math.pi * r * r) / pdf, True
     if k == AREA:
-        if ls.shape[li] == ELLIPSE:
-            a, b = concentric_disk(u1, u2)
-        else:
-            a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
-        qx = ls.pos[li, 0] + a * ls.axis_u[li, 0] + b * ls.axis_v[li, 0]
-        qy = ls.pos[li, 1] + a * ls.axis_u[li, 1] + b * ls.axis_v[li, 1]
-        qz = ls.pos[li, 2] + a * ls.axis_u[li, 2] + b * ls.axis_v[li, 2]
+        qx, qy, qz = _area_point(ls, li, u1, u2)
         wx, wy, wz, d = _normalize(qx - px, qy - py, qz - pz)
         cos_l = -(wx * ls.normal[li, 0] + wy * ls.normal[li, 1] + wz * ls.normal[li, 2])
         if cos_l <= 0.0 or not d * d > 0.0:

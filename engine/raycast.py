@@ -190,6 +190,16 @@ def _inv(d):
 
 
 @njit(**INLINE)
+def _ray_slabs(dx, dy, dz):
+    """Reciprocal direction and, per axis, the offset of the near slab plane in
+    a 4-wide record (the far plane is the other one): one setup per ray."""
+    ix = _inv(dx)
+    iy = _inv(dy)
+    iz = _inv(dz)
+    return ix, iy, iz, (4 if ix < 0.0 else 0), (12 if iy < 0.0 else 8), (20 if iz < 0.0 else 16)
+
+
+@njit(**INLINE)
 def _valid_ray(ox, oy, oz, dx, dy, dz):
     """Finite origin, finite non-zero direction. (A NaN ray would enter every
     box, since NaN slab distances read as "no limit".)"""
@@ -365,24 +375,26 @@ def _drop_far(mi, n0, n1, n2, n3, tbest):
 
 
 @njit(**INLINE)
+def _blas_start(buf, p, dx, dy, dz):
+    """What a traversal of prototype p needs: the buffer views, the triangle and
+    shape-reference bases, its root record and the ray's slab setup."""
+    i64, f32, i32, f64, rb, ib, fb = _layout(buf)
+    ix, iy, iz, nxo, nyo, nzo = _ray_slabs(dx, dy, dz)
+    return (i64, f32, i32, f64, rb, ib, fb, fb + i64[G.H_TRI4], ib + i64[G.H_SHAPE_REF],
+            i32[ib + i64[G.H_PROTO_SLOT] + p], ix, iy, iz, nxo, nyo, nzo)
+
+
+@njit(**INLINE)
 def _blas_closest(buf, stack, fstack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tbest,
                   code, b1, b2):
     """Closest hit in prototype p for a prototype-space ray, improving on
     (tbest, code, b1, b2); code is 4*packet+lane for triangles and -1-shape
     for other shapes (-1: none). Uses the stack above sp0."""
-    i64, f32, i32, f64, rb, ib, fb = _layout(buf)
-    tri4 = fb + i64[G.H_TRI4]
-    sref = ib + i64[G.H_SHAPE_REF]
-    ix = _inv(dx)
-    iy = _inv(dy)
-    iz = _inv(dz)
+    (i64, f32, i32, f64, rb, ib, fb, tri4, sref, node,
+     ix, iy, iz, nxo, nyo, nzo) = _blas_start(buf, p, dx, dy, dz)
     # the triangle test's setup waits for the first leaf: many rays never get there
     kx, ky, kz, sx, sy, sz, okx, oky, okz = 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     woop = False
-    nxo = 4 if ix < 0.0 else 0
-    nyo = 12 if iy < 0.0 else 8
-    nzo = 20 if iz < 0.0 else 16
-    node = i32[ib + i64[G.H_PROTO_SLOT] + p]
     sp = sp0
     t_start = tbest
     while True:
@@ -515,12 +527,7 @@ def closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
                                                       b1, b2)
         return _resolve(i64, i32, ib, tbest, inst, code, b1, b2)
     node = 0
-    ix = _inv(dx)
-    iy = _inv(dy)
-    iz = _inv(dz)
-    nxo = 4 if ix < 0.0 else 0
-    nyo = 12 if iy < 0.0 else 8
-    nzo = 20 if iz < 0.0 else 16
+    ix, iy, iz, nxo, nyo, nzo = _ray_slabs(dx, dy, dz)
     sp = 0
     while True:
         b = rb + node * 32
@@ -569,18 +576,10 @@ def _any_next(stack, sp, sp0, rec_i, b, mi):
 
 @njit(**INLINE)
 def _blas_any(buf, stack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    i64, f32, i32, f64, rb, ib, fb = _layout(buf)
-    tri4 = fb + i64[G.H_TRI4]
-    sref = ib + i64[G.H_SHAPE_REF]
-    ix = _inv(dx)
-    iy = _inv(dy)
-    iz = _inv(dz)
+    (i64, f32, i32, f64, rb, ib, fb, tri4, sref, node,
+     ix, iy, iz, nxo, nyo, nzo) = _blas_start(buf, p, dx, dy, dz)
     kx, ky, kz, sx, sy, sz, okx, oky, okz = 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     woop = False
-    nxo = 4 if ix < 0.0 else 0
-    nyo = 12 if iy < 0.0 else 8
-    nzo = 20 if iz < 0.0 else 16
-    node = i32[ib + i64[G.H_PROTO_SLOT] + p]
     sp = sp0
     while True:
         b = rb + node * 32
@@ -631,12 +630,7 @@ def occluded_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     single = i64[G.H_SINGLE]
     if single >= 0:
         return _instance_any(buf, stack, 0, single, ox, oy, oz, dx, dy, dz, tmin, tmax)
-    ix = _inv(dx)
-    iy = _inv(dy)
-    iz = _inv(dz)
-    nxo = 4 if ix < 0.0 else 0
-    nyo = 12 if iy < 0.0 else 8
-    nzo = 20 if iz < 0.0 else 16
+    ix, iy, iz, nxo, nyo, nzo = _ray_slabs(dx, dy, dz)
     node = 0
     sp = 0
     while True:

@@ -96,15 +96,18 @@ def uniform_cone(u1, u2, cos_max):
 
 
 @njit(cache=True)
-def sample_discrete(cdf, u):
-    """Index i with cdf[i-1] <= u*cdf[-1] < cdf[i] (cdf is inclusive, ascending)."""
-    target = u * cdf[cdf.shape[0] - 1]
-    lo = 0
-    hi = cdf.shape[0] - 1
+def first_above(a, x, lo, hi):
+    """Smallest i in [lo, hi] with a[i] > x, or hi when there is none (a ascending)."""
     while lo < hi:
         mid = (lo + hi) // 2
-        if cdf[mid] <= target:
+        if a[mid] <= x:
             lo = mid + 1
         else:
             hi = mid
     return lo
+
+
+@njit(cache=True)
+def sample_discrete(cdf, u):
+    """Index i with cdf[i-1] <= u*cdf[-1] < cdf[i] (cdf is inclusive, ascending)."""
+    return first_above(cdf, u * cdf[cdf.shape[0] - 1], 0, cdf.shape[0] - 1)

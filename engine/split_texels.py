@@ -16,6 +16,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
+from .affine import apply_linear, apply_point, apply_transposed, cross
 from .csg import CSG_SCRATCH_WORDS, MAX_WORK, SC_TIES, _evaluate, _inside, csg_base
 from .lightmap import SPLIT_SUB
 from .texel_areas import cofactor
@@ -57,22 +58,14 @@ def _visibility_kernel(buf, root, leaf, kind, params, xf, inv, n_faces, R, eps, 
                 r = prim_point(kind, params, f, u, v)
                 px, py, pz = r[0], r[1], r[2]
                 # dP/du x dP/dv is outward on every chart
-                lx = r[4] * r[8] - r[5] * r[7]
-                ly = r[5] * r[6] - r[3] * r[8]
-                lz = r[3] * r[7] - r[4] * r[6]
-                qx = xf[0, 0] * px + xf[0, 1] * py + xf[0, 2] * pz + xf[0, 3]
-                qy = xf[1, 0] * px + xf[1, 1] * py + xf[1, 2] * pz + xf[1, 3]
-                qz = xf[2, 0] * px + xf[2, 1] * py + xf[2, 2] * pz + xf[2, 3]
-                nx = inv[0, 0] * lx + inv[1, 0] * ly + inv[2, 0] * lz
-                ny = inv[0, 1] * lx + inv[1, 1] * ly + inv[2, 1] * lz
-                nz = inv[0, 2] * lx + inv[1, 2] * ly + inv[2, 2] * lz
+                lx, ly, lz = cross(r[3], r[4], r[5], r[6], r[7], r[8])
+                qx, qy, qz = apply_point(xf, px, py, pz)
+                nx, ny, nz = apply_transposed(inv, lx, ly, lz)
                 ln = math.sqrt(nx * nx + ny * ny + nz * nz)
                 if not ln > 0.0:
                     # singular chart point (apex, pole of a map): use its surface normal
                     fc, uu, vv, ax, ay, az = prim_surface(kind, params, px, py, pz)
-                    nx = inv[0, 0] * ax + inv[1, 0] * ay + inv[2, 0] * az
-                    ny = inv[0, 1] * ax + inv[1, 1] * ay + inv[2, 1] * az
-                    nz = inv[0, 2] * ax + inv[1, 2] * ay + inv[2, 2] * az
+                    nx, ny, nz = apply_transposed(inv, ax, ay, az)
                     ln = math.sqrt(nx * nx + ny * ny + nz * nz)
                     if not ln > 0.0:
                         continue
@@ -170,12 +163,8 @@ def _cell_weights(kind, params, cof, R, texels, out):
         for j in range(S):
             for i in range(S):
                 r = prim_point(kind, params, f, (x * S + i + 0.5) * h, (y * S + j + 0.5) * h)
-                nx = r[4] * r[8] - r[5] * r[7]
-                ny = r[5] * r[6] - r[3] * r[8]
-                nz = r[3] * r[7] - r[4] * r[6]
-                wx = cof[0, 0] * nx + cof[0, 1] * ny + cof[0, 2] * nz
-                wy = cof[1, 0] * nx + cof[1, 1] * ny + cof[1, 2] * nz
-                wz = cof[2, 0] * nx + cof[2, 1] * ny + cof[2, 2] * nz
+                nx, ny, nz = cross(r[3], r[4], r[5], r[6], r[7], r[8])
+                wx, wy, wz = apply_linear(cof, nx, ny, nz)
                 out[q, j * S + i] = math.sqrt(wx * wx + wy * wy + wz * wz)
 
 

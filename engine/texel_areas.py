@@ -17,6 +17,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
+from .affine import apply_linear, cross
 from .primitives import prim_nfaces, prim_point
 
 # A UV triangle whose doubled area in [0,1]² is below this has no texels: it
@@ -324,14 +325,8 @@ def _gauss_legendre01(order):
 @njit(cache=True, inline="always")
 def _area_element(kind, params, face, u, v, cof):
     r = prim_point(kind, params, face, u, v)
-    ax, ay, az = r[3], r[4], r[5]
-    bx, by, bz = r[6], r[7], r[8]
-    nx = ay * bz - az * by
-    ny = az * bx - ax * bz
-    nz = ax * by - ay * bx
-    wx = cof[0, 0] * nx + cof[0, 1] * ny + cof[0, 2] * nz
-    wy = cof[1, 0] * nx + cof[1, 1] * ny + cof[1, 2] * nz
-    wz = cof[2, 0] * nx + cof[2, 1] * ny + cof[2, 2] * nz
+    nx, ny, nz = cross(r[3], r[4], r[5], r[6], r[7], r[8])
+    wx, wy, wz = apply_linear(cof, nx, ny, nz)
     return math.sqrt(wx * wx + wy * wy + wz * wz)
 
 

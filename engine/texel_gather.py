@@ -39,6 +39,7 @@ import time
 import numpy as np
 from numba import njit, prange
 
+from .affine import apply_linear, apply_point, cross
 from . import lightmap as LM
 from . import texel_areas as TA
 from . import primitives as P
@@ -139,18 +140,12 @@ def _gather_mesh(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pn
             lx = b0 * v[0, 0] + b1 * v[1, 0] + b2 * v[2, 0]
             ly = b0 * v[0, 1] + b1 * v[1, 1] + b2 * v[2, 1]
             lz = b0 * v[0, 2] + b1 * v[1, 2] + b2 * v[2, 2]
-            px = xf[0, 0] * lx + xf[0, 1] * ly + xf[0, 2] * lz + xf[0, 3]
-            py = xf[1, 0] * lx + xf[1, 1] * ly + xf[1, 2] * lz + xf[1, 3]
-            pz = xf[2, 0] * lx + xf[2, 1] * ly + xf[2, 2] * lz + xf[2, 3]
+            px, py, pz = apply_point(xf, lx, ly, lz)
             # Geometric normal from the world-space edges (sign irrelevant: two-sided).
             e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
             e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
-            w1x = xf[0, 0] * e1x + xf[0, 1] * e1y + xf[0, 2] * e1z
-            w1y = xf[1, 0] * e1x + xf[1, 1] * e1y + xf[1, 2] * e1z
-            w1z = xf[2, 0] * e1x + xf[2, 1] * e1y + xf[2, 2] * e1z
-            w2x = xf[0, 0] * e2x + xf[0, 1] * e2y + xf[0, 2] * e2z
-            w2y = xf[1, 0] * e2x + xf[1, 1] * e2y + xf[1, 2] * e2z
-            w2z = xf[2, 0] * e2x + xf[2, 1] * e2y + xf[2, 2] * e2z
+            w1x, w1y, w1z = apply_linear(xf, e1x, e1y, e1z)
+            w2x, w2y, w2z = apply_linear(xf, e2x, e2y, e2z)
             nx = w1y * w2z - w1z * w2y
             ny = w1z * w2x - w1x * w2z
             nz = w1x * w2y - w1y * w2x
@@ -195,21 +190,15 @@ def _gather_prim(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local
             lx, ly, lz = r[0], r[1], r[2]
             # World area element and outward normal: cof(M)(pu x pv), sign-corrected
             # for mirroring transforms in lm_ncof.
-            cx = r[4] * r[8] - r[5] * r[7]
-            cy = r[5] * r[6] - r[3] * r[8]
-            cz = r[3] * r[7] - r[4] * r[6]
-            nx = cof[0, 0] * cx + cof[0, 1] * cy + cof[0, 2] * cz
-            ny = cof[1, 0] * cx + cof[1, 1] * cy + cof[1, 2] * cz
-            nz = cof[2, 0] * cx + cof[2, 1] * cy + cof[2, 2] * cz
+            cx, cy, cz = cross(r[3], r[4], r[5], r[6], r[7], r[8])
+            nx, ny, nz = apply_linear(cof, cx, cy, cz)
             jac = math.sqrt(nx * nx + ny * ny + nz * nz)
             if not (jac > 0.0):
                 continue   # crease or apex: no area there
             nx /= jac
             ny /= jac
             nz /= jac
-            px = xf[0, 0] * lx + xf[0, 1] * ly + xf[0, 2] * lz + xf[0, 3]
-            py = xf[1, 0] * lx + xf[1, 1] * ly + xf[1, 2] * lz + xf[1, 3]
-            pz = xf[2, 0] * lx + xf[2, 1] * ly + xf[2, 2] * lz + xf[2, 3]
+            px, py, pz = apply_point(xf, lx, ly, lz)
             for b in range(nb):
                 e[b] = 0.0
             state = direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, e)

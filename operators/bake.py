@@ -17,6 +17,7 @@ from .. import messages
 from ..bake import hooks
 from ..bake import pipeline as B
 from ..engine.photon_tracer import Cancelled
+from .common import ImageOutputOptions, ObjectModeOperator
 
 
 def _bake_candidates(context, selected_only):
@@ -32,11 +33,12 @@ def _summary(res):
     return text
 
 
-class PHOTON_LIGHTMAPS_OT_bake(bpy.types.Operator):
+class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types.Operator):
     """Bake photon lightmaps (direct + indirect irradiance) of mesh objects to float images"""
     bl_idname = "photon_lightmaps.bake"
     bl_label = "Bake Photon Lightmaps"
     bl_options = {"REGISTER"}
+    poll_mode_message = "Bake in Object Mode"
 
     selected_only: BoolProperty(
         name="Selected Only", default=True,
@@ -54,26 +56,12 @@ class PHOTON_LIGHTMAPS_OT_bake(bpy.types.Operator):
         name="Hook Materials", default=False,
         description="Add a removable 'Photon Lightmap' node setup to the materials, "
                     "so EEVEE and Material Preview show the baked light")
-    overwrite: BoolProperty(
-        name="Overwrite Images", default=False,
-        description="Replace existing images named '<object>_Lightmap' that this add-on did not make; "
-                    "off: such images are kept and the bake writes to a new name")
-    pack: BoolProperty(
-        name="Pack Images", default=False,
-        description="Pack the lightmaps into the .blend instead of saving them to //lightmaps/")
     run_modal: BoolProperty(
         default=False, options={"HIDDEN", "SKIP_SAVE"},
         description="Set by invoke: run in the background with progress in the status bar")
 
     _timer = None
     _thread = None
-
-    @classmethod
-    def poll(cls, context):
-        if context.scene is None or context.mode != "OBJECT":
-            cls.poll_message_set("Bake in Object Mode")
-            return False
-        return True
 
     # -- shared --------------------------------------------------------------------------
     def _start(self, context):

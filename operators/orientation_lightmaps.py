@@ -14,6 +14,7 @@ from .. import messages
 from ..bake import orientation as ol_bake
 from ..engine import session
 from ..export import is_orientation_lightmap
+from .common import ImageOutputOptions, ObjectModeOperator
 
 
 # --------------------------------------------------------------------------------------
@@ -135,7 +136,7 @@ def _active_ol(context):
 # Operators
 # --------------------------------------------------------------------------------------
 
-class PHOTON_LIGHTMAPS_OT_add_orientation_lightmap(bpy.types.Operator):
+class PHOTON_LIGHTMAPS_OT_add_orientation_lightmap(ObjectModeOperator, bpy.types.Operator):
     """Add an orientation lightmap to the active collection: its objects store photon hits per
     surface normal in one shared map instead of per-object lightmaps"""
     bl_idname = "photon_lightmaps.add_orientation_lightmap"
@@ -149,10 +150,6 @@ class PHOTON_LIGHTMAPS_OT_add_orientation_lightmap(bpy.types.Operator):
                             description="Octahedral direction bins per side")
     backup: BoolProperty(name="Backup", default=False,
                          description="Objects keep their lightmaps; the OL stands in for noisy texels")
-
-    @classmethod
-    def poll(cls, context):
-        return context.scene is not None and context.mode == "OBJECT"
 
     def execute(self, context):
         if self.collection:
@@ -202,7 +199,7 @@ class PHOTON_LIGHTMAPS_OT_remove_orientation_lightmap(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class PHOTON_LIGHTMAPS_OT_suggest_orientation_lightmaps(bpy.types.Operator):
+class PHOTON_LIGHTMAPS_OT_suggest_orientation_lightmaps(ObjectModeOperator, bpy.types.Operator):
     """Find collections whose per-object lightmaps would get too few photons per texel, or cost
     too much memory, for the photon budget, and state what an orientation lightmap saves"""
     bl_idname = "photon_lightmaps.suggest_orientation_lightmaps"
@@ -219,10 +216,6 @@ class PHOTON_LIGHTMAPS_OT_suggest_orientation_lightmaps(bpy.types.Operator):
                            description="Propose an OL where a collection's lightmaps cost more")
     create: BoolProperty(name="Create", default=False,
                          description="Add the proposed orientation lightmaps (off: only report them)")
-
-    @classmethod
-    def poll(cls, context):
-        return context.scene is not None and context.mode == "OBJECT"
 
     def invoke(self, context, event):
         return context.window_manager.invoke_props_dialog(self)
@@ -254,7 +247,7 @@ class PHOTON_LIGHTMAPS_OT_suggest_orientation_lightmaps(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class PHOTON_LIGHTMAPS_OT_bake_orientation_lightmaps(bpy.types.Operator):
+class PHOTON_LIGHTMAPS_OT_bake_orientation_lightmaps(ObjectModeOperator, ImageOutputOptions, bpy.types.Operator):
     """Bake every orientation lightmap (direct + indirect irradiance per normal) to an image its
     Empty owns, and optionally hook it into the covered objects' materials for EEVEE"""
     bl_idname = "photon_lightmaps.bake_orientation_lightmaps"
@@ -265,14 +258,6 @@ class PHOTON_LIGHTMAPS_OT_bake_orientation_lightmaps(bpy.types.Operator):
                          description="Photons to shoot; 0 uses the scene's setting")
     hook_materials: BoolProperty(name="Hook Materials", default=True,
                                  description="Show the baked light in EEVEE through removable material nodes")
-    overwrite: BoolProperty(name="Overwrite Images", default=False,
-                            description="Replace existing images of the same name this add-on did not make")
-    pack: BoolProperty(name="Pack Images", default=False,
-                       description="Pack the images into the .blend instead of saving them to //lightmaps/")
-
-    @classmethod
-    def poll(cls, context):
-        return context.scene is not None and context.mode == "OBJECT"
 
     def execute(self, context):
         try:

@@ -226,13 +226,18 @@ def box_mesh_arrays(inward=False):
 
 def random_primitive(rng, tags, solid=False):
     S = _engine()
-    kinds = S.PRIMITIVE_KINDS[:6] if solid else S.PRIMITIVE_KINDS
+    kinds = S.PRIMITIVE_KINDS[:6] + ("frustum",) if solid else S.PRIMITIVE_KINDS
     kind = str(rng.choice(kinds))
     params = ()
     if kind == "torus":
         params = (float(rng.choice([0.5, 0.25, 1e-6, 0.999999, 1 - 1e-12])),)
         if rng.random() < 0.05:
             params = (float(rng.choice([0.0, 1.0, 1.5, -0.2])),)   # invalid: SceneError
+            tags.append("bad_params")
+    elif kind == "frustum":
+        params = (float(rng.choice([0.0, 1e-9, 0.4, 1 - 1e-12, 1.0])),)
+        if rng.random() < 0.05:
+            params = (float(rng.choice([-0.1, 1.5])),)              # invalid: SceneError
             tags.append("bad_params")
     elif rng.random() < 0.05:
         params = tuple(rng.normal(size=int(rng.integers(1, 6))))

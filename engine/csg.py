@@ -50,16 +50,16 @@ from numba import njit
 
 from .affine import normal_through, unit, xform_ray
 from .jit import CORE, INLINE
-from .primitives import (BOX, CONE, CYLINDER, PARABOLOID, SPHERE, TORUS, check_primitive, prim_hits,
-                         prim_inside, prim_local_bounds, prim_surface)
+from .primitives import (BOX, CONE, CYLINDER, FRUSTUM, N_FACES, PARABOLOID, SPHERE, TORUS, check_primitive,
+                         prim_hits, prim_inside, prim_local_bounds, prim_surface)
 from .scene import CSGNode, Primitive, SceneError, TriangleMesh
 from .triangle import intersect_triangle, triangle_normal
 
-CSG = 9                       # shape kind of a CSG solid (after the primitive ids)
+CSG = int(N_FACES.shape[0])   # shape kind of a CSG solid (after the primitive ids)
 UNION, INTER, DIFF, LEAF = 0, 1, 2, 3
 OP_IDS = {"union": UNION, "intersection": INTER, "difference": DIFF}
 MESH = 0                      # leaf kind of a closed triangle mesh
-SOLID_KINDS = (SPHERE, BOX, CYLINDER, CONE, TORUS, PARABOLOID)
+SOLID_KINDS = (SPHERE, BOX, CYLINDER, CONE, TORUS, PARABOLOID, FRUSTUM)
 
 MAX_INTERVALS = 32            # per interval list
 MAX_LISTS = 16                # lists alive at once (Sethi–Ullman need of the tree)

@@ -18,6 +18,9 @@ id    name        local definition
 6     PARABOLOID  z = x^2 + y^2, 0 <= z <= 1, closed by the cap z = 1
 7     DISK        unit disk in z = 0, normal +z (open surface)
 8     QUAD        [-1, 1]^2 in z = 0, normal +z (open surface)
+9     FRUSTUM     truncated cone around z: base radius 1 at z = -1, top radius
+                  t = params[0] (0 <= t <= 1) at z = 1, closed by the base and
+                  (t > 0) the top cap; t = 1 is the cylinder, t = 0 the cone
 ====  ==========  ===========================================================
 
 Intersections (``prim_hits``) return *all* crossings of the infinite line,
@@ -42,12 +45,17 @@ outside, u runs "right" and v "up", so textures are never mirrored.
   around the tube from the outer equator towards +z.
 * PARABOLOID: face 0 side (graph z = rho^2 over the disk), face 1 cap z = 1.
 * DISK, face 0; QUAD, face 0: ((x + 1) / 2, (y + 1) / 2).
+* FRUSTUM: face 0 side (phi / 2pi, (z + 1) / 2) as the cylinder's, face 1
+  base z = -1, face 2 top cap z = +1 of radius t (the concentric map of
+  (x / t, y / t)); with t = 0 the top cap has zero area (prim_point maps it
+  to the apex) and prim_surface never returns it.
 
 Disk-like charts use the concentric map: (u, v) = inverse_concentric(x, y).
 On the faces that look down the disk (cylinder cap z = -1, cone base,
-paraboloid side, whose outward normals have a -z component) x and y are
-swapped, (u, v) = inverse_concentric(y, x), because the concentric map
-preserves orientation and the swap is what makes dP/du x dP/dv outward there.
+paraboloid side, frustum base, whose outward normals have a -z component) x
+and y are swapped, (u, v) = inverse_concentric(y, x), because the concentric
+map preserves orientation and the swap is what makes dP/du x dP/dv outward
+there.
 """
 import math
 
@@ -67,12 +75,15 @@ TORUS = 5
 PARABOLOID = 6
 DISK = 7
 QUAD = 8
+FRUSTUM = 9
 
 KIND_IDS = {"sphere": SPHERE, "box": BOX, "cylinder": CYLINDER, "cone": CONE,
-            "torus": TORUS, "paraboloid": PARABOLOID, "disk": DISK, "quad": QUAD}
+            "torus": TORUS, "paraboloid": PARABOLOID, "disk": DISK, "quad": QUAD,
+            "frustum": FRUSTUM}
 
-# Faces (lightmap charts) per kind, indexed by kind id.
-N_FACES = np.array([1, 1, 6, 3, 2, 1, 2, 1, 1], dtype=np.int64)
+# Faces (lightmap charts) per kind, indexed by kind id; its length is the
+# number of kind ids (engine/csg.py numbers the CSG shape kind after them).
+N_FACES = np.array([1, 1, 6, 3, 2, 1, 2, 1, 1, 3], dtype=np.int64)
 
 _INF = math.inf
 _TWO_PI = 2.0 * math.pi
@@ -293,6 +304,60 @@ def _cone_hits(ox, oy, oz, dx, dy, dz):
 
 
 @njit(cache=True)
+def _frustum_hits(tr, ox, oy, oz, dx, dy, dz):
+    # Solid: rho < k := r(z) = (1 - s) - s z with slope s = (1 - tr) / 2 in
+    # [0, 1/2], and -1 < z < 1. As for the cone (these are its formulas scaled
+    # by 1/4 when tr = 0, bit for bit), rho - k is convex along the line, so
+    # the nappe k > 0 holds one interval; squaring gives g = rho^2 - k^2 =
+    # a t^2 + 2 h t + c, whose roots may lie on the mirrored nappe (k < 0,
+    # above the virtual apex z = 1 / s - 1 >= 1), hence the nappe checks.
+    # s = 0 is the cylinder: a >= 0 and no mirrored nappe.
+    s = 0.5 * (1.0 - tr)
+    k0 = (1.0 - s) - s * oz
+    sz = s * dz                    # k = k0 - sz t along the line
+    a = dx * dx + dy * dy - sz * sz
+    h = ox * dx + oy * dy + k0 * sz
+    c = ox * ox + oy * oy - k0 * k0
+    if a > 0.0:
+        disc = h * h - a * c
+        if not disc > 0.0:
+            return 0, _INF, _INF, _INF, _INF
+        r0, r1 = _sorted_roots(a, h, c, disc)
+        # g < 0 between the roots, a segment inside one nappe
+        if not k0 - sz * (0.5 * (r0 + r1)) > 0.0:
+            return 0, _INF, _INF, _INF, _INF
+        lo, hi = r0, r1
+    elif a < 0.0:
+        # steeper than the side (so s > 0, dz != 0): g < 0 outside the roots,
+        # one half-line per nappe; the real one (k -> +inf) is towards -z
+        disc = h * h - a * c
+        if not disc > 0.0:
+            return 0, _INF, _INF, _INF, _INF
+        r0, r1 = _sorted_roots(a, h, c, disc)
+        if dz > 0.0:
+            lo, hi = -_INF, r0
+        else:
+            lo, hi = r1, _INF
+    elif h != 0.0:
+        # parallel to a generator: g is linear, one crossing
+        r = -c / (2.0 * h)
+        if not k0 - sz * r > 0.0:
+            return 0, _INF, _INF, _INF, _INF
+        if h > 0.0:
+            lo, hi = -_INF, r
+        else:
+            lo, hi = r, _INF
+    elif s == 0.0 and c < 0.0:
+        # cylinder, line along the axis inside it (with s > 0, a = h = 0
+        # forces c >= 0: a line on the side, grazing)
+        lo, hi = -_INF, _INF
+    else:
+        return 0, _INF, _INF, _INF, _INF
+    z0, z1 = _slab(oz, dz, -1.0, 1.0)
+    return _pair(max(lo, z0), min(hi, z1))
+
+
+@njit(cache=True)
 def _paraboloid_hits(ox, oy, oz, dx, dy, dz):
     # Solid: g = rho^2 - z <= 0 (convex along any line) and z <= 1.
     a = dx * dx + dy * dy
@@ -443,25 +508,19 @@ def _torus_hits(r, ox, oy, oz, dx, dy, dz):
 
 
 @njit(cache=True)
-def _disk_hits(ox, oy, oz, dx, dy, dz):
+def _planar_hits(square, ox, oy, oz, dx, dy, dz):
+    """The crossing of the plane z = 0 inside the unit disk, or the square
+    [-1, 1]^2 if `square` (closed: the rim counts); a line in the plane misses."""
     if dz == 0.0:
         return 0, _INF, _INF, _INF, _INF
     t = -oz / dz
     x = ox + t * dx
     y = oy + t * dy
-    if x * x + y * y <= 1.0:
-        return 1, t, _INF, _INF, _INF
-    return 0, _INF, _INF, _INF, _INF
-
-
-@njit(cache=True)
-def _quad_hits(ox, oy, oz, dx, dy, dz):
-    if dz == 0.0:
-        return 0, _INF, _INF, _INF, _INF
-    t = -oz / dz
-    x = ox + t * dx
-    y = oy + t * dy
-    if abs(x) <= 1.0 and abs(y) <= 1.0:
+    if square:
+        on = abs(x) <= 1.0 and abs(y) <= 1.0
+    else:
+        on = x * x + y * y <= 1.0
+    if on:
         return 1, t, _INF, _INF, _INF
     return 0, _INF, _INF, _INF, _INF
 
@@ -478,7 +537,8 @@ def prim_hits(kind, params, ox, oy, oz, dx, dy, dz):
         return _box_hits(ox, oy, oz, dx, dy, dz)
     elif kind == TORUS:
         return _torus_hits(params[0], ox, oy, oz, dx, dy, dz)
-    elif kind == SPHERE or kind == CYLINDER or kind == CONE or kind == PARABOLOID:
+    elif (kind == SPHERE or kind == CYLINDER or kind == CONE or kind == PARABOLOID
+          or kind == FRUSTUM):
         # Solve from the point of the line closest to the local origin: the
         # quadratic's coefficients then stay O(1) for far origins instead of
         # cancelling in the discriminant; the shift is added back to t.
@@ -492,13 +552,13 @@ def prim_hits(kind, params, ox, oy, oz, dx, dy, dz):
             n, t0, t1, t2, t3 = _cylinder_hits(qx, qy, qz, dx, dy, dz)
         elif kind == CONE:
             n, t0, t1, t2, t3 = _cone_hits(qx, qy, qz, dx, dy, dz)
+        elif kind == FRUSTUM:
+            n, t0, t1, t2, t3 = _frustum_hits(params[0], qx, qy, qz, dx, dy, dz)
         else:
             n, t0, t1, t2, t3 = _paraboloid_hits(qx, qy, qz, dx, dy, dz)
         return n, t0 + s0, t1 + s0, t2 + s0, t3 + s0   # inf + s0 stays inf
-    elif kind == DISK:
-        return _disk_hits(ox, oy, oz, dx, dy, dz)
-    elif kind == QUAD:
-        return _quad_hits(ox, oy, oz, dx, dy, dz)
+    elif kind == DISK or kind == QUAD:
+        return _planar_hits(kind == QUAD, ox, oy, oz, dx, dy, dz)
     return 0, _INF, _INF, _INF, _INF
 
 
@@ -634,6 +694,28 @@ def prim_surface(kind, params, px, py, pz):
         return 0, u, v, 0.0, 0.0, 1.0
     elif kind == QUAD:
         return 0, _clamp01(0.5 * (px + 1.0)), _clamp01(0.5 * (py + 1.0)), 0.0, 0.0, 1.0
+    elif kind == FRUSTUM:
+        tr = params[0]
+        s = 0.5 * (1.0 - tr)
+        rho = math.sqrt(px * px + py * py)
+        w = math.sqrt(1.0 + s * s)
+        # the closest of the three surfaces decides (robust near the rims);
+        # a zero-radius top cap (the cone's apex) is no surface
+        d_side = abs(rho - ((1.0 - s) - s * pz)) / w
+        d_base = abs(pz + 1.0)
+        d_top = abs(pz - 1.0) if tr > 0.0 else _INF
+        if d_base < d_side and d_base <= d_top:
+            u, v = _disk_uv(px, py, True)
+            return 1, u, v, 0.0, 0.0, -1.0
+        if d_top < d_side:
+            u, v = _disk_uv(px / tr, py / tr, False)
+            return 2, u, v, 0.0, 0.0, 1.0
+        u = _wrap01(math.atan2(py, px))
+        v = _clamp01(0.5 * (pz + 1.0))
+        if rho > 0.0:
+            # gradient of rho + s z
+            return 0, u, v, px / (rho * w), py / (rho * w), s / w
+        return 0, u, v, 0.0, 0.0, 1.0   # apex (t = 0): no tangent plane, use the axis
     return -1, 0.0, 0.0, 0.0, 0.0, 1.0
 
 
@@ -729,6 +811,21 @@ def prim_point(kind, params, face, u, v):
         return x, y, 0.0, xu, yu, 0.0, xv, yv, 0.0
     elif kind == QUAD:
         return 2.0 * u - 1.0, 2.0 * v - 1.0, 0.0, 2.0, 0.0, 0.0, 0.0, 2.0, 0.0
+    elif kind == FRUSTUM:
+        tr = params[0]
+        if face == 0:
+            # radius r = 1 - (1 - t) v along z = 2 v - 1
+            phi = _TWO_PI * u
+            c = math.cos(phi)
+            s = math.sin(phi)
+            w = 1.0 - tr
+            r = 1.0 - w * v
+            return (r * c, r * s, 2.0 * v - 1.0, -_TWO_PI * r * s, _TWO_PI * r * c, 0.0,
+                    -w * c, -w * s, 2.0)
+        x, y, xu, xv, yu, yv = _concentric_d(u, v)
+        if face == 1:
+            return y, x, -1.0, yu, xu, 0.0, yv, xv, 0.0
+        return tr * x, tr * y, 1.0, tr * xu, tr * yu, 0.0, tr * xv, tr * yv, 0.0
     return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
@@ -767,6 +864,11 @@ def prim_area(kind, params):
         return math.pi
     elif kind == QUAD:
         return 4.0
+    elif kind == FRUSTUM:
+        # lateral pi (1 + t) * slant, slant sqrt(4 + (1 - t)^2), plus both caps
+        tr = params[0]
+        w = 1.0 - tr
+        return math.pi * ((1.0 + tr) * math.sqrt(4.0 + w * w) + 1.0 + tr * tr)
     return 0.0
 
 
@@ -787,6 +889,9 @@ def prim_inside(kind, params, px, py, pz):
         return q * q + pz * pz < r * r
     elif kind == PARABOLOID:
         return px * px + py * py < pz and pz < 1.0
+    elif kind == FRUSTUM:
+        s = 0.5 * (1.0 - params[0])
+        return pz > -1.0 and pz < 1.0 and math.sqrt(px * px + py * py) < (1.0 - s) - s * pz
     return False
 
 
@@ -806,6 +911,8 @@ def check_primitive(prim, what, n_materials=0):
     p4[:params.size] = params
     if kind == "torus" and not (params.size >= 1 and 0.0 < p4[0] < 1.0):
         raise SceneError(f"{what}: a torus needs params=(minor_radius,) with 0 < minor_radius < 1")
+    if kind == "frustum" and not (params.size >= 1 and 0.0 <= p4[0] <= 1.0):
+        raise SceneError(f"{what}: a frustum needs params=(top_radius,) with 0 <= top_radius <= 1")
     mat = int(prim.material)
     if n_materials and not (0 <= mat < n_materials):
         raise SceneError(f"{what}: material index {mat} out of range (scene has {n_materials} materials)")

@@ -16,7 +16,8 @@ class SceneError(ValueError):
 
 
 # Primitive kinds (mirrors engine.primitives; kept here so the scene stays import-light).
-PRIMITIVE_KINDS = ("sphere", "box", "cylinder", "cone", "torus", "paraboloid", "disk", "quad")
+PRIMITIVE_KINDS = ("sphere", "box", "cylinder", "cone", "torus", "paraboloid", "disk", "quad",
+                   "frustum")
 LIGHT_KINDS = ("point", "spot", "sun", "area")
 AREA_SHAPES = ("square", "rectangle", "disk", "ellipse")
 

@@ -6,23 +6,27 @@ import pytest
 from numba import njit
 
 from photon_lightmaps.engine import primitives as P
-from photon_lightmaps.engine.primitives import (BOX, CONE, CYLINDER, DISK, KIND_IDS, N_FACES, PARABOLOID, QUAD,
-                               SPHERE, TORUS, hits_batch, inverse_concentric, prim_area, prim_hits,
-                               prim_inside, prim_local_bounds, prim_nfaces, prim_point,
-                               prim_surface)
+from photon_lightmaps.engine.primitives import (BOX, CONE, CYLINDER, DISK, FRUSTUM, KIND_IDS, N_FACES,
+                               PARABOLOID, QUAD, SPHERE, TORUS, check_primitive, hits_batch,
+                               inverse_concentric, prim_area, prim_hits, prim_inside,
+                               prim_local_bounds, prim_nfaces, prim_point, prim_surface)
 from photon_lightmaps.engine.sampling import concentric_disk
-from photon_lightmaps.engine.scene import PRIMITIVE_KINDS
+from photon_lightmaps.engine.scene import PRIMITIVE_KINDS, Primitive, SceneError
 
 TORUS_R = 0.4
-SOLIDS = [SPHERE, BOX, CYLINDER, CONE, TORUS, PARABOLOID]
+FRUSTUM_T = 0.4
+SOLIDS = [SPHERE, BOX, CYLINDER, CONE, TORUS, PARABOLOID, FRUSTUM]
 OPEN = [DISK, QUAD]
 ALL = SOLIDS + OPEN
 
 
-def params_of(kind):
+def params_of(kind, t=None):
+    """The tests' parameters of a kind; `t` overrides the frustum's top radius."""
     p = np.zeros(4)
     if kind == TORUS:
         p[0] = TORUS_R
+    elif kind == FRUSTUM:
+        p[0] = FRUSTUM_T if t is None else t
     return p
 
 
@@ -85,8 +89,9 @@ def _inside_batch(kind, params, pts):
     return out
 
 
-def residual(kind, p, r=TORUS_R):
+def residual(kind, p, params=None):
     """Independent implicit description of each surface (zero on it)."""
+    r = (params_of(kind) if params is None else params)[0]
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     rho = np.hypot(x, y)
     if kind == SPHERE:
@@ -105,10 +110,15 @@ def residual(kind, p, r=TORUS_R):
         return np.abs(z) + np.maximum(rho - 1.0, 0.0)
     if kind == QUAD:
         return np.abs(z) + np.maximum(np.maximum(np.abs(x), np.abs(y)) - 1.0, 0.0)
+    if kind == FRUSTUM:
+        # r is the top radius; the side's distance is its slant-normalised residual
+        side = (rho - (1.0 + (r - 1.0) * (z + 1.0) / 2.0)) / math.hypot(1.0, (1.0 - r) / 2.0)
+        return np.abs(np.maximum(side, np.abs(z) - 1.0))
     raise ValueError(kind)
 
 
-def inside_ref(kind, p, r=TORUS_R):
+def inside_ref(kind, p, params=None):
+    r = (params_of(kind) if params is None else params)[0]
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     rho = np.hypot(x, y)
     if kind == SPHERE:
@@ -123,13 +133,15 @@ def inside_ref(kind, p, r=TORUS_R):
         return np.hypot(rho - 1, z) < r
     if kind == PARABOLOID:
         return (rho * rho < z) & (z < 1)
+    if kind == FRUSTUM:
+        return (np.abs(z) < 1) & (rho < 1 + (r - 1) * (z + 1) / 2)
     return np.zeros(len(p), dtype=bool)
 
 
-def make_rays(kind, n, rng, inside_frac=0.2):
+def make_rays(kind, n, rng, inside_frac=0.2, params=None):
     """Origins on a radius-3 sphere aimed at random points of the bounds, some
     origins inside the bounds (hits at negative t), random direction scales."""
-    b = np.array(prim_local_bounds(kind, params_of(kind)))
+    b = np.array(prim_local_bounds(kind, params_of(kind) if params is None else params))
     lo, hi = b[:3], b[3:]
     target = lo + (hi - lo) * rng.random((n, 3))
     o = rng.normal(size=(n, 3))
@@ -151,8 +163,8 @@ def ball_range(o, d, radius=2.5):
     return (-h - s) / a, (-h + s) / a
 
 
-def hits_of(kind, o, d):
-    n, t = hits_batch(kind, params_of(kind), o, d)
+def hits_of(kind, o, d, params=None):
+    n, t = hits_batch(kind, params_of(kind) if params is None else params, o, d)
     return n, t
 
 
@@ -160,11 +172,13 @@ def hits_of(kind, o, d):
 
 def test_kind_ids_and_faces():
     assert set(KIND_IDS) == set(PRIMITIVE_KINDS)
-    assert [KIND_IDS[k] for k in PRIMITIVE_KINDS] == list(range(1, 9))
-    ids = (P.TRIANGLE, SPHERE, BOX, CYLINDER, CONE, TORUS, PARABOLOID, DISK, QUAD)
-    assert ids == tuple(range(9))
-    assert list(N_FACES) == [1, 1, 6, 3, 2, 1, 2, 1, 1]
-    for k in range(9):
+    assert [KIND_IDS[k] for k in PRIMITIVE_KINDS] == list(range(1, 10))
+    ids = (P.TRIANGLE, SPHERE, BOX, CYLINDER, CONE, TORUS, PARABOLOID, DISK, QUAD, FRUSTUM)
+    assert ids == tuple(range(10))
+    assert list(N_FACES) == [1, 1, 6, 3, 2, 1, 2, 1, 1, 3]
+    from photon_lightmaps.engine.csg import CSG
+    assert CSG == len(N_FACES) == 10          # the CSG shape kind follows every primitive id
+    for k in range(10):
         assert prim_nfaces(k) == N_FACES[k]
     assert prim_nfaces(42) == 0
 
@@ -198,11 +212,11 @@ def test_inside_matches_reference():
 
 # ------------------------------------------------------------ intersections
 
-def _check_against_march(kind, o, d, nsteps=20000):
+def _check_against_march(kind, o, d, nsteps=20000, params=None):
     """Every hit on the surface, entry/exit pairs, and agreement with the
     brute-force sign changes of prim_inside. Returns (n, skipped rays)."""
-    params = params_of(kind)
-    n, t = hits_of(kind, o, d)
+    params = params_of(kind) if params is None else params
+    n, t = hits_of(kind, o, d, params)
     assert np.all(n % 2 == 0)
     tmin, tmax = ball_range(o, d)
     counts = np.zeros(len(o), dtype=np.int64)
@@ -217,7 +231,7 @@ def _check_against_march(kind, o, d, nsteps=20000):
         cosv = np.ones(1)
         if n[i]:
             pts = o[i] + ts[:, None] * d[i]
-            assert np.all(residual(kind, pts) < 1e-9), (i, ts, residual(kind, pts))
+            assert np.all(residual(kind, pts, params) < 1e-9), (i, ts, residual(kind, pts, params))
             face, s = _surface_batch(kind, params, pts)
             cosv = s[:, 2:] @ d[i] / dl[i]
             # entry/exit pairs: normals face the ray at entries, away at exits
@@ -540,6 +554,9 @@ def test_area_closed_forms():
     assert prim_area(PARABOLOID, z4) == pytest.approx(np.pi / 6 * (5 ** 1.5 - 1) + np.pi)
     assert prim_area(DISK, z4) == pytest.approx(np.pi)
     assert prim_area(QUAD, z4) == pytest.approx(4.0)
+    t = FRUSTUM_T
+    assert prim_area(FRUSTUM, params_of(FRUSTUM)) == pytest.approx(
+        np.pi * (1 + t) * np.sqrt(4 + (1 - t) ** 2) + np.pi + np.pi * t * t)
 
 
 @pytest.mark.parametrize("kind", ALL)
@@ -554,3 +571,144 @@ def test_bounds_tight(kind):
     pts = np.vstack([_point_batch(kind, params, f, us, vs)[:, :3] for f in range(N_FACES[kind])])
     assert np.all(pts >= b[:3] - 1e-12) and np.all(pts <= b[3:] + 1e-12)
     assert np.all(pts.min(axis=0) < b[:3] + 0.02) and np.all(pts.max(axis=0) > b[3:] - 0.02)
+
+
+# ------------------------------------------------------------------ frustum
+
+def _close_hits(n1, t1, n2, t2, d, tol=1e-12):
+    """Same hit counts, and the hits' points within tol (distance) of each other."""
+    assert np.array_equal(n1, n2)
+    m = np.isfinite(t1)
+    assert np.array_equal(m, np.isfinite(t2))
+    dl = np.broadcast_to(np.linalg.norm(d, axis=1)[:, None], t1.shape)
+    assert np.all(np.abs(t1[m] - t2[m]) * dl[m] <= tol * (1.0 + np.abs(t1[m]) * dl[m]))
+
+
+@pytest.mark.parametrize("ref", [CYLINDER, CONE])
+def test_frustum_reduces_to_cylinder_and_cone(ref):
+    """t = 1 is the cylinder, t = 0 the cone: same hits on random and special rays."""
+    rng = np.random.default_rng(110 + ref)
+    pr = params_of(FRUSTUM, 1.0 if ref == CYLINDER else 0.0)
+    o, d = make_rays(ref, 20000, rng)
+    # axis-parallel and generator-parallel lines (the quadrics' degenerate branches)
+    g = rng.uniform(-1.3, 1.3, size=(400, 3))
+    dirs = np.array([[0, 0, 1], [0, 0, -1], [0.5, 0, -1], [0, -0.5, 1], [0.3, 0.4, -1], [1, 0, 0]])
+    o = np.vstack([o] + [g - 2.0 * dv for dv in dirs])
+    d = np.vstack([d] + [np.broadcast_to(dv, g.shape).astype(float) for dv in dirs])
+    n1, t1 = hits_of(FRUSTUM, o, d, pr)
+    n2, t2 = hits_of(ref, o, d)
+    assert np.sum(n1 > 0) > 0.4 * len(o)
+    _close_hits(n1, t1, n2, t2, d)
+    # prim_inside agrees, and so do the charts' normals at the hits
+    pts = rng.uniform(-1.2, 1.2, size=(20000, 3))
+    assert np.array_equal(_inside_batch(FRUSTUM, pr, pts), _inside_batch(ref, params_of(ref), pts))
+    hit = np.nonzero(n1)[0][:2000]
+    p = o[hit] + t1[hit, :1] * d[hit]
+    _, s1 = _surface_batch(FRUSTUM, pr, p)
+    _, s2 = _surface_batch(ref, params_of(ref), p)
+    assert np.allclose(s1[:, 2:], s2[:, 2:], atol=1e-12)
+
+
+@pytest.mark.parametrize("t", [0.0, 0.05, 0.5, 0.95, 1.0])
+def test_frustum_hits_against_brute_force_for_several_t(t):
+    rng = np.random.default_rng(int(120 + 100 * t))
+    pr = params_of(FRUSTUM, t)
+    o, d = make_rays(FRUSTUM, 800, rng, params=pr)
+    # lines parallel to the axis and (exactly, for t = 0.5 and 0) to the side's generators:
+    # 4 (dx^2 + dy^2) (1 - t)^-2 == dz^2
+    s = 0.5 * (1 - t)
+    gen = np.array([[1, 0, 4], [0, -1, -4], [3, 4, 20], [-3, 4, -20]], float)
+    gen[:, :2] *= 4 * s
+    dirs = np.vstack([[[0, 0, 1], [0, 0, -1], [1, 0, 0]], gen])
+    g = np.linspace(-1.3, 1.3, 10)
+    os, ds = [], []
+    for dv in dirs:
+        a = np.cross(dv, [0.3, 0.5, 0.7])
+        a /= np.linalg.norm(a)
+        b = np.cross(dv, a)
+        b /= np.linalg.norm(b)
+        for x in g:
+            for y in g:
+                os.append(x * a + y * b - 2.0 * dv / np.linalg.norm(dv))
+                ds.append(dv)
+    o = np.vstack([o, os])
+    d = np.vstack([d, ds])
+    n, skipped = _check_against_march(FRUSTUM, o, d, params=pr)
+    assert skipped < 0.05 * len(o), skipped
+    assert np.sum(n > 0) > 0.3 * len(o)
+
+
+def test_frustum_tangent_and_grazing_rays_give_no_hits():
+    for t in (0.0, 0.4, 1.0):
+        pr = params_of(FRUSTUM, t)
+        r0 = 1 + (t - 1) / 2                                   # radius at z = 0
+        cases = [((-3.0, r0, 0.0), (1.0, 0.0, 0.0)),          # tangent to the side
+                 ((-3.0, 0.2 * t, 1.0), (1.0, 0.0, 0.0)),      # in the top cap's plane
+                 ((-3.0, 0.2, -1.0), (1.0, 0.0, 0.0)),         # in the base's plane
+                 ((-3.0, 1.0, -1.0), (1.0, 0.0, 0.0)),         # along the base rim's tangent
+                 ((-3.0, 0.0, 1.0), (1.0, 0.0, 0.0))]          # through the top (apex if t = 0)
+        for o, d in cases:
+            assert prim_hits(FRUSTUM, pr, *o, *d)[0] == 0, (t, o, d, prim_hits(FRUSTUM, pr, *o, *d))
+        # a chord just below the top is a proper hit (for t = 0 a tiny one near the apex)
+        n, t0, t1, _, _ = prim_hits(FRUSTUM, pr, -3.0, 0.0, 1.0 - 1e-9, 1.0, 0.0, 0.0)
+        assert n == 2 and t1 - t0 == pytest.approx(2 * (t + 0.5e-9 * (1 - t)), rel=1e-6)
+
+
+@pytest.mark.parametrize("t", [0.0, 1e-3, 0.7, 1.0])
+def test_frustum_charts_for_several_t(t):
+    """Round trips and orientation at the extremes (the cone's apex, the cylinder)."""
+    rng = np.random.default_rng(int(130 + 1000 * t))
+    pr = params_of(FRUSTUM, t)
+    for face in range(3):
+        us, vs = faces_uv(rng, 3000, 1e-6, 1 - 1e-6)
+        pts = _point_batch(FRUSTUM, pr, face, us, vs)
+        if face == 2 and t == 0.0:
+            # zero-area top cap: everything maps to the apex, never reported
+            assert np.all(pts[:, :3] == [0.0, 0.0, 1.0]) and np.all(pts[:, 3:] == 0.0)
+            continue
+        assert np.all(residual(FRUSTUM, pts[:, :3], pr) < 1e-13)
+        p = np.ascontiguousarray(pts[:, :3])
+        f, s = _surface_batch(FRUSTUM, pr, p)
+        keep = np.ones(len(us), bool) if (face or t > 0) else vs < 0.999   # apex: u undefined
+        assert np.all(f[keep] == face), (face, np.unique(f[keep]))
+        assert np.allclose(s[keep, 0], us[keep], rtol=0, atol=1e-10)
+        assert np.allclose(s[keep, 1], vs[keep], rtol=0, atol=1e-10)
+        cr = np.cross(pts[:, 3:6], pts[:, 6:9])
+        ln = np.linalg.norm(cr, axis=1)
+        keep &= ln > 1e-6 * ln.max()
+        assert np.all(np.sum(cr[keep] * s[keep, 2:], axis=1) / ln[keep] > 1 - 1e-9)
+        eps = 1e-6
+        assert not _inside_batch(FRUSTUM, pr, p[keep] + eps * s[keep, 2:]).any()
+        if face or t > 0:
+            assert _inside_batch(FRUSTUM, pr, p[keep] - eps * s[keep, 2:]).all()
+    if t == 0.0:
+        # points around the apex go to the side (or the base), never to the empty cap
+        q = np.c_[rng.normal(scale=1e-7, size=(500, 2)), 1 - np.abs(rng.normal(scale=1e-7, size=500))]
+        f, _ = _surface_batch(FRUSTUM, pr, q)
+        assert np.all(f == 0)
+
+
+@pytest.mark.parametrize("t", [0.0, 0.1, 0.4, 0.9, 1.0])
+def test_frustum_area_formula(t):
+    pr = params_of(FRUSTUM, t)
+    us, vs, wts = _gauss_triangles()
+    total = 0.0
+    for face in range(3):
+        p = _point_batch(FRUSTUM, pr, face, us, vs)
+        total += np.sum(wts * np.linalg.norm(np.cross(p[:, 3:6], p[:, 6:9]), axis=1))
+    exact = np.pi * (1 + t) * np.sqrt(4 + (1 - t) ** 2) + np.pi + np.pi * t * t
+    assert prim_area(FRUSTUM, pr) == pytest.approx(exact, rel=1e-15)
+    assert abs(total - exact) < 1e-9 * exact, (total, exact)
+    if t == 1.0:
+        assert exact == pytest.approx(prim_area(CYLINDER, params_of(CYLINDER)), rel=1e-15)
+    if t == 0.0:
+        assert exact == pytest.approx(prim_area(CONE, params_of(CONE)), rel=1e-15)
+
+
+def test_check_primitive_frustum():
+    for t in (0.0, 0.4, 1.0):
+        kid, p4, *_ = check_primitive(Primitive("frustum", params=(t,), name="twig"), "primitive 'twig'")
+        assert kid == FRUSTUM and p4[0] == t
+    for bad in ((-0.1,), (1.5,), (np.nan,), (np.inf,), ()):
+        with pytest.raises(SceneError, match="primitive 'twig'"):
+            check_primitive(Primitive("frustum", params=bad, name="twig"), "primitive 'twig'")

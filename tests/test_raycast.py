@@ -406,7 +406,7 @@ def test_bad_input_raises(case, needle):
 def _prim_scene(rng):
     prims = []
     for k, kind in enumerate(KIND_IDS):
-        params = (0.3,) if kind == "torus" else ()
+        params = {"torus": (0.3,), "frustum": (0.4,)}.get(kind, ())
         xf = compose(translate(*rng.uniform(-2, 2, 3)), rotate("x", rng.uniform(0, 360)),
                      rotate("z", rng.uniform(0, 360)), scale(*rng.uniform(0.3, 0.9, 3)))
         prims.append(Primitive(kind, xf, params=params, name=f"{kind}{k}"))
@@ -423,7 +423,7 @@ def _prim_scene(rng):
 def test_primitives_match_brute_force():
     rng = np.random.default_rng(12)
     g, info = compile_geometry(_prim_scene(rng))
-    assert info["n_primitives"] == 9 and info["n_triangles"] == 40
+    assert info["n_primitives"] == len(KIND_IDS) + 1 and info["n_triangles"] == 40
     o, d = random_rays(4000, seed=13, extent=6.0)
     tmax = np.full(len(o), np.inf)
     ref = brute(g, o, d, tmax)

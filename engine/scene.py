@@ -116,8 +116,23 @@ class Primitive:
     kind: str                       # one of PRIMITIVE_KINDS
     transform: np.ndarray = field(default_factory=identity)  # primitive -> prototype
     material: int = 0
-    params: tuple = ()              # torus: (minor_radius,)
+    params: tuple = ()              # torus: (minor_radius,); frustum: (top_radius,)
     name: str = "primitive"
+
+
+@dataclass
+class LSystem:
+    """A rule-defined object (thesis ch. 7): a grammar text (engine/lsystem.py) the
+    tracer expands lazily through its cyclic scene graph (engine/dcsg.py), or, for
+    a context-sensitive grammar, derives and instances. Its turtle frame is the
+    prototype's frame. `materials[i]` is the scene material that module ;(i)
+    selects (the last one for larger i). Its photons go into orientation
+    lightmaps: one over the whole object, or the grammar's `ol stub:` ones."""
+    grammar: str
+    name: str = "lsystem"
+    steps: int | None = None        # None: the grammar's derivation length
+    seed: int | None = None         # None: the grammar's seed
+    materials: tuple = (0,)
 
 
 CSG_OPS = ("union", "intersection", "difference")
@@ -141,6 +156,7 @@ class Prototype:
     meshes: list = field(default_factory=list)
     primitives: list = field(default_factory=list)
     csg: list = field(default_factory=list)   # CSGNode roots, each one solid
+    lsystems: list = field(default_factory=list)   # LSystem objects
 
 
 @dataclass

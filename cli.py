@@ -1,4 +1,4 @@
-"""Command line for the bpy-module world: `python -m photon_lightmaps {demo,render,bake,bake-ol}`.
+"""Command line for the bpy-module world: `python -m photon_lightmaps {demo,render,bake,bake-ol,lsystem}`.
 
 The one command-line module: it parses arguments (so `--help` works without
 importing Blender; each command imports bpy itself), runs the command and turns whatever a
@@ -83,6 +83,15 @@ def build_parser():
     o.add_argument("--out", required=True, metavar="DIR", help="folder for <empty name>.exr")
     _add_common(o)
     o.set_defaults(func=ol_bake_main)
+
+    ls = sub.add_parser("lsystem", help="count an L-system grammar file through its scene graph (JSON)")
+    ls.add_argument("grammar", metavar="FILE", help="grammar text (see the README's L-system section)")
+    ls.add_argument("--json", metavar="REPORT", nargs="?", const="-", default="-",
+                    help="write the JSON report here (default: standard output)")
+    ls.add_argument("--string", action="store_true", help="include the derived string")
+    ls.add_argument("--steps", type=_count(0), default=None, help="derivation length (default: the grammar's)")
+    ls.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    ls.set_defaults(func=lsystem_main)
     return p
 
 
@@ -334,6 +343,29 @@ def demo_main(args):
             json.dump(report, f, indent=2)
     print(f"demo: {render_report['image']} and {len(bake_report['objects'])} baked lightmaps in "
           f"{os.path.join(out, 'lightmaps')} ({report['seconds']['total']:.1f} s)")
+    return 0
+
+
+def lsystem_main(args):
+    """CLI: the grammar's counts, bounds and scene-graph statistics as JSON (no bpy)."""
+    from .bake.render import peak_rss_bytes
+    from .engine import lsystem, lsystem_stats
+    from .messages import InputError
+    try:
+        grammar = lsystem.load(args.grammar)
+    except OSError as exc:
+        raise InputError(f"{args.grammar}: cannot read the grammar ({exc.strerror or exc})") from None
+    t0 = time.perf_counter()
+    report = lsystem_stats.summary(grammar, args.steps, with_string=args.string)
+    report["timings"]["total"] = time.perf_counter() - t0
+    report["memory"]["peak_rss_bytes"] = peak_rss_bytes()
+    text = json.dumps(report, indent=2)
+    if args.json == "-":
+        print(text)
+    else:
+        path = pathlib.Path(args.json)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text + os.linesep)
     return 0
 
 

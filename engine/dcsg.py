@@ -49,8 +49,12 @@ import numpy as np
 from numba import njit
 
 from . import lsystem as LS
+from .affine import normal_through, unit, xform_ray
+from .jit import CORE, INLINE
 from .primitives import KIND_IDS, prim_hits, prim_surface
 from .scene import SceneError
+# the trace buffer's header words for the float64 section (engine/geometry.py)
+H_F64 = 4
 from .turtle import TurtleState, to_primitives
 
 # The turtle's start frame: columns L = -X, U = -Y, H = +Z.
@@ -321,6 +325,137 @@ def _box_through(lo, hi, m):
     return w.min(axis=0), w.max(axis=0)
 
 
+# ---------------------------------------------------------------- the trace blob
+# All graphs of a scene in one float64 array (raw bits) inside the trace buffer
+# (engine/geometry.py, header word H_DCSG), read through the buffer's typed
+# views: an int64 header, an int32 section, a float64 section. Node, edge and
+# primitive ids are global; a graph is its root node, root hash and stub table.
+
+BLOB_HEADER = 32
+(B_NGRAPH, B_VS0, B_NPRIM, B_STACK,
+ B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC, B_CH_NODE, B_CH_J,
+ B_PRIM_KIND, B_GRAPH_ROOT, B_GRAPH_HASH, B_GRAPH_STUB, B_STUB_ADDR,
+ B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_PRIM_PARAMS, B_PRIM_INV) = range(23)
+
+# Ray scratch, in the caller's int32 stack from word s0 (engine/geometry.py
+# STACK_WORDS): per entry 16 float64 (ray, object rotation, entry t), 2 uint64
+# (hash, stub) and 1 int32 (node); then the closest hit's normal and stub.
+STACK_ENTRIES = 192
+SCRATCH_WORDS = STACK_ENTRIES * (32 + 4 + 1) + 16
+H_DCSG = 20       # trace header word: the blob's offset in the float64 section
+NO_VSHAPE = 2 ** 31 - 1
+
+
+def _stub_addresses(graph, limit=1_000_000):
+    """Sorted addresses of every OL stub of the graph (walks only down to stubs)."""
+    below = {}
+
+    def has_stub(n):
+        v = below.get(id(n))
+        if v is None:
+            v = n.stub or any(has_stub(c) for _, ch in n.alts for c, _, _ in ch)
+            below[id(n)] = v
+        return v
+
+    out = []
+
+    def walk(n, h):
+        if n.stub:
+            out.append(h)
+            if len(out) > limit:
+                raise SceneError(f"{graph.grammar.source_name}: more than {limit:,} OL stubs; "
+                                 "declare them at fewer levels")
+        k = 0
+        if len(n.alts) > 1:
+            u = LS.draw(h)
+            while k < len(n.alts) - 1 and not n.alts[k][0] > u:
+                k += 1
+        for c, _, j in (n.alts[k][1] if n.alts else ()):
+            if has_stub(c):
+                walk(c, LS.child_hash(h, j))
+
+    if has_stub(graph.root):
+        walk(graph.root, graph.root_hash)
+    return np.unique(np.array(out, np.uint64))
+
+
+def _u64_words(a):
+    return np.ascontiguousarray(np.asarray(a, np.uint64)).view(np.int32)
+
+
+def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
+    """The graphs' arrays as one float64 blob; their terminal primitives are the
+    virtual shapes vs0, vs0 + 1, ... (graph by graph). -> (blob, prim_graph, stubs)
+    where stubs[k] are graph k's sorted stub addresses."""
+    i32_keys = (B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC,
+                B_CH_NODE, B_CH_J, B_PRIM_KIND)
+    f64_keys = (B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_PRIM_PARAMS, B_PRIM_INV)
+    i32 = {k: [] for k in i32_keys}
+    f64 = {k: [] for k in f64_keys}
+    roots, hashes, stub_rows, stub_addr, prim_graph = [], [], [], [], []
+    n0 = a0 = c0 = p0 = s0 = 0
+    stack = 1
+    stubs = []
+    for gi, g in enumerate(graphs):
+        a = g.arrays()
+        if a.stack_size > STACK_ENTRIES:
+            what = names[gi] if names else g.grammar.source_name
+            raise SceneError(f"L-system '{what}': branching x depth needs {a.stack_size} ray-stack "
+                             f"entries (at most {STACK_ENTRIES}); use fewer steps or split the rule")
+        stack = max(stack, a.stack_size)
+        i32[B_NODE_ALT0].append(a.node_alt0 + a0)
+        i32[B_NODE_NALT].append(a.node_nalt)
+        i32[B_NODE_PRIM].append(np.where(a.node_prim >= 0, a.node_prim + p0, -1))
+        i32[B_NODE_STUB].append(a.node_stub)
+        i32[B_ALT_C0].append(a.alt_child0 + c0)
+        i32[B_ALT_NC].append(a.alt_nchild)
+        i32[B_CH_NODE].append(a.child_node + n0)
+        i32[B_CH_J].append(a.child_j)
+        i32[B_PRIM_KIND].append(a.prim_kind)
+        f64[B_NODE_BOX].append(np.hstack([a.node_lo, a.node_hi]))
+        f64[B_ALT_CUM].append(a.alt_cum)
+        f64[B_CH_INV].append(a.child_inv.reshape(-1, 12))
+        f64[B_CH_ROT].append(a.child_rot.reshape(-1, 9))
+        f64[B_PRIM_PARAMS].append(a.prim_params)
+        f64[B_PRIM_INV].append(a.prim_inv.reshape(-1, 12))
+        roots.append(a.root + n0)
+        hashes.append(a.root_hash)
+        st = _stub_addresses(g)
+        stubs.append(st)
+        stub_rows.append((s0, st.shape[0]))
+        stub_addr.append(st)
+        prim_graph.append(np.full(a.prim_kind.shape[0], gi, np.int64))
+        n0 += a.node_lo.shape[0]
+        a0 += a.alt_cum.shape[0]
+        c0 += a.child_node.shape[0]
+        p0 += a.prim_kind.shape[0]
+        s0 += st.shape[0]
+    hdr = np.zeros(BLOB_HEADER, np.int64)
+    hdr[B_NGRAPH], hdr[B_VS0], hdr[B_NPRIM], hdr[B_STACK] = len(graphs), vs0, p0, stack
+    parts_i32 = [(k, np.concatenate(i32[k]) if i32[k] else np.zeros(0)) for k in i32_keys]
+    parts_i32 += [(B_GRAPH_ROOT, np.array(roots, np.int64)),
+                  (B_GRAPH_HASH, _u64_words(hashes)),
+                  (B_GRAPH_STUB, np.array(stub_rows, np.int64).reshape(-1)),
+                  (B_STUB_ADDR, _u64_words(np.concatenate(stub_addr) if stub_addr else []))]
+    words, n = [], 2 * BLOB_HEADER
+    for key, arr in parts_i32:
+        hdr[key] = n
+        words.append(np.asarray(arr).astype(np.int32).reshape(-1))
+        n += words[-1].size
+    if n % 2:
+        words.append(np.zeros(1, np.int32))
+        n += 1
+    floats, m = [], n // 2
+    for key in f64_keys:
+        arr = np.concatenate(f64[key]).reshape(-1) if f64[key] else np.zeros(0)
+        hdr[key] = m
+        floats.append(arr)
+        m += arr.size
+    blob = np.concatenate([hdr.view(np.float64), np.concatenate(words).view(np.float64)] + floats)
+    pg = np.concatenate(prim_graph) if prim_graph else np.zeros(0, np.int64)
+    return blob, pg, stubs
+
+
 # ---------------------------------------------------------------- ray kernels
 # uint64 arithmetic with uint64 constants only: numba turns uint64 op int64 into float64.
 
@@ -328,10 +463,12 @@ _GOLD = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
 _DRAW = np.uint64(0xD1B54A32D192ED03)
-_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+_S30, _S27, _S31, _S11, _S32 = (np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11),
+                               np.uint64(32))
+_LO32 = np.uint64(0xFFFFFFFF)
 
 
-@njit(cache=True)
+@njit(**INLINE)
 def _splitmix64(x):
     z = x + _GOLD
     z = (z ^ (z >> _S30)) * _M1
@@ -339,188 +476,266 @@ def _splitmix64(x):
     return z ^ (z >> _S31)
 
 
-@njit(cache=True)
+@njit(**INLINE)
 def _child_hash(h, j):
     return _splitmix64(h ^ (np.uint64(j + 1) * _GOLD))
 
 
-@njit(cache=True)
+@njit(**INLINE)
 def _draw(h):
     return float(_splitmix64(h ^ _DRAW) >> _S11) * (2.0 ** -53)
 
 
-@njit(cache=True)
-def _box_entry(lo, hi, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Entry distance of the ray into [lo, hi] within (tmin, tmax), or inf."""
+@njit(**INLINE)
+def _u64(i32, k):
+    """The uint64 stored as int32 words k (low), k + 1 (high)."""
+    return (np.uint64(np.uint32(i32[k])) & _LO32) | (np.uint64(np.uint32(i32[k + 1])) << _S32)
+
+
+@njit(**INLINE)
+def dcsg_base(buf):
+    """Word offsets of the DCSG blob: (int64/float64 index, int32 index)."""
+    i64 = buf[0]
+    w = (i64[H_F64] >> 3) + i64[H_DCSG]
+    return w, 2 * w
+
+
+@njit(**INLINE)
+def dcsg_vs0(buf):
+    """First virtual shape of a DCSG primitive (NO_VSHAPE when the scene has none)."""
+    i64 = buf[0]
+    return i64[dcsg_base(buf)[0] + B_VS0]
+
+
+@njit(**INLINE)
+def _box_entry(f64, b, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Entry distance of the ray into the box at f64[b:b+6] within (tmin, tmax), or inf."""
     t0, t1 = tmin, tmax
     o = (ox, oy, oz)
     d = (dx, dy, dz)
     for k in range(3):
+        lo = f64[b + k]
+        hi = f64[b + 3 + k]
         if d[k] != 0.0:
             inv = 1.0 / d[k]
-            a = (lo[k] - o[k]) * inv
-            b = (hi[k] - o[k]) * inv
-            if a > b:
-                a, b = b, a
+            a = (lo - o[k]) * inv
+            c = (hi - o[k]) * inv
+            if a > c:
+                a, c = c, a
             t0 = max(t0, a)
-            t1 = min(t1, b * (1.0 + 1e-12))
-        elif o[k] < lo[k] or o[k] > hi[k]:
+            t1 = min(t1, c * (1.0 + 1e-12) if c > 0.0 else c * (1.0 - 1e-12))
+        elif o[k] < lo or o[k] > hi:
             return math.inf
     return t0 if t0 <= t1 else math.inf
 
 
-@njit(cache=True)
-def _first_prim_hit(a, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    m = a.prim_inv[p]
-    lx = m[0, 0] * ox + m[0, 1] * oy + m[0, 2] * oz + m[0, 3]
-    ly = m[1, 0] * ox + m[1, 1] * oy + m[1, 2] * oz + m[1, 3]
-    lz = m[2, 0] * ox + m[2, 1] * oy + m[2, 2] * oz + m[2, 3]
-    ex = m[0, 0] * dx + m[0, 1] * dy + m[0, 2] * dz
-    ey = m[1, 0] * dx + m[1, 1] * dy + m[1, 2] * dz
-    ez = m[2, 0] * dx + m[2, 1] * dy + m[2, 2] * dz
-    n, t0, t1, t2, t3 = prim_hits(a.prim_kind[p], a.prim_params[p], lx, ly, lz, ex, ey, ez)
-    for i in range(n):
-        t = (t0, t1, t2, t3)[i]
-        if t > tmin and t < tmax:
-            return t, lx + t * ex, ly + t * ey, lz + t * ez
-    return math.inf, 0.0, 0.0, 0.0
-
-
-@njit(cache=True)
-def dcsg_closest(a, ox, oy, oz, dx, dy, dz, tmin, tmax, fs, ns, hs, any_hit):
-    """Closest hit of an object-space ray with the graph, expanded lazily.
-
-    fs (stack_size, 16) float64, ns (stack_size,) int64, hs (stack_size, 2)
-    uint64 are the caller's scratch stack. Returns (t, primitive row, address,
-    stub address, nx, ny, nz (object-space unit normal)); t = tmax and row = -1
-    on a miss. any_hit: return at the first hit (occlusion)."""
-    sp = 0
-    t_root = _box_entry(a.node_lo[a.root], a.node_hi[a.root], ox, oy, oz, dx, dy, dz, tmin, tmax)
+@njit(**CORE)
+def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
+    """Closest hit of a prototype-space ray with DCSG `graph`, expanded lazily:
+    (t, virtual shape id); (tmax, -1) on a miss. On a hit the normal (prototype
+    space) and the local stub index (-1: none) are left in the scratch for
+    `dcsg_hit_surface`. any_hit: stop at the first hit (occlusion)."""
+    i64, f32, i32, f64 = buf
+    w, iw = dcsg_base(buf)
+    o_alt0 = iw + i64[w + B_NODE_ALT0]
+    o_nalt = iw + i64[w + B_NODE_NALT]
+    o_prim = iw + i64[w + B_NODE_PRIM]
+    o_stub = iw + i64[w + B_NODE_STUB]
+    o_ac0 = iw + i64[w + B_ALT_C0]
+    o_anc = iw + i64[w + B_ALT_NC]
+    o_chn = iw + i64[w + B_CH_NODE]
+    o_chj = iw + i64[w + B_CH_J]
+    o_pk = iw + i64[w + B_PRIM_KIND]
+    o_box = w + i64[w + B_NODE_BOX]
+    o_cum = w + i64[w + B_ALT_CUM]
+    o_cinv = w + i64[w + B_CH_INV]
+    o_crot = w + i64[w + B_CH_ROT]
+    o_pp = w + i64[w + B_PRIM_PARAMS]
+    o_pinv = w + i64[w + B_PRIM_INV]
+    root = i32[iw + i64[w + B_GRAPH_ROOT] + graph]
+    fs = stack.view(np.float64)
+    us = stack.view(np.uint64)
+    fb = s0 // 2                       # float64 / uint64 index of the scratch
+    hb = fb + 16 * STACK_ENTRIES
+    nb = s0 + 36 * STACK_ENTRIES       # int32 index of the node ids
+    rb = nb + STACK_ENTRIES + (nb + STACK_ENTRIES) % 2
+    rf = rb // 2                       # result: normal (3 float64), stub (int32 at rb + 6), address
+    t_root = _box_entry(f64, o_box + 6 * root, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if t_root == math.inf:
-        return tmax, -1, np.uint64(0), np.uint64(0), 0.0, 0.0, 1.0
-    ns[0] = a.root
-    hs[0, 0] = a.root_hash
-    hs[0, 1] = np.uint64(0)
-    f = fs[0]
-    f[0], f[1], f[2], f[3], f[4], f[5] = ox, oy, oz, dx, dy, dz
+        return tmax, -1
+    f = fb
+    fs[f], fs[f + 1], fs[f + 2], fs[f + 3], fs[f + 4], fs[f + 5] = ox, oy, oz, dx, dy, dz
     for k in range(9):
-        f[6 + k] = 1.0 if k % 4 == 0 else 0.0
-    f[15] = t_root
+        fs[f + 6 + k] = 1.0 if k % 4 == 0 else 0.0
+    fs[f + 15] = t_root
+    us[hb] = _u64(i32, iw + i64[w + B_GRAPH_HASH] + 2 * graph)
+    us[hb + 1] = np.uint64(0)
+    stack[nb] = root
     sp = 1
     tbest = tmax
     best_p = -1
-    best_h = np.uint64(0)
     best_s = np.uint64(0)
+    best_h = np.uint64(0)
     bnx, bny, bnz = 0.0, 0.0, 1.0
     while sp > 0:
         sp -= 1
-        f = fs[sp]
-        if f[15] >= tbest:
+        f = fb + 16 * sp
+        if fs[f + 15] >= tbest:
             continue
-        node = ns[sp]
-        h = hs[sp, 0]
-        stub = hs[sp, 1]
-        if a.node_stub[node]:
-            stub = h
-        # copied out: the children are pushed over this very row
-        rox, roy, roz, rdx, rdy, rdz = f[0], f[1], f[2], f[3], f[4], f[5]
-        R = (f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14])
-        p = a.node_prim[node]
+        node = stack[nb + sp]
+        h = us[hb + 2 * sp]
+        stub = h if i32[o_stub + node] else us[hb + 2 * sp + 1]
+        # copied out: the children are pushed over this very entry
+        rox, roy, roz, rdx, rdy, rdz = fs[f], fs[f + 1], fs[f + 2], fs[f + 3], fs[f + 4], fs[f + 5]
+        R = (fs[f + 6], fs[f + 7], fs[f + 8], fs[f + 9], fs[f + 10], fs[f + 11],
+             fs[f + 12], fs[f + 13], fs[f + 14])
+        p = i32[o_prim + node]
         if p >= 0:
-            t, lx, ly, lz = _first_prim_hit(a, p, rox, roy, roz, rdx, rdy, rdz, tmin, tbest)
+            lx, ly, lz, ex, ey, ez = xform_ray(f64, o_pinv + 12 * p, rox, roy, roz, rdx, rdy, rdz)
+            pp = o_pp + 4 * p
+            kind = i32[o_pk + p]
+            params = (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3])
+            n, t0, t1, t2, t3 = prim_hits(kind, params, lx, ly, lz, ex, ey, ez)
+            t = math.inf
+            for i in range(n):
+                ti = (t0, t1, t2, t3)[i]
+                if ti > tmin and ti < tbest:
+                    t = ti
+                    break
             if t < tbest:
                 tbest = t
                 best_p = p
-                best_h = h
                 best_s = stub
-                _fc, _u, _v, nx, ny, nz = prim_surface(a.prim_kind[p], a.prim_params[p], lx, ly, lz)
-                m = a.prim_inv[p]
-                # prim -> node by the inverse-transpose, then node -> object by the rotation
-                qx = m[0, 0] * nx + m[1, 0] * ny + m[2, 0] * nz
-                qy = m[0, 1] * nx + m[1, 1] * ny + m[2, 1] * nz
-                qz = m[0, 2] * nx + m[1, 2] * ny + m[2, 2] * nz
+                best_h = h
+                _fc, _u, _v, nx, ny, nz = prim_surface(kind, params, lx + t * ex, ly + t * ey,
+                                                       lz + t * ez)
+                qx, qy, qz = normal_through(f64, o_pinv + 12 * p, nx, ny, nz)
                 bnx = R[0] * qx + R[1] * qy + R[2] * qz
                 bny = R[3] * qx + R[4] * qy + R[5] * qz
                 bnz = R[6] * qx + R[7] * qy + R[8] * qz
-                ln = math.sqrt(bnx * bnx + bny * bny + bnz * bnz)
-                if ln > 0.0:
-                    bnx, bny, bnz = bnx / ln, bny / ln, bnz / ln
                 if any_hit:
                     break
             continue
-        k = a.node_alt0[node]
-        nalt = a.node_nalt[node]
+        k = i32[o_alt0 + node]
+        nalt = i32[o_nalt + node]
         if nalt > 1:
             u = _draw(h)
             last = k + nalt - 1
-            while k < last and not a.alt_cum[k] > u:
+            while k < last and not f64[o_cum + k] > u:
                 k += 1
         base = sp
-        for c in range(a.alt_child0[k], a.alt_child0[k] + a.alt_nchild[k]):
-            child = a.child_node[c]
-            m = a.child_inv[c]
-            cox = m[0, 0] * rox + m[0, 1] * roy + m[0, 2] * roz + m[0, 3]
-            coy = m[1, 0] * rox + m[1, 1] * roy + m[1, 2] * roz + m[1, 3]
-            coz = m[2, 0] * rox + m[2, 1] * roy + m[2, 2] * roz + m[2, 3]
-            cdx = m[0, 0] * rdx + m[0, 1] * rdy + m[0, 2] * rdz
-            cdy = m[1, 0] * rdx + m[1, 1] * rdy + m[1, 2] * rdz
-            cdz = m[2, 0] * rdx + m[2, 1] * rdy + m[2, 2] * rdz
-            te = _box_entry(a.node_lo[child], a.node_hi[child], cox, coy, coz, cdx, cdy, cdz,
-                            tmin, tbest)
+        c0 = i32[o_ac0 + k]
+        for c in range(c0, c0 + i32[o_anc + k]):
+            child = i32[o_chn + c]
+            cox, coy, coz, cdx, cdy, cdz = xform_ray(f64, o_cinv + 12 * c, rox, roy, roz,
+                                                     rdx, rdy, rdz)
+            te = _box_entry(f64, o_box + 6 * child, cox, coy, coz, cdx, cdy, cdz, tmin, tbest)
             if te == math.inf:
                 continue
-            g = fs[sp]
-            g[0], g[1], g[2], g[3], g[4], g[5] = cox, coy, coz, cdx, cdy, cdz
-            r = a.child_rot[c]
+            g = fb + 16 * sp
+            fs[g], fs[g + 1], fs[g + 2], fs[g + 3], fs[g + 4], fs[g + 5] = cox, coy, coz, cdx, cdy, cdz
+            r = o_crot + 9 * c
             for i in range(3):          # object <- child: R_parent @ R_child
                 for jj in range(3):
-                    g[6 + 3 * i + jj] = (R[3 * i] * r[0, jj] + R[3 * i + 1] * r[1, jj]
-                                         + R[3 * i + 2] * r[2, jj])
-            g[15] = te
-            ns[sp] = child
-            hs[sp, 0] = _child_hash(h, a.child_j[c])
-            hs[sp, 1] = stub
+                    fs[g + 6 + 3 * i + jj] = (R[3 * i] * f64[r + jj] + R[3 * i + 1] * f64[r + 3 + jj]
+                                              + R[3 * i + 2] * f64[r + 6 + jj])
+            fs[g + 15] = te
+            stack[nb + sp] = child
+            us[hb + 2 * sp] = _child_hash(h, i32[o_chj + c])
+            us[hb + 2 * sp + 1] = stub
             sp += 1
-        # nearest child on top: insertion sort of this level's entries by entry distance, far first
+        # nearest child on top: insertion sort of this level's entries, far first
         for i in range(base + 1, sp):
             j = i
-            while j > base and fs[j - 1, 15] < fs[j, 15]:
+            while j > base and fs[fb + 16 * (j - 1) + 15] < fs[fb + 16 * j + 15]:
+                a_, b_ = fb + 16 * (j - 1), fb + 16 * j
                 for q in range(16):
-                    fs[j - 1, q], fs[j, q] = fs[j, q], fs[j - 1, q]
-                ns[j - 1], ns[j] = ns[j], ns[j - 1]
+                    fs[a_ + q], fs[b_ + q] = fs[b_ + q], fs[a_ + q]
+                stack[nb + j - 1], stack[nb + j] = stack[nb + j], stack[nb + j - 1]
                 for q in range(2):
-                    hs[j - 1, q], hs[j, q] = hs[j, q], hs[j - 1, q]
+                    us[hb + 2 * (j - 1) + q], us[hb + 2 * j + q] = us[hb + 2 * j + q], us[hb + 2 * (j - 1) + q]
                 j -= 1
-    return tbest, best_p, best_h, best_s, bnx, bny, bnz
+    if best_p < 0:
+        return tmax, -1
+    fs[rf], fs[rf + 1], fs[rf + 2] = unit(bnx, bny, bnz)
+    us[rf + 4] = best_h
+    stack[rb + 6] = _stub_index(i32, iw, i64[w + B_GRAPH_STUB], i64[w + B_STUB_ADDR], graph, best_s)
+    return tbest, i64[w + B_VS0] + best_p
+
+
+@njit(**INLINE)
+def _stub_index(i32, iw, o_rows, o_addr, graph, addr):
+    """Local index of stub address `addr` in the graph's sorted table, -1 if none."""
+    if addr == np.uint64(0):
+        return -1
+    lo = i32[iw + o_rows + 2 * graph]
+    hi = lo + i32[iw + o_rows + 2 * graph + 1] - 1
+    first = lo
+    while lo <= hi:
+        mid = (lo + hi) // 2
+        v = _u64(i32, iw + o_addr + 2 * mid)
+        if v == addr:
+            return mid - first
+        if v < addr:
+            lo = mid + 1
+        else:
+            hi = mid - 1
+    return -1
+
+
+@njit(**INLINE)
+def dcsg_hit_surface(stack, s0):
+    """(stub index, nx, ny, nz, address) of the last DCSG hit `dcsg_closest_core` returned."""
+    fs = stack.view(np.float64)
+    nb = s0 + 36 * STACK_ENTRIES
+    rb = nb + STACK_ENTRIES + (nb + STACK_ENTRIES) % 2
+    rf = rb // 2
+    return stack[rb + 6], fs[rf], fs[rf + 1], fs[rf + 2], stack.view(np.uint64)[rf + 4]
+
+
+# ---------------------------------------------------------------- stand-alone tracing
+
+def dcsg_table(graphs):
+    """A minimal trace-style buffer holding only the DCSG blob, so the same kernels
+    run on it as on a Geometry (tests, the CLI, benchmarks) -> (buf views, prim_graph, stubs)."""
+    blob, prim_graph, stubs = pack_blob(graphs, vs0=0)
+    hdr = np.zeros(32, np.int64)
+    hdr[H_F64] = 32 * 8
+    hdr[H_DCSG] = 0
+    raw = np.concatenate([hdr.view(np.uint8), blob.view(np.uint8)])
+    views = (raw.view(np.int64), raw.view(np.float32), raw.view(np.int32), raw.view(np.float64))
+    return views, prim_graph, stubs
 
 
 @njit(cache=True)
-def _closest_batch(a, origins, dirs, tmax, t_out, p_out, h_out, s_out, n_out):
-    fs = np.empty((a.stack_size, 16))
-    ns = np.empty(a.stack_size, np.int64)
-    hs = np.empty((a.stack_size, 2), np.uint64)
+def _closest_batch(buf, origins, dirs, tmax, t_out, p_out, s_out, h_out, n_out):
+    stack = np.empty(SCRATCH_WORDS + 2, np.int32)
     for i in range(origins.shape[0]):
-        t, p, h, s, nx, ny, nz = dcsg_closest(a, origins[i, 0], origins[i, 1], origins[i, 2],
-                                              dirs[i, 0], dirs[i, 1], dirs[i, 2], 0.0, tmax[i],
-                                              fs, ns, hs, False)
-        t_out[i], p_out[i], h_out[i], s_out[i] = t, p, h, s
-        n_out[i, 0], n_out[i, 1], n_out[i, 2] = nx, ny, nz
+        t, vs = dcsg_closest_core(buf, stack, 0, 0, origins[i, 0], origins[i, 1], origins[i, 2],
+                                  dirs[i, 0], dirs[i, 1], dirs[i, 2], 0.0, tmax[i], False)
+        t_out[i] = t
+        p_out[i] = vs
+        s, n_out[i, 0], n_out[i, 1], n_out[i, 2], h_out[i] = dcsg_hit_surface(stack, 0)
+        s_out[i] = s if vs >= 0 else -1
 
 
-def trace_closest(dcsg, origins, dirs, tmax=math.inf):
-    """Closest hits of object-space rays: (t, primitive row, address, stub, normal (n, 3));
+def trace_closest(graph, origins, dirs, tmax=math.inf):
+    """Closest hits of object-space rays with one graph: (t, terminal primitive row,
+    address, stub index into `stub_addresses(graph)` (-1: none), unit normal (n, 3));
     t = tmax and row -1 on a miss."""
-    a = dcsg.arrays()
+    views, _pg, stubs = dcsg_table([graph])
     o = np.ascontiguousarray(origins, np.float64).reshape(-1, 3)
     d = np.ascontiguousarray(dirs, np.float64).reshape(-1, 3)
     if not (np.all(np.isfinite(o)) and np.all(np.isfinite(d))):
         raise SceneError("DCSG rays: non-finite origin or direction")
     n = o.shape[0]
     tm = np.broadcast_to(np.asarray(tmax, np.float64), (n,)).copy()
-    t = np.empty(n)
-    p = np.empty(n, np.int64)
+    t, p, s, nrm = np.empty(n), np.empty(n, np.int64), np.empty(n, np.int64), np.empty((n, 3))
     h = np.empty(n, np.uint64)
-    s = np.empty(n, np.uint64)
-    nrm = np.empty((n, 3))
-    _closest_batch(a, o, d, tm, t, p, h, s, nrm)
+    _closest_batch(views, o, d, tm, t, p, s, h, nrm)
     return t, p, h, s, nrm
+
+
+def stub_addresses(graph):
+    """The graph's OL stub addresses, sorted: a hit's stub index points in here."""
+    return _stub_addresses(graph)

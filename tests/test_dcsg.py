@@ -168,10 +168,14 @@ A --> F [ + A ] [ - A ] A
     assert np.sum(flat.stub == 0) == 1 + 3                         # the F drawn by the A of levels 0, 1
     o, d = _rays(graph, 1500, seed=5)
     _t, row, address, stub = D.trace_closest(graph, o, d)[:4]
+    table = D.stub_addresses(graph).tolist()
+    assert table == sorted(level2)
     owner = dict(zip(flat.address.tolist(), flat.stub.tolist()))
     hit = row >= 0
     assert hit.sum() > 200
-    assert all(owner[a] == s for a, s in zip(address[hit].tolist(), stub[hit].tolist()))
+    # each hit reports its own primitive's stub (index into the sorted table, -1: none)
+    assert all(owner[a] == (table[s] if s >= 0 else 0)
+               for a, s in zip(address[hit].tolist(), stub[hit].tolist()))
 
 
 def test_grammars_that_cannot_be_a_graph_are_refused():

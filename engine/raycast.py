@@ -40,7 +40,9 @@ from . import geometry as G
 from .affine import normal_through, unit, xform_ray
 from .jit import CORE, INLINE
 from .geometry import STACK_WORDS, TRI_LEAF, new_stack  # noqa: F401  (re-exported)
+from .csg import CSG_SCRATCH_WORDS
 from .csg import csg_closest_core, csg_surface_core, csg_vs0
+from .dcsg import DCSG_REF, dcsg_closest_core, dcsg_hit_surface, dcsg_vs0
 from .primitives import prim_hits, prim_surface
 from .triangle import pick, triangle_normal, woop_setup, woop_test
 
@@ -432,6 +434,14 @@ def _blas_closest(buf, stack, fstack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tbes
                             if h:
                                 tbest = t
                                 code = r
+                        elif r <= DCSG_REF:
+                            # an L-system: the hit is reported on its terminal's virtual shape
+                            t, vs = dcsg_closest_core(buf, stack, G.TRAV_WORDS + CSG_SCRATCH_WORDS,
+                                                      DCSG_REF - r, ox, oy, oz, dx, dy, dz, tmin,
+                                                      tbest, False)
+                            if t < tbest:
+                                tbest = t
+                                code = -1 - vs
                         elif r <= G.CSG_REF:
                             # a CSG solid: the hit is reported on the owning
                             # leaf's virtual shape
@@ -608,6 +618,11 @@ def _blas_any(buf, stack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
                                                 sx, sy, sz, okx, oky, okz, tmin, tmax)
                         if h:
                             return True
+                    elif r <= DCSG_REF:
+                        if dcsg_closest_core(buf, stack, G.TRAV_WORDS + CSG_SCRATCH_WORDS,
+                                             DCSG_REF - r, ox, oy, oz, dx, dy, dz, tmin, tmax,
+                                             True)[0] < tmax:
+                            return True
                     elif r <= G.CSG_REF:
                         if csg_closest_core(buf, stack, G.TRAV_WORDS, G.CSG_REF - r, ox, oy, oz,
                                             dx, dy, dz, tmin, tmax)[0] < tmax:
@@ -691,6 +706,13 @@ def intersect_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     t, inst, shape, b1, b2 = closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if shape < 0:
         return False, math.inf, -1, -1, -1, 0.0, 0.0, 0.0, 0.0, 0.0
+    if shape >= dcsg_vs0(buf):
+        # an L-system hit: the traversal left its normal and OL stub (face) in the stack
+        face, px, py, pz, _address = dcsg_hit_surface(stack, G.TRAV_WORDS + CSG_SCRATCH_WORDS)
+        i64, f32, i32, f64, rb, ib, fb = _layout(buf)
+        nx, ny, nz = normal_through(f64, fb + i64[G.H_INST_INV] + 12 * inst, px, py, pz)
+        nx, ny, nz = unit(nx, ny, nz)
+        return True, t, inst, shape, face, 0.0, 0.0, nx, ny, nz
     face, u, v, nx, ny, nz = surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz)
     return True, t, inst, shape, face, u, v, nx, ny, nz
 

@@ -185,3 +185,34 @@ def test_grammars_that_cannot_be_a_graph_are_refused():
     with pytest.raises(D.DCSGUnsupported, match="different places"):
         D.DCSG(LS.parse("axiom: A F\nderivation length: 2\nproduction:\n"
                         "A --> F : 0.5\nA --> F F : 0.5\n"))
+
+
+def _quadrature_area(flat, n=24):
+    """Exact-to-quadrature total area of the flattened primitives (midpoint rule per chart)."""
+    from photon_lightmaps.engine.primitives import prim_nfaces, prim_point
+    total = 0.0
+    for kind, params, xf in zip(flat.kind, flat.params, flat.transform):
+        L = xf[:, :3]
+        cof = np.linalg.det(L) * np.linalg.inv(L).T
+        for f in range(prim_nfaces(int(kind))):
+            for i in range(n):
+                for j in range(n):
+                    q = prim_point(int(kind), params, f, (i + 0.5) / n, (j + 0.5) / n)
+                    total += np.linalg.norm(cof @ np.cross(q[3:6], q[6:9])) / (n * n)
+    return total
+
+
+def test_area_estimate_is_unbiased_under_an_instance_transform():
+    g = LS.parse(TAPERED.replace("derivation length: 5", "derivation length: 3"))
+    graph = D.DCSG(g)
+    views = D.dcsg_table([graph])[0]
+    c, s = np.cos(0.7), np.sin(0.7)
+    xf = np.eye(4)
+    xf[:3, :3] = 2.0 * np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    xf[:3, 3] = (1, 2, 3)
+    inv = np.linalg.inv(xf)[:3]
+    area, var = D.estimate_graph_areas(views, graph, D.node_areas(graph), graph.arrays().root,
+                                       graph.root_hash, np.eye(3), inv, 8, 40000, seed=3)
+    exact = 4.0 * _quadrature_area(graph.flatten())           # scale 2: area x 4
+    assert abs(area.sum() - exact) < 4 * np.sqrt(var.sum())
+    assert np.sqrt(var.sum()) < 0.02 * exact

@@ -3,14 +3,15 @@
 An L-system (engine/lsystem.py) rewrites a string of modules; this module
 turns the result into geometry the tracer already knows: every drawn segment
 becomes an analytic cylinder (or a cone frustum where the width tapers), every
-``@O`` a sphere. Organs (``~``, a named Blender object or collection) are only
-placed here; instancing them is the exporter's job. Pure Python + numpy: it
-is part of the bpy-free core and needs no kernels.
+``@O`` a sphere, every ``@B`` a box. Organs (``~``, a named Blender object or
+collection) are only placed here; instancing them is the exporter's job. Pure
+Python + numpy: it is part of the bpy-free core and needs no kernels.
 
 Input: modules as ``(symbol, params)`` pairs (``lsystem.Module`` or any
 2-tuple). Symbols are one character or ``@`` plus one; params are numbers,
 except ``~(name[, scale])``. Symbols not listed below are grammar symbols and
-are ignored.
+are ignored, and so are parameters past those a symbol reads: a grammar may
+tag a drawn module, as the sphereflake preset's growing ``@O(r, generation)``.
 
 Turtle frame. Position p, heading H, left L, up U with U = H x L, so (L, U, H)
 is a right-handed frame (L x U = H, U x H = L, H x L = U). Start: p = 0,
@@ -42,8 +43,12 @@ Drawing. ``F(l)`` moves by l (default 1) drawing a segment, ``f(l)`` moves
 without drawing, ``[`` / ``]`` push / pop the whole state (an unmatched ``]``
 is a SceneError naming the module index), ``!(w)`` sets the diameter (default
 the ``width`` argument), ``@O(r)`` a sphere of radius r (default half the
-diameter), ``;(i)`` the material slot (default the next slot), ``~(name[, s])``
-an organ in the current frame scaled by s (default 1).
+diameter), ``@B(s)`` a cube of side s (default the diameter) centred at the
+turtle and aligned with its frame (L, U, H), ``;(i)`` the material slot
+(default the next slot), ``~(name[, s])`` an organ in the current frame scaled
+by s (default 1). Spheres and boxes take the current material and leave the
+turtle where it is; a box turns with the turtle (its faces are normal to L, U
+and H), so rotations place the sub-cubes of fractals such as the Menger sponge.
 
 Tapering. A segment is a cylinder of the current diameter unless ``!`` changed
 the diameter since the previous segment drawn on this branch; then it is a
@@ -89,6 +94,17 @@ class Spheres(NamedTuple):
     material: np.ndarray    # (m,) int
 
 
+class Boxes(NamedTuple):
+    center: np.ndarray      # (m, 3)
+    frame: np.ndarray       # (m, 3, 3) columns L, U, H at the box
+    size: np.ndarray        # (m,) side length
+    material: np.ndarray    # (m,) int
+
+
+def _no_boxes():
+    return Boxes(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros(0, np.int64))
+
+
 @dataclass
 class TurtleGeometry:
     """What a module string draws; per-segment arrays of length n_segments."""
@@ -99,6 +115,7 @@ class TurtleGeometry:
     seg_width1: np.ndarray                # (n,) diameter at the end
     seg_material: np.ndarray              # (n,) int slot
     spheres: Spheres
+    boxes: Boxes = field(default_factory=_no_boxes)
     organs: list = field(default_factory=list)
     bounds: tuple = field(default_factory=lambda: (np.zeros(3), np.zeros(3)))  # origin + seg_end
 
@@ -159,12 +176,14 @@ class TurtleState:
         self._frames = []           # L + U + H (9 floats) per distinct drawing frame
         self.fid = -1               # index of the current frame in _frames, -1: not recorded
         self._sph = []              # (x, y, z, r, material)
+        self._box = []              # (x, y, z, L(3), U(3), H(3), side, material)
         self._organs = []
         self._handlers = {
             "F": self._draw, "f": self._move, "[": self._push, "]": self._pop,
             "+": self._left, "-": self._right, "&": self._down, "^": self._up,
             "\\": self._roll_left, "/": self._roll_right, "|": self._turn_around,
-            "!": self._set_width, "@O": self._sphere, ";": self._set_material,
+            "!": self._set_width, "@O": self._sphere, "@B": self._box_module,
+            ";": self._set_material,
             "~": self._organ,
         }
 
@@ -338,6 +357,12 @@ class TurtleState:
             raise _ModuleError(f"'@O' radius must be finite and >= 0, got {r!r}")
         self._sph.append(self.p + (r, self.material))
 
+    def _box_module(self, params):
+        s = float(params[0]) if params else self.width
+        if not 0.0 <= s < _INF:
+            raise _ModuleError(f"'@B' size must be finite and >= 0, got {s!r}")
+        self._box.append(self.p + self.l + self.u + self.h + (s, self.material))
+
     def _set_material(self, params):
         if not params:
             self.material += 1
@@ -365,6 +390,7 @@ class TurtleState:
                           _ROW * len(self._seg)).reshape(-1, _ROW)
         frames = np.array(self._frames, dtype=np.float64).reshape(-1, 3, 3)
         sph = np.array(self._sph, dtype=np.float64).reshape(-1, 5)
+        box = np.array(self._box, dtype=np.float64).reshape(-1, 14)
         end = seg[:, 3:6]
         pts = np.vstack([np.zeros((1, 3)), end])
         return TurtleGeometry(
@@ -374,6 +400,9 @@ class TurtleState:
             seg_width0=seg[:, 6].copy(), seg_width1=seg[:, 7].copy(),
             seg_material=seg[:, 8].astype(np.int64),
             spheres=Spheres(sph[:, 0:3].copy(), sph[:, 3].copy(), sph[:, 4].astype(np.int64)),
+            # rows L, U, H -> columns L, U, H
+            boxes=Boxes(box[:, 0:3].copy(), box[:, 3:12].reshape(-1, 3, 3).transpose(0, 2, 1).copy(),
+                        box[:, 12].copy(), box[:, 13].astype(np.int64)),
             organs=list(self._organs),
             bounds=(pts.min(axis=0), pts.max(axis=0)))
 
@@ -405,8 +434,10 @@ def to_primitives(geom, material_base=0, name="lsystem"):
     t = params[0] at z = +1) with the base at the wider end, t = narrow/wide.
     Local x is negated wherever local z points against H (a widening segment,
     or F with a negative length), so every transform stays right-handed.
-    Segments and spheres whose transform would be singular (zero length or
-    width) are left out and counted in the result's ``skipped``.
+    Box: columns L s/2, U s/2, H s/2 (the engine box is [-1, 1]^3), origin at
+    the box's centre. Order: segments, then spheres, then boxes, each in string
+    order. Segments, spheres and boxes whose transform would be singular (zero
+    length, width, radius or size) are left out and counted in ``skipped``.
     """
     out = PrimitiveList()
     n = geom.n_segments
@@ -444,4 +475,15 @@ def to_primitives(geom, material_base=0, name="lsystem"):
         m[0, 0] = m[1, 1] = m[2, 2] = rj
         m[:, 3] = sp.center[j]
         out.append(Primitive("sphere", m, int(material_base + sp.material[j]), (), f"{name}.sphere.{j}"))
+    bx = geom.boxes
+    lin = bx.frame * (0.5 * bx.size)[:, None, None]
+    bad = _degenerate(lin)
+    for k in range(len(bx.size)):
+        if bad[k]:
+            out.skipped += 1
+            continue
+        m = np.empty((3, 4))
+        m[:, :3] = lin[k]
+        m[:, 3] = bx.center[k]
+        out.append(Primitive("box", m, int(material_base + bx.material[k]), (), f"{name}.box.{k}"))
     return out

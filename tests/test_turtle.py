@@ -161,7 +161,7 @@ def test_unmatched_close_bracket_raises_naming_the_module():
 
 
 def test_bad_parameters_raise_scene_error():
-    for text in ("F !(-1)", "@O(-2)", ";(1.5)", "~(3)", "F(a)"):
+    for text in ("F !(-1)", "@O(-2)", "@B(-1)", "@B(inf)", ";(1.5)", "~(3)", "F(a)"):
         with pytest.raises(SceneError, match="module"):
             interpret(mods(text))
 
@@ -317,6 +317,54 @@ def test_spheres():
     assert len(prims) == 2
     assert np.allclose(local_to_world(prims[1], [1, 0, 0]), [0.7, 0, 2])
     assert np.allclose(local_to_world(prims[1], [0, 0, -1]), [0, 0, 1.3])
+
+
+def test_box_transform_maps_the_unit_cube_onto_the_turtle_frame():
+    # a generic frame, so a box that ignored the rotation (or swapped axes) fails
+    g = interpret(mods(GENERIC + "F(2) ;(3) @B(0.6) F @B"), width=0.2)
+    s = frame_after(mods(GENERIC + "F(2)"))
+    prims = to_primitives(g, material_base=1)
+    assert [p.kind for p in prims] == ["cylinder", "cylinder", "box", "box"]
+    box, small = prims[2], prims[3]
+    assert box.material == 4 and small.material == 4 and box.params == ()
+    c, L, U, H = s.position, s.left, s.up, s.heading
+    for corner in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3):
+        x, y, z = corner
+        expected = c + 0.3 * (x * L + y * U + z * H)
+        assert np.allclose(local_to_world(box, corner), expected)
+    assert np.allclose(local_to_world(box, [0, 0, 0]), c)
+    m = np.asarray(box.transform)
+    assert np.allclose(m[:, :3].T @ m[:, :3], 0.09 * np.eye(3))          # a cube, side 0.6
+    assert np.linalg.det(m[:, :3]) > 0
+    # default side: the current diameter; after F the turtle moved one unit along H
+    assert np.allclose(np.asarray(small.transform)[:, :3], 0.1 * np.column_stack([L, U, H]))
+    assert np.allclose(local_to_world(small, [0, 0, 0]), c + H)
+    # the record behind them
+    bx = g.boxes
+    assert np.allclose(bx.size, [0.6, 0.2]) and list(bx.material) == [3, 3]
+    assert np.allclose(bx.frame[0], np.column_stack([L, U, H]))
+
+
+def test_box_leaves_the_turtle_where_it_is():
+    assert np.allclose(frame_after(mods(GENERIC + "@B(2) F")).matrix(),
+                       frame_after(mods(GENERIC + "F")).matrix())
+    g = interpret(mods("F @B(5)"))
+    assert np.allclose(g.bounds[1], [0, 0, 1])                           # positions only, as @O
+
+
+def test_zero_size_box_is_skipped():
+    g = interpret(mods("@B(0) !(0) @B @B(1)"))
+    prims = to_primitives(g)
+    assert [p.kind for p in prims] == ["box"] and prims.skipped == 2
+    assert np.allclose(np.asarray(prims[0].transform)[:, :3], 0.5 * np.diag([-1, -1, 1]))
+    assert interpret([]).boxes.size.shape == (0,)
+
+
+def test_parameters_past_those_a_symbol_reads_are_ignored():
+    a = interpret(mods("F(2, 7) +(30, 1) @O(0.5, 3) @B(0.4, 9) !(0.2, 1) F"))
+    b = interpret(mods("F(2) +(30) @O(0.5) @B(0.4) !(0.2) F"))
+    assert np.array_equal(a.seg_end, b.seg_end) and np.array_equal(a.seg_width1, b.seg_width1)
+    assert np.array_equal(a.spheres.radius, [0.5]) and np.array_equal(a.boxes.size, [0.4])
 
 
 def test_material_slots():

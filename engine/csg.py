@@ -155,6 +155,209 @@ def check_closed_mesh(vertices, triangles, what):
     return 1 if vol >= 0.0 else -1
 
 
+def _arr(lst, shape, dt):
+    """lst as a contiguous array of `shape` (-1: any length); empty lists give
+    a zero-length array of that shape."""
+    if len(lst):
+        return np.ascontiguousarray(np.array(lst, dt).reshape(shape))
+    shape = (shape,) if isinstance(shape, int) else shape
+    return np.zeros(tuple(0 if s < 0 else s for s in shape), dt)
+
+
+def _cat(lst, shape, dt):
+    return np.ascontiguousarray(np.concatenate(lst).astype(dt)) if lst else np.zeros(shape, dt)
+
+
+class _Flattener:
+    """The node, leaf and mesh-BVH lists flatten_csg fills, root after root
+    (ids are global over all roots), and their running counts."""
+
+    def __init__(self, n_materials, mesh_uvs):
+        self.n_materials = n_materials
+        self.mesh_uvs = mesh_uvs
+        self.node_op, self.node_l, self.node_r, self.node_rf, self.node_box = [], [], [], [], []
+        self.leaf_kind, self.leaf_flip, self.leaf_xf, self.leaf_inv = [], [], [], []
+        self.leaf_params, self.leaf_mat, self.leaf_tri0, self.leaf_ntri = [], [], [], []
+        self.leaf_node0, self.leaf_name, self.leaf_src = [], [], []
+        self.mtri, self.mtri_uv, self.mtri_mat = [], [], []
+        self.mnode_box, self.mnode_a, self.mnode_cnt = [], [], []
+        self.roots, self.root_names, self.root_leaves = [], [], []
+        self.n_tri = 0
+        self.n_mnode = 0
+        self.max_need = 0
+        self.max_depth = 0
+
+    def add_root(self, root, where):
+        """Flattens one solid; checks its tree fits the kernel's interval lists."""
+        name = getattr(root, "name", "csg")
+        what = f"CSG solid {name!r} in {where}"
+        k0 = len(self.leaf_kind)
+        if not isinstance(root, (CSGNode, Primitive, TriangleMesh)):
+            raise SceneError(f"{what}: expected a CSGNode, got {type(root).__name__}")
+        n, lo, hi, need, depth = self._visit(root, 0, 0, what)
+        if need > MAX_LISTS:
+            raise SceneError(f"{what}: tree needs {need} interval lists at once, "
+                             f"the kernel has {MAX_LISTS}")
+        self.max_need = max(self.max_need, need)
+        self.max_depth = max(self.max_depth, depth)
+        self.roots.append(n)
+        self.root_names.append(name)
+        self.root_leaves.append(list(range(k0, len(self.leaf_kind))))
+
+    def _visit(self, obj, flip, depth, what):
+        """Returns (node id, box lo, hi, Sethi–Ullman need, max depth)."""
+        if depth > MAX_WORK - 8:
+            raise SceneError(f"{what}: CSG tree deeper than {MAX_WORK - 8} levels")
+        if obj is None:
+            raise SceneError(f"{what}: missing CSG operand")
+        if isinstance(obj, CSGNode):
+            return self._operator(obj, flip, depth, what)
+        if isinstance(obj, (Primitive, TriangleMesh)):
+            k, lo, hi = self._leaf(obj, flip, f"{what} > {type(obj).__name__.lower()} "
+                                              f"{getattr(obj, 'name', '')!r}")
+            return self._add_node(LEAF, k, -1, 0, lo, hi), lo, hi, 1, 1
+        raise SceneError(f"{what}: CSG operand must be a CSGNode, Primitive or closed "
+                         f"TriangleMesh, got {type(obj).__name__}")
+
+    def _operator(self, obj, flip, depth, what):
+        """_visit of a CSGNode: both operands, then the node over them."""
+        op = obj.op.lower() if isinstance(obj.op, str) else obj.op
+        if op not in OP_IDS:
+            raise SceneError(f"{what}: unknown CSG operation {obj.op!r} "
+                             f"(expected one of {', '.join(OP_IDS)})")
+        name = f"{what} > {obj.name!r}"
+        if obj.left is None or obj.right is None:
+            raise SceneError(f"CSG node {name}: missing "
+                             f"{'left' if obj.left is None else 'right'} operand")
+        l, llo, lhi, ln, ld = self._visit(obj.left, flip, depth + 1, name)
+        r, rlo, rhi, rn, rd = self._visit(obj.right, flip ^ (1 if op == "difference" else 0),
+                                          depth + 1, name)
+        if op == "union":
+            lo, hi = np.minimum(llo, rlo), np.maximum(lhi, rhi)
+        elif op == "intersection":
+            lo, hi = np.maximum(llo, rlo), np.minimum(lhi, rhi)
+        else:
+            lo, hi = llo, lhi
+        need = max(ln, rn) if ln != rn else ln + 1
+        n = self._add_node(OP_IDS[op], l, r, 1 if rn > ln else 0, lo, hi)
+        return n, lo, hi, need, max(ld, rd) + 1
+
+    def _add_node(self, op, left, right, rfirst, lo, hi):
+        self.node_op.append(op)
+        self.node_l.append(left)
+        self.node_r.append(right)
+        self.node_rf.append(rfirst)
+        self.node_box.append(np.concatenate([lo, hi]))
+        return len(self.node_op) - 1
+
+    def _leaf(self, obj, flip, what):
+        """Adds a primitive or mesh leaf; returns (leaf id, box lo, hi)."""
+        k = len(self.leaf_kind)
+        if isinstance(obj, Primitive):
+            lo, hi = self._solid_primitive(obj, flip, what)
+        else:
+            lo, hi = self._closed_mesh(obj, flip, what)
+        self.leaf_name.append(getattr(obj, "name", "leaf"))
+        self.leaf_src.append(obj)
+        return k, lo, hi
+
+    def _add_leaf(self, kind, flip, xf, inv, params, material, n_triangles):
+        self.leaf_kind.append(kind)
+        self.leaf_flip.append(flip)
+        self.leaf_xf.append(xf)
+        self.leaf_inv.append(inv)
+        self.leaf_params.append(params)
+        self.leaf_mat.append(material)
+        self.leaf_tri0.append(self.n_tri)
+        self.leaf_ntri.append(n_triangles)
+        self.leaf_node0.append(self.n_mnode)
+
+    def _solid_primitive(self, obj, flip, what):
+        kid, p4, xf, inv, mat = check_primitive(obj, what, self.n_materials)
+        if kid not in SOLID_KINDS:
+            raise SceneError(f"{what}: a {obj.kind} is an open surface and cannot be a CSG "
+                             "operand (use a closed solid)")
+        lb = prim_local_bounds(np.int32(kid), p4)
+        c = np.array([[x, y, z] for x in (lb[0], lb[3]) for y in (lb[1], lb[4])
+                      for z in (lb[2], lb[5])])
+        w = c @ xf[:, :3].T + xf[:, 3]
+        lo, hi = _pad_box(w.min(0), w.max(0))
+        self._add_leaf(kid, flip, xf, inv, p4, mat, 0)
+        return lo, hi
+
+    def _mesh_triangles(self, obj, what):
+        """(p (T,3,3), uv (T,3,2), materials (T,)) of a mesh leaf (see flatten_csg)."""
+        if self.mesh_uvs is not None:
+            return self.mesh_uvs(obj, what)
+        v = np.asarray(obj.vertices, np.float64)
+        p = v[np.asarray(obj.triangles, np.int64)]
+        uv = np.zeros((p.shape[0], 3, 2))
+        mats = np.full(p.shape[0], int(obj.material), np.int64)
+        return p, uv, mats
+
+    def _closed_mesh(self, obj, flip, what):
+        """A closed mesh leaf: its triangles in the order of its own BVH, whose
+        nodes join the shared mesh-node arrays (absolute ids)."""
+        from .bvh import build_bvh
+        sign = check_closed_mesh(obj.vertices, obj.triangles, what)
+        p, uv, mats = self._mesh_triangles(obj, what)
+        if p.shape[0] == 0:
+            raise SceneError(f"{what}: mesh has no triangles")
+        tlo = p.min(axis=1)
+        thi = p.max(axis=1)
+        bvh = build_bvh(tlo, thi)
+        order = bvh.items.astype(np.int64)
+        p, uv, mats = p[order], uv[order], np.asarray(mats)[order]
+        a = bvh.node_a.astype(np.int64).copy()
+        cnt = bvh.node_count.astype(np.int64)
+        a[cnt == 0] += self.n_mnode
+        a[cnt > 0] += self.n_tri
+        self.mnode_box.append(np.concatenate([bvh.node_min.astype(np.float64),
+                                              bvh.node_max.astype(np.float64)], axis=1))
+        self.mnode_a.append(a)
+        self.mnode_cnt.append(cnt)
+        lo, hi = _pad_box(p.reshape(-1, 3).min(0), p.reshape(-1, 3).max(0))
+        # an inward-oriented mesh flips like a subtracted operand
+        self._add_leaf(MESH, flip ^ (1 if sign < 0 else 0), np.eye(4)[:3].copy(),
+                       np.eye(4)[:3].copy(), np.array([float(sign), 0.0, 0.0, 0.0]),
+                       int(mats[0]), p.shape[0])
+        self.mtri.append(p.reshape(-1, 9))
+        self.mtri_uv.append(uv)
+        self.mtri_mat.append(mats.astype(np.int64))
+        self.n_tri += p.shape[0]
+        self.n_mnode += bvh.n_nodes
+        return lo, hi
+
+    def flat(self):
+        """The lists as a CSGFlat of contiguous arrays."""
+        L = len(self.leaf_kind)
+        return CSGFlat(
+            node_op=_arr(self.node_op, -1, np.int32), node_l=_arr(self.node_l, -1, np.int32),
+            node_r=_arr(self.node_r, -1, np.int32), node_rfirst=_arr(self.node_rf, -1, np.int32),
+            node_box=_arr(self.node_box, (-1, 6), np.float64),
+            leaf_kind=_arr(self.leaf_kind, -1, np.int32),
+            leaf_flip=_arr(self.leaf_flip, -1, np.int32),
+            leaf_xf=_arr(self.leaf_xf, (L, 3, 4), np.float64),
+            leaf_inv=_arr(self.leaf_inv, (L, 3, 4), np.float64),
+            leaf_params=_arr(self.leaf_params, (L, 4), np.float64),
+            leaf_material=_arr(self.leaf_mat, -1, np.int32),
+            leaf_tri0=_arr(self.leaf_tri0, -1, np.int32),
+            leaf_ntri=_arr(self.leaf_ntri, -1, np.int32),
+            leaf_node0=_arr(self.leaf_node0, -1, np.int32),
+            leaf_name=self.leaf_name, leaf_src=self.leaf_src,
+            mtri=_cat(self.mtri, (0, 9), np.float64),
+            mtri_uv=_cat(self.mtri_uv, (0, 3, 2), np.float64),
+            mtri_material=_cat(self.mtri_mat, 0, np.int64),
+            mnode_box=_cat(self.mnode_box, (0, 6), np.float64),
+            mnode_a=_cat(self.mnode_a, 0, np.int32), mnode_cnt=_cat(self.mnode_cnt, 0, np.int32),
+            roots=_arr(self.roots, -1, np.int32), root_names=self.root_names,
+            root_leaves=self.root_leaves,
+            info={"csg_solids": len(self.roots), "csg_nodes": len(self.node_op),
+                  "csg_leaves": L, "csg_mesh_triangles": self.n_tri,
+                  "csg_max_lists": self.max_need, "csg_max_depth": self.max_depth},
+        )
+
+
 def flatten_csg(roots, n_materials=0, owner="prototype", mesh_uvs=None):
     """Flattens CSGNode roots into a CSGFlat (node ids are global over all roots).
 
@@ -164,175 +367,13 @@ def flatten_csg(roots, n_materials=0, owner="prototype", mesh_uvs=None):
     mesh leaf's triangles (engine/geometry.py passes its mesh checker so CSG
     meshes get lightmap UVs like plain meshes); None: the raw triangles, zero UVs.
     """
-    from .bvh import build_bvh
-    node_op, node_l, node_r, node_rf, node_box = [], [], [], [], []
-    leaf_kind, leaf_flip, leaf_xf, leaf_inv, leaf_params, leaf_mat = [], [], [], [], [], []
-    leaf_tri0, leaf_ntri, leaf_node0, leaf_name, leaf_src = [], [], [], [], []
-    mtri, mtri_uv, mtri_mat = [], [], []
-    mnode_box, mnode_a, mnode_cnt = [], [], []
-    roots_out, root_names, root_leaves = [], [], []
-    n_tri = 0
-    n_mnode = 0
-    max_need = 0
-    max_depth = 0
-
-    def leaf(obj, flip, what):
-        nonlocal n_tri, n_mnode
-        k = len(leaf_kind)
-        if isinstance(obj, Primitive):
-            kid, p4, xf, inv, mat = check_primitive(obj, what, n_materials)
-            if kid not in SOLID_KINDS:
-                raise SceneError(f"{what}: a {obj.kind} is an open surface and cannot be a CSG "
-                                 "operand (use a closed solid)")
-            lb = prim_local_bounds(np.int32(kid), p4)
-            c = np.array([[x, y, z] for x in (lb[0], lb[3]) for y in (lb[1], lb[4])
-                          for z in (lb[2], lb[5])])
-            w = c @ xf[:, :3].T + xf[:, 3]
-            lo, hi = _pad_box(w.min(0), w.max(0))
-            leaf_kind.append(kid)
-            leaf_flip.append(flip)
-            leaf_xf.append(xf)
-            leaf_inv.append(inv)
-            leaf_params.append(p4)
-            leaf_mat.append(mat)
-            leaf_tri0.append(n_tri)
-            leaf_ntri.append(0)
-            leaf_node0.append(n_mnode)
-        else:
-            sign = check_closed_mesh(obj.vertices, obj.triangles, what)
-            if mesh_uvs is not None:
-                p, uv, mats = mesh_uvs(obj, what)
-            else:
-                v = np.asarray(obj.vertices, np.float64)
-                p = v[np.asarray(obj.triangles, np.int64)]
-                uv = np.zeros((p.shape[0], 3, 2))
-                mats = np.full(p.shape[0], int(obj.material), np.int64)
-            if p.shape[0] == 0:
-                raise SceneError(f"{what}: mesh has no triangles")
-            tlo = p.min(axis=1)
-            thi = p.max(axis=1)
-            bvh = build_bvh(tlo, thi)
-            order = bvh.items.astype(np.int64)
-            p, uv, mats = p[order], uv[order], np.asarray(mats)[order]
-            a = bvh.node_a.astype(np.int64).copy()
-            cnt = bvh.node_count.astype(np.int64)
-            a[cnt == 0] += n_mnode
-            a[cnt > 0] += n_tri
-            mnode_box.append(np.concatenate([bvh.node_min.astype(np.float64),
-                                             bvh.node_max.astype(np.float64)], axis=1))
-            mnode_a.append(a)
-            mnode_cnt.append(cnt)
-            lo, hi = _pad_box(p.reshape(-1, 3).min(0), p.reshape(-1, 3).max(0))
-            leaf_kind.append(MESH)
-            # an inward-oriented mesh flips like a subtracted operand
-            leaf_flip.append(flip ^ (1 if sign < 0 else 0))
-            leaf_xf.append(np.eye(4)[:3].copy())
-            leaf_inv.append(np.eye(4)[:3].copy())
-            leaf_params.append(np.array([float(sign), 0.0, 0.0, 0.0]))
-            leaf_mat.append(int(mats[0]))
-            leaf_tri0.append(n_tri)
-            leaf_ntri.append(p.shape[0])
-            leaf_node0.append(n_mnode)
-            mtri.append(p.reshape(-1, 9))
-            mtri_uv.append(uv)
-            mtri_mat.append(mats.astype(np.int64))
-            n_tri += p.shape[0]
-            n_mnode += bvh.n_nodes
-        leaf_name.append(getattr(obj, "name", "leaf"))
-        leaf_src.append(obj)
-        return k, lo, hi
-
-    def visit(obj, flip, depth, what):
-        """Returns (node id, box lo, hi, Sethi–Ullman need, max depth)."""
-        if depth > MAX_WORK - 8:
-            raise SceneError(f"{what}: CSG tree deeper than {MAX_WORK - 8} levels")
-        if obj is None:
-            raise SceneError(f"{what}: missing CSG operand")
-        if isinstance(obj, CSGNode):
-            op = obj.op.lower() if isinstance(obj.op, str) else obj.op
-            if op not in OP_IDS:
-                raise SceneError(f"{what}: unknown CSG operation {obj.op!r} "
-                                 f"(expected one of {', '.join(OP_IDS)})")
-            name = f"{what} > {obj.name!r}"
-            if obj.left is None or obj.right is None:
-                raise SceneError(f"CSG node {name}: missing "
-                                 f"{'left' if obj.left is None else 'right'} operand")
-            l, llo, lhi, ln, ld = visit(obj.left, flip, depth + 1, name)
-            r, rlo, rhi, rn, rd = visit(obj.right, flip ^ (1 if op == "difference" else 0),
-                                        depth + 1, name)
-            if op == "union":
-                lo, hi = np.minimum(llo, rlo), np.maximum(lhi, rhi)
-            elif op == "intersection":
-                lo, hi = np.maximum(llo, rlo), np.minimum(lhi, rhi)
-            else:
-                lo, hi = llo, lhi
-            need = max(ln, rn) if ln != rn else ln + 1
-            n = len(node_op)
-            node_op.append(OP_IDS[op])
-            node_l.append(l)
-            node_r.append(r)
-            node_rf.append(1 if rn > ln else 0)
-            node_box.append(np.concatenate([lo, hi]))
-            return n, lo, hi, need, max(ld, rd) + 1
-        if isinstance(obj, (Primitive, TriangleMesh)):
-            k, lo, hi = leaf(obj, flip, f"{what} > {type(obj).__name__.lower()} "
-                                       f"{getattr(obj, 'name', '')!r}")
-            n = len(node_op)
-            node_op.append(LEAF)
-            node_l.append(k)
-            node_r.append(-1)
-            node_rf.append(0)
-            node_box.append(np.concatenate([lo, hi]))
-            return n, lo, hi, 1, 1
-        raise SceneError(f"{what}: CSG operand must be a CSGNode, Primitive or closed "
-                         f"TriangleMesh, got {type(obj).__name__}")
-
+    fl = _Flattener(n_materials, mesh_uvs)
     for root in roots:
         where = owner
         if isinstance(root, tuple):
             root, where = root
-        name = getattr(root, "name", "csg")
-        what = f"CSG solid {name!r} in {where}"
-        k0 = len(leaf_kind)
-        if not isinstance(root, (CSGNode, Primitive, TriangleMesh)):
-            raise SceneError(f"{what}: expected a CSGNode, got {type(root).__name__}")
-        n, lo, hi, need, depth = visit(root, 0, 0, what)
-        if need > MAX_LISTS:
-            raise SceneError(f"{what}: tree needs {need} interval lists at once, "
-                             f"the kernel has {MAX_LISTS}")
-        max_need = max(max_need, need)
-        max_depth = max(max_depth, depth)
-        roots_out.append(n)
-        root_names.append(name)
-        root_leaves.append(list(range(k0, len(leaf_kind))))
-
-    def arr(lst, shape, dt):
-        if len(lst):
-            return np.ascontiguousarray(np.array(lst, dt).reshape(shape))
-        shape = (shape,) if isinstance(shape, int) else shape
-        return np.zeros(tuple(0 if s < 0 else s for s in shape), dt)
-
-    def cat(lst, shape, dt):
-        return np.ascontiguousarray(np.concatenate(lst).astype(dt)) if lst else np.zeros(shape, dt)
-
-    L = len(leaf_kind)
-    return CSGFlat(
-        node_op=arr(node_op, -1, np.int32), node_l=arr(node_l, -1, np.int32),
-        node_r=arr(node_r, -1, np.int32), node_rfirst=arr(node_rf, -1, np.int32),
-        node_box=arr(node_box, (-1, 6), np.float64),
-        leaf_kind=arr(leaf_kind, -1, np.int32), leaf_flip=arr(leaf_flip, -1, np.int32),
-        leaf_xf=arr(leaf_xf, (L, 3, 4), np.float64), leaf_inv=arr(leaf_inv, (L, 3, 4), np.float64),
-        leaf_params=arr(leaf_params, (L, 4), np.float64), leaf_material=arr(leaf_mat, -1, np.int32),
-        leaf_tri0=arr(leaf_tri0, -1, np.int32), leaf_ntri=arr(leaf_ntri, -1, np.int32),
-        leaf_node0=arr(leaf_node0, -1, np.int32), leaf_name=leaf_name, leaf_src=leaf_src,
-        mtri=cat(mtri, (0, 9), np.float64), mtri_uv=cat(mtri_uv, (0, 3, 2), np.float64),
-        mtri_material=cat(mtri_mat, 0, np.int64),
-        mnode_box=cat(mnode_box, (0, 6), np.float64), mnode_a=cat(mnode_a, 0, np.int32),
-        mnode_cnt=cat(mnode_cnt, 0, np.int32),
-        roots=arr(roots_out, -1, np.int32), root_names=root_names, root_leaves=root_leaves,
-        info={"csg_solids": len(roots_out), "csg_nodes": len(node_op), "csg_leaves": L,
-              "csg_mesh_triangles": n_tri, "csg_max_lists": max_need, "csg_max_depth": max_depth},
-    )
+        fl.add_root(root, where)
+    return fl.flat()
 
 
 def leaf_vshapes(flat, vs0=0):

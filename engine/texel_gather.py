@@ -266,6 +266,133 @@ def _lightmap_key(seed, inst, slot):
                         np.uint64((int(inst) << 20) + int(slot)))
 
 
+class _MeshTexels:
+    """Measured texels of mesh lightmaps with their UV pieces (CSR rows into the
+    piece arrays), as _gather_mesh takes them."""
+
+    def __init__(self):
+        self.cols = dict(texel=[], inst=[], key=[], local=[], start=[], tri=[], area=[], nv=[],
+                         bary=[])
+        self.n_pieces = 0
+
+    def add(self, g, inst, key, off, local, rows, xf, w, h):
+        area3d = TA.triangle_world_areas(g.tri_p[rows], xf[:, :3])
+        pcs = TA.triangle_texel_pieces(g.tri_uv[rows], area3d, w, h)
+        cnt = pcs.start[local + 1] - pcs.start[local]
+        # Piece rows of the measured texels, in texel order (vectorised CSR gather).
+        sel = np.arange(int(cnt.sum())) + np.repeat(pcs.start[local] - (np.cumsum(cnt) - cnt), cnt)
+        c = self.cols
+        c["texel"].append(off + local)
+        c["inst"].append(np.full(local.size, inst, np.int64))
+        c["key"].append(np.full(local.size, key, np.uint64))
+        c["local"].append(local)
+        c["start"].append(self.n_pieces + np.cumsum(cnt) - cnt)
+        c["tri"].append(rows[pcs.tri[sel]])
+        c["area"].append(pcs.area[sel])
+        c["nv"].append(pcs.nv[sel])
+        c["bary"].append(pcs.bary[sel])
+        self.n_pieces += int(sel.size)
+
+    def gather(self, cs, n):
+        """(texel ids, E) of the collected texels; None when there are none."""
+        if not self.cols["texel"]:
+            return None
+        cat = {k: np.concatenate(v) for k, v in self.cols.items()}
+        K = cat["texel"].size
+        start = np.empty(K + 1, np.int64)
+        start[:K] = cat["start"]
+        start[K] = self.n_pieces
+        out = np.zeros((K, cs.n_bands))
+        _gather_mesh(cs.geometry, cs.lights, cat["inst"], cat["key"], cat["local"], start,
+                     np.ascontiguousarray(cat["tri"], np.int64), np.ascontiguousarray(cat["area"]),
+                     np.ascontiguousarray(cat["nv"], np.int64), np.ascontiguousarray(cat["bary"]),
+                     n, out)
+        return cat["texel"], out
+
+
+class _PrimTexels:
+    """Measured texels of primitive lightmaps (chart face and cell of each) and
+    the per-lightmap surface data, as _gather_prim takes them."""
+
+    def __init__(self):
+        self.cols = dict(texel=[], lm=[], face=[], x=[], y=[], key=[], local=[])
+        self.pl = dict(kind=[], params=[], xf=[], ncof=[], res=[], sides=[])
+
+    def add(self, cs, key, off, local, row, xf, w, f):
+        g = cs.geometry
+        pk = int(g.prim_kind[row])
+        params = np.zeros(4)
+        params[:] = g.prim_params[row][:4]
+        wxf = _affine_compose(xf, g.prim_xf[row])
+        det = float(np.linalg.det(wxf[:, :3]))
+        ncof = TA.cofactor(wxf) * (1.0 if det >= 0.0 else -1.0)
+        closed = pk not in (P.DISK, P.QUAD)
+        sides = 2 if (not closed or _needs_inner_side(cs, pk, params, wxf)) else 1
+        r = w // f
+        y, x = np.divmod(local, w)
+        c = self.cols
+        c["texel"].append(off + local)
+        c["lm"].append(np.full(local.size, len(self.pl["kind"]), np.int64))
+        c["face"].append(x // r)
+        c["x"].append(x % r)
+        c["y"].append(y)
+        c["key"].append(np.full(local.size, key, np.uint64))
+        c["local"].append(local)
+        for name, value in (("kind", pk), ("params", params), ("xf", wxf), ("ncof", ncof),
+                            ("res", r), ("sides", sides)):
+            self.pl[name].append(value)
+
+    def gather(self, cs, n):
+        """(texel ids, E) of the collected texels; None when there are none."""
+        if not self.cols["texel"]:
+            return None
+        cat = {k: np.concatenate(v) for k, v in self.cols.items()}
+        pl = self.pl
+        out = np.zeros((cat["texel"].size, cs.n_bands))
+        _gather_prim(cs.geometry, cs.lights, cat["lm"], cat["face"].astype(np.int64),
+                     cat["x"].astype(np.int64), cat["y"].astype(np.int64), cat["key"], cat["local"],
+                     np.asarray(pl["kind"], np.int64), np.stack(pl["params"]), np.stack(pl["xf"]),
+                     np.stack(pl["ncof"]), np.asarray(pl["res"], np.int64),
+                     np.asarray(pl["sides"], np.int64), n, out)
+        return cat["texel"], out
+
+
+def _collect_texels(cs, owners, lightmap_ids, seed):
+    """The measured texels of the given lightmaps, split by surface type:
+    -> (_MeshTexels, _PrimTexels)."""
+    lm = cs.lightmaps
+    thr = LM.empty_thresholds(lm)
+    mesh, prim = _MeshTexels(), _PrimTexels()
+    for lid in lightmap_ids:
+        if lid not in owners:
+            raise ValueError(f"lightmap {lid} does not belong to any instance")
+        inst, slot, (skind, data) = owners[lid]
+        w, h, f = int(lm.width[lid]), int(lm.height[lid]), int(lm.tiles[lid])
+        measured = LM.is_measured(lm, lid, thr[lid])
+        local = np.flatnonzero(measured).astype(np.int64)
+        if local.size == 0:
+            continue
+        key = _lightmap_key(seed, inst, slot)
+        off = int(lm.offset[lid])
+        xf = cs.geometry.inst_xf[inst]
+        if skind == "mesh":
+            mesh.add(cs.geometry, inst, key, off, local, np.asarray(data, np.int64), xf, w, h)
+        else:
+            prim.add(cs, key, off, local, int(data), xf, w, f)
+    return mesh, prim
+
+
+def _by_texel(parts, nb):
+    """The (texel ids, E) parts joined and sorted by texel id."""
+    parts = [p for p in parts if p is not None]
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros((0, nb))
+    ids = np.concatenate([p[0] for p in parts])
+    E = np.concatenate([p[1] for p in parts])
+    order = np.argsort(ids, kind="stable")
+    return ids[order], E[order]
+
+
 def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAMPLES, seed=0):
     """Direct irradiance averaged over each measured texel of the given lightmaps.
 
@@ -279,107 +406,13 @@ def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAM
     if n < 1:
         raise ValueError(f"samples_per_texel must be >= 1, got {samples_per_texel}")
     t0 = time.perf_counter()
-    lm = cs.lightmaps
-    g = cs.geometry
-    nb = cs.n_bands
     owners = _lightmap_owners(cs)
     if lightmap_ids is None:
         # every instance's own lightmaps (not OLs or CSG sub-texel rows)
         lightmap_ids = owners.keys()
     lightmap_ids = sorted({int(l) for l in lightmap_ids})
-    thr = LM.empty_thresholds(lm)
-
-    mesh = dict(texel=[], inst=[], key=[], local=[], start=[], tri=[], area=[], nv=[], bary=[])
-    n_pieces = 0
-    prim = dict(texel=[], lm=[], face=[], x=[], y=[], key=[], local=[])
-    pl = dict(kind=[], params=[], xf=[], ncof=[], res=[], sides=[])
-    for lid in lightmap_ids:
-        if lid not in owners:
-            raise ValueError(f"lightmap {lid} does not belong to any instance")
-        inst, slot, (skind, data) = owners[lid]
-        w, h, f = int(lm.width[lid]), int(lm.height[lid]), int(lm.tiles[lid])
-        measured = LM.is_measured(lm, lid, thr[lid])
-        local = np.flatnonzero(measured).astype(np.int64)
-        if local.size == 0:
-            continue
-        key = _lightmap_key(seed, inst, slot)
-        off = int(lm.offset[lid])
-        xf = g.inst_xf[inst]
-        if skind == "mesh":
-            rows = np.asarray(data, np.int64)
-            area3d = TA.triangle_world_areas(g.tri_p[rows], xf[:, :3])
-            pcs = TA.triangle_texel_pieces(g.tri_uv[rows], area3d, w, h)
-            cnt = pcs.start[local + 1] - pcs.start[local]
-            # Piece rows of the measured texels, in texel order (vectorised CSR gather).
-            sel = np.arange(int(cnt.sum())) + np.repeat(pcs.start[local] - (np.cumsum(cnt) - cnt), cnt)
-            mesh["texel"].append(off + local)
-            mesh["inst"].append(np.full(local.size, inst, np.int64))
-            mesh["key"].append(np.full(local.size, key, np.uint64))
-            mesh["local"].append(local)
-            mesh["start"].append(n_pieces + np.cumsum(cnt) - cnt)
-            mesh["tri"].append(rows[pcs.tri[sel]])
-            mesh["area"].append(pcs.area[sel])
-            mesh["nv"].append(pcs.nv[sel])
-            mesh["bary"].append(pcs.bary[sel])
-            n_pieces += int(sel.size)
-        else:
-            row = int(data)
-            pk = int(g.prim_kind[row])
-            params = np.zeros(4)
-            params[:] = g.prim_params[row][:4]
-            wxf = _affine_compose(xf, g.prim_xf[row])
-            det = float(np.linalg.det(wxf[:, :3]))
-            ncof = TA.cofactor(wxf) * (1.0 if det >= 0.0 else -1.0)
-            closed = pk not in (P.DISK, P.QUAD)
-            sides = 2 if (not closed or _needs_inner_side(cs, pk, params, wxf)) else 1
-            r = w // f
-            y, x = np.divmod(local, w)
-            prim["texel"].append(off + local)
-            prim["lm"].append(np.full(local.size, len(pl["kind"]), np.int64))
-            prim["face"].append(x // r)
-            prim["x"].append(x % r)
-            prim["y"].append(y)
-            prim["key"].append(np.full(local.size, key, np.uint64))
-            prim["local"].append(local)
-            pl["kind"].append(pk)
-            pl["params"].append(params)
-            pl["xf"].append(wxf)
-            pl["ncof"].append(ncof)
-            pl["res"].append(r)
-            pl["sides"].append(sides)
-
-    texels, values = [], []
-    if mesh["texel"]:
-        cat = {k: np.concatenate(v) for k, v in mesh.items()}
-        K = cat["texel"].size
-        start = np.empty(K + 1, np.int64)
-        start[:K] = cat["start"]
-        start[K] = n_pieces
-        out = np.zeros((K, nb))
-        _gather_mesh(g, cs.lights, cat["inst"], cat["key"], cat["local"], start,
-                     np.ascontiguousarray(cat["tri"], np.int64), np.ascontiguousarray(cat["area"]),
-                     np.ascontiguousarray(cat["nv"], np.int64), np.ascontiguousarray(cat["bary"]),
-                     n, out)
-        texels.append(cat["texel"])
-        values.append(out)
-    if prim["texel"]:
-        cat = {k: np.concatenate(v) for k, v in prim.items()}
-        K = cat["texel"].size
-        out = np.zeros((K, nb))
-        _gather_prim(g, cs.lights, cat["lm"], cat["face"].astype(np.int64),
-                     cat["x"].astype(np.int64), cat["y"].astype(np.int64), cat["key"], cat["local"],
-                     np.asarray(pl["kind"], np.int64), np.stack(pl["params"]), np.stack(pl["xf"]),
-                     np.stack(pl["ncof"]), np.asarray(pl["res"], np.int64),
-                     np.asarray(pl["sides"], np.int64), n, out)
-        texels.append(cat["texel"])
-        values.append(out)
-    if texels:
-        ids = np.concatenate(texels)
-        E = np.concatenate(values)
-        order = np.argsort(ids, kind="stable")
-        ids, E = ids[order], E[order]
-    else:
-        ids, E = np.zeros(0, np.int64), np.zeros((0, nb))
+    mesh, prim = _collect_texels(cs, owners, lightmap_ids, seed)
+    ids, E = _by_texel([mesh.gather(cs, n), prim.gather(cs, n)], cs.n_bands)
     cs.timings["direct_gather"] = time.perf_counter() - t0
     return ids, E
 

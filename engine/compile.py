@@ -18,6 +18,7 @@ from . import orientation_lightmap as OL
 from . import primitives as P
 from . import split_texels as ST
 from .area_estimation import estimate_areas
+from .geometry import DCSG as DCSG_KIND
 from .geometry import check_mesh_arrays, compile_geometry, nondegenerate
 from .lights import compile_lights
 from .materials import compile_materials
@@ -78,7 +79,7 @@ def _prototype_surfaces(geom):
 
 
 def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None, csg_split=True,
-                       info=None, ol_maps=None):
+                       info=None, ol_maps=None, dcsg=None):
     """One lightmap per (recording instance, surface slot), sized by texel density.
 
     csg: the geometry's CSG layout; the lightmaps of CSG leaf primitives then
@@ -137,7 +138,7 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
             info.update(st)
     if ols:
         ol_maps = OL.with_lightmap_ids(ol_maps, ol_lids)
-        rows = _orientation_areas(ols, ol_maps, geom, lm)
+        rows = _orientation_areas(ols, ol_maps, geom, lm, dcsg)
         if info is not None:
             info["orientation_lightmaps"] = rows
     return lm, per_instance, ol_maps
@@ -181,7 +182,7 @@ def _check_lightmap_memory(scene, layouts, per_instance, density):
                         need, fix)
 
 
-def _orientation_areas(ols, maps, geom, lm):
+def _orientation_areas(ols, maps, geom, lm, dcsg=None):
     """Estimates each OL's own instances, then sums each subtree bottom-up, so
     a level's area covers exactly the instances whose hits it receives."""
     K = len(ols)
@@ -197,6 +198,12 @@ def _orientation_areas(ols, maps, geom, lm):
                                   member=member))
     area = [e.area.copy() for e in own]
     var = [(e.area * np.where(np.isfinite(e.rel_error), e.rel_error, 0.0)) ** 2 for e in own]
+    if dcsg is not None:
+        for k, (a, v) in _lsystem_areas(ols, maps, geom, dcsg).items():
+            area[k] += a
+            var[k] += v
+            own[k] = own[k]._replace(total=own[k].total + float(a.sum()),
+                                     samples=own[k].samples + int(ols[k].samples))
     weight = [e.total * e.openness for e in own]
     total = [e.total for e in own]
     secs = [e.seconds for e in own]
@@ -327,6 +334,86 @@ def _plan_orientation(scene):
     return scene, ol_maps
 
 
+# --------------------------------------------------------------------------------------
+# L-systems (thesis ch. 7): no per-primitive lightmaps, their photons go into OLs
+# --------------------------------------------------------------------------------------
+
+def _lsystem_orientation(scene):
+    """An instance carrying an L-system that no OL covers gets one of its own (7.3):
+    per-primitive lightmaps would unroll the graph."""
+    covered = {int(i) for ol in scene.orientation_lightmaps for i in ol.instances}
+    add = []
+    for i, inst in enumerate(scene.instances):
+        p = inst.prototype
+        if i in covered or not isinstance(p, (int, np.integer)) or not 0 <= p < len(scene.prototypes):
+            continue
+        if scene.prototypes[p].lsystems:
+            add.append(OrientationLightmap(name=f"{inst.name} (L-system)", instances=[i]))
+    if not add:
+        return scene
+    return replace(scene, orientation_lightmaps=list(scene.orientation_lightmaps) + add)
+
+
+def _lsystem_stubs(scene, geom, dcsg, ol_maps):
+    """One OL per stub of every L-system instance (7.4), under its enclosing stub or
+    the instance's OL, keyed by the stub's address; -> (scene, routing with inst_stub0)."""
+    ols = list(scene.orientation_lightmaps)
+    inst_stub0 = np.full(len(scene.instances), -1, np.int64)
+    owners = []                 # per new OL: (instance, graph, StubRecord)
+    for i, inst in enumerate(scene.instances):
+        k = int(ol_maps.inst_ol[i]) if ol_maps.inst_ol.size else -1
+        graphs = dcsg["proto_graphs"][int(geom.inst_proto[i])]
+        if k < 0 or not any(dcsg["stubs"][gi] for gi in graphs):
+            continue
+        base = ols[k]
+        inst_stub0[i] = len(ols) - dcsg["stub_first"][graphs[0]]
+        for gi in graphs:
+            first = len(ols)
+            index = {r.address: first + j for j, r in enumerate(dcsg["stubs"][gi])}
+            for r in dcsg["stubs"][gi]:
+                ols.append(OrientationLightmap(
+                    name=f"{inst.name} stub {r.address:016x}", instances=[],
+                    parent=index.get(r.parent, k), resolution=base.resolution,
+                    samples=base.samples, min_hits=base.min_hits, seed=base.seed))
+                owners.append((i, gi, r))
+    if not owners:
+        return scene, ol_maps
+    scene = replace(scene, orientation_lightmaps=ols)
+    maps = OL.plan(scene)
+    dcsg["stub_owners"] = {len(scene.orientation_lightmaps) - len(owners) + j: o
+                           for j, o in enumerate(owners)}
+    return scene, maps._replace(inst_stub0=inst_stub0)
+
+
+def _lsystem_areas(ols, maps, geom, dcsg):
+    """{OL: (area per bin, variance)} of the L-system geometry each OL owns: a
+    stub its subtree, an instance's OL the rest, nested stubs left to their own OLs."""
+    from . import dcsg as D
+    views = (geom.trace_i64, geom.trace_f32, geom.trace_i32, geom.trace_f64)
+    out = {}
+
+    def add(k, start, h, rot, i, graph):
+        ol = ols[k]
+        a, v = D.estimate_graph_areas(views, graph, dcsg["node_area"], start, h, rot,
+                                      geom.inst_inv[i], int(ol.resolution), int(ol.samples),
+                                      int(ol.seed) + 7919 * (start + 1))
+        if k in out:
+            out[k] = (out[k][0] + a, out[k][1] + v)
+        else:
+            out[k] = (a, v)
+
+    for i in range(maps.inst_ol.shape[0]):
+        k = int(maps.inst_ol[i])
+        if k < 0:
+            continue
+        for gi in dcsg["proto_graphs"][int(geom.inst_proto[i])]:
+            g = dcsg["graphs"][gi]
+            add(k, dcsg["roots"][gi], g.root_hash, np.eye(3), i, g)
+    for k, (i, gi, r) in dcsg.get("stub_owners", {}).items():
+        add(k, r.node, r.address, r.rotation, i, dcsg["graphs"][gi])
+    return out
+
+
 def compile_warnings(info):
     """One line per thing the compile dropped or changed, naming the mesh (for reports)."""
     out = []
@@ -347,6 +434,7 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     materials = compile_materials(scene)
     warnings = []
     # instances under a (non-backup) OL record there instead of on own lightmaps
+    scene = _lsystem_orientation(scene)
     scene, ol_maps = _plan_orientation(scene)
     n_ols = len(scene.orientation_lightmaps)
     scene = unwrap_meshes(scene, warnings)
@@ -361,11 +449,19 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     csg = info.pop("csg_layout", None)
     if csg is not None:
         CSG.check_not_emissive(csg, materials)
+    dcsg = info.pop("dcsg_layout", None)
+    if dcsg is not None:
+        lit = np.isin(geom.shape_material[geom.shape_kind == DCSG_KIND],
+                      np.flatnonzero(materials.emission.max(axis=1) > 0))
+        if lit.any():
+            raise SceneError("an L-system uses an emissive material; emission on L-systems is not "
+                             "supported yet: light it with a lamp or an emissive mesh instead")
+        scene, ol_maps = _lsystem_stubs(scene, geom, dcsg, ol_maps)
     t_geo = time.perf_counter()
     info = dict(info)
     info["warnings"] = warnings + compile_warnings(info)
     lightmaps, per_instance, ol_maps = allocate_lightmaps(scene, geom, density, max_resolution,
-                                                          csg, csg_split, info, ol_maps)
+                                                          csg, csg_split, info, ol_maps, dcsg)
     t_lm = time.perf_counter()
     if geom.tlas_min.shape[0] > 0:
         bounds = (geom.tlas_min[0].astype(np.float64), geom.tlas_max[0].astype(np.float64))

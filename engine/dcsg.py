@@ -302,12 +302,7 @@ class DCSG:
                 full[:3] = xf
                 out.append((kind, params, (m @ full)[:3], mat, h, stub))
                 return
-            k = 0
-            if len(n.alts) > 1:
-                u = LS.draw(h)
-                while k < len(n.alts) - 1 and not n.alts[k][0] > u:
-                    k += 1
-            for c, to_parent, j in n.alts[k][1]:
+            for c, to_parent, j in _children(n, h):
                 walk(c, m @ to_parent, LS.child_hash(h, j), stub)
 
         walk(self.root, np.eye(4), self.root_hash, 0)
@@ -318,6 +313,18 @@ class DCSG:
 
 
 Flattened = namedtuple("Flattened", "kind params transform material address stub")
+
+
+def _children(n, h):
+    """The children of node n under the alternative its hash h chooses (as the kernels do)."""
+    if not n.alts:
+        return ()
+    k = 0
+    if len(n.alts) > 1:
+        u = LS.draw(h)
+        while k < len(n.alts) - 1 and not n.alts[k][0] > u:
+            k += 1
+    return n.alts[k][1]
 
 
 def _box_through(lo, hi, m):
@@ -349,9 +356,15 @@ NO_VSHAPE = 2 ** 31 - 1
 DCSG_REF = -(3 << 29)
 
 
-def _stub_addresses(graph, limit=1_000_000):
-    """Sorted addresses of every OL stub of the graph (walks only down to stubs)."""
+StubRecord = namedtuple("StubRecord", "address node rotation parent")
+
+
+def stub_records(graph, limit=1_000_000):
+    """Every OL stub of the graph, sorted by address: StubRecord(address, node (index
+    in graph.nodes), object rotation (3, 3) of its frame, address of the enclosing
+    stub or 0). Walks only down to stubs, never to the primitives below them."""
     below = {}
+    ids = {id(n): i for i, n in enumerate(graph.nodes)}
 
     def has_stub(n):
         v = below.get(id(n))
@@ -362,24 +375,25 @@ def _stub_addresses(graph, limit=1_000_000):
 
     out = []
 
-    def walk(n, h):
+    def walk(n, h, rot, parent):
         if n.stub:
-            out.append(h)
+            out.append(StubRecord(h, ids[id(n)], rot, parent))
             if len(out) > limit:
                 raise SceneError(f"{graph.grammar.source_name}: more than {limit:,} OL stubs; "
                                  "declare them at fewer levels")
-        k = 0
-        if len(n.alts) > 1:
-            u = LS.draw(h)
-            while k < len(n.alts) - 1 and not n.alts[k][0] > u:
-                k += 1
-        for c, _, j in (n.alts[k][1] if n.alts else ()):
+            parent = h
+        for c, to_parent, j in _children(n, h):
             if has_stub(c):
-                walk(c, LS.child_hash(h, j))
+                walk(c, LS.child_hash(h, j), rot @ to_parent[:3, :3], parent)
 
     if has_stub(graph.root):
-        walk(graph.root, graph.root_hash)
-    return np.unique(np.array(out, np.uint64))
+        walk(graph.root, graph.root_hash, np.eye(3), 0)
+    out.sort(key=lambda r: r.address)
+    return out
+
+
+def _stub_addresses(graph):
+    return np.array([r.address for r in stub_records(graph)], np.uint64)
 
 
 def _u64_words(a):
@@ -389,7 +403,8 @@ def _u64_words(a):
 def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
     """The graphs' arrays as one float64 blob; their terminal primitives are the
     virtual shapes vs0, vs0 + 1, ... (graph by graph). -> (blob, prim_graph, stubs)
-    where stubs[k] are graph k's sorted stub addresses."""
+    where stubs[k] are graph k's StubRecords (global node ids); the kernel's stub
+    index counts over all graphs' records in this order."""
     i32_keys = (B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC,
                 B_CH_NODE, B_CH_J, B_PRIM_KIND)
     f64_keys = (B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_PRIM_PARAMS, B_PRIM_INV)
@@ -423,8 +438,10 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
         f64[B_PRIM_INV].append(a.prim_inv.reshape(-1, 12))
         roots.append(a.root + n0)
         hashes.append(a.root_hash)
-        st = _stub_addresses(g)
-        stubs.append(st)
+        recs = stub_records(g)
+        # global node ids, as the blob numbers them
+        stubs.append([r._replace(node=r.node + n0) for r in recs])
+        st = np.array([r.address for r in recs], np.uint64)
         stub_rows.append((s0, st.shape[0]))
         stub_addr.append(st)
         prim_graph.append(np.full(a.prim_kind.shape[0], gi, np.int64))
@@ -511,6 +528,30 @@ def dcsg_vs0(buf):
 
 
 @njit(**INLINE)
+def _alternative(i32, f64, o_alt0, o_nalt, o_cum, node, h):
+    """The alternative a node of hash h takes: lsystem's choice, draw(h) against the
+    running probabilities (the last one on rounding)."""
+    k = i32[o_alt0 + node]
+    nalt = i32[o_nalt + node]
+    if nalt > 1:
+        u = _draw(h)
+        last = k + nalt - 1
+        while k < last and not f64[o_cum + k] > u:
+            k += 1
+    return k
+
+
+@njit(**INLINE)
+def _tables(i64, w, iw):
+    """Start of each blob table in its view: int32 ones, then float64 ones."""
+    return (iw + i64[w + B_NODE_ALT0], iw + i64[w + B_NODE_NALT], iw + i64[w + B_NODE_PRIM],
+            iw + i64[w + B_NODE_STUB], iw + i64[w + B_ALT_C0], iw + i64[w + B_ALT_NC],
+            iw + i64[w + B_CH_NODE], iw + i64[w + B_CH_J], iw + i64[w + B_PRIM_KIND],
+            w + i64[w + B_NODE_BOX], w + i64[w + B_ALT_CUM], w + i64[w + B_CH_INV],
+            w + i64[w + B_CH_ROT], w + i64[w + B_PRIM_PARAMS], w + i64[w + B_PRIM_INV])
+
+
+@njit(**INLINE)
 def _box_entry(f64, b, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Entry distance of the ray into the box at f64[b:b+6] within (tmin, tmax), or inf."""
     t0, t1 = tmin, tmax
@@ -536,25 +577,12 @@ def _box_entry(f64, b, ox, oy, oz, dx, dy, dz, tmin, tmax):
 def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
     """Closest hit of a prototype-space ray with DCSG `graph`, expanded lazily:
     (t, virtual shape id); (tmax, -1) on a miss. On a hit the normal (prototype
-    space) and the local stub index (-1: none) are left in the scratch for
+    space) and the stub's index in the scene's stub table (-1: none) are left for
     `dcsg_hit_surface`. any_hit: stop at the first hit (occlusion)."""
     i64, f32, i32, f64 = buf
     w, iw = dcsg_base(buf)
-    o_alt0 = iw + i64[w + B_NODE_ALT0]
-    o_nalt = iw + i64[w + B_NODE_NALT]
-    o_prim = iw + i64[w + B_NODE_PRIM]
-    o_stub = iw + i64[w + B_NODE_STUB]
-    o_ac0 = iw + i64[w + B_ALT_C0]
-    o_anc = iw + i64[w + B_ALT_NC]
-    o_chn = iw + i64[w + B_CH_NODE]
-    o_chj = iw + i64[w + B_CH_J]
-    o_pk = iw + i64[w + B_PRIM_KIND]
-    o_box = w + i64[w + B_NODE_BOX]
-    o_cum = w + i64[w + B_ALT_CUM]
-    o_cinv = w + i64[w + B_CH_INV]
-    o_crot = w + i64[w + B_CH_ROT]
-    o_pp = w + i64[w + B_PRIM_PARAMS]
-    o_pinv = w + i64[w + B_PRIM_INV]
+    (o_alt0, o_nalt, o_prim, o_stub, o_ac0, o_anc, o_chn, o_chj, o_pk,
+     o_box, o_cum, o_cinv, o_crot, o_pp, o_pinv) = _tables(i64, w, iw)
     root = i32[iw + i64[w + B_GRAPH_ROOT] + graph]
     fs = stack.view(np.float64)
     us = stack.view(np.uint64)
@@ -619,13 +647,7 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
                 if any_hit:
                     break
             continue
-        k = i32[o_alt0 + node]
-        nalt = i32[o_nalt + node]
-        if nalt > 1:
-            u = _draw(h)
-            last = k + nalt - 1
-            while k < last and not f64[o_cum + k] > u:
-                k += 1
+        k = _alternative(i32, f64, o_alt0, o_nalt, o_cum, node, h)
         base = sp
         c0 = i32[o_ac0 + k]
         for c in range(c0, c0 + i32[o_anc + k]):
@@ -668,17 +690,17 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
 
 @njit(**INLINE)
 def _stub_index(i32, iw, o_rows, o_addr, graph, addr):
-    """Local index of stub address `addr` in the graph's sorted table, -1 if none."""
+    """Index of stub address `addr` in the scene's stub table (the graph's rows of it
+    are sorted), -1 if none."""
     if addr == np.uint64(0):
         return -1
     lo = i32[iw + o_rows + 2 * graph]
     hi = lo + i32[iw + o_rows + 2 * graph + 1] - 1
-    first = lo
     while lo <= hi:
         mid = (lo + hi) // 2
         v = _u64(i32, iw + o_addr + 2 * mid)
         if v == addr:
-            return mid - first
+            return mid
         if v < addr:
             lo = mid + 1
         else:
@@ -786,19 +808,8 @@ def _area_samples(buf, node_area, start, start_hash, rot0, inst_inv, det_inst, e
     nested stub counts 0 there (that stub is an OL of its own)."""
     i64, f32, i32, f64 = buf
     w, iw = dcsg_base(buf)
-    o_alt0 = iw + i64[w + B_NODE_ALT0]
-    o_nalt = iw + i64[w + B_NODE_NALT]
-    o_prim = iw + i64[w + B_NODE_PRIM]
-    o_stub = iw + i64[w + B_NODE_STUB]
-    o_ac0 = iw + i64[w + B_ALT_C0]
-    o_anc = iw + i64[w + B_ALT_NC]
-    o_chn = iw + i64[w + B_CH_NODE]
-    o_chj = iw + i64[w + B_CH_J]
-    o_pk = iw + i64[w + B_PRIM_KIND]
-    o_cum = w + i64[w + B_ALT_CUM]
-    o_crot = w + i64[w + B_CH_ROT]
-    o_pp = w + i64[w + B_PRIM_PARAMS]
-    o_pinv = w + i64[w + B_PRIM_INV]
+    (o_alt0, o_nalt, o_prim, o_stub, o_ac0, o_anc, o_chn, o_chj, o_pk,
+     _o_box, o_cum, _o_cinv, o_crot, o_pp, o_pinv) = _tables(i64, w, iw)
     for k in prange(n_s):
         out_bin[k] = -1
         out_val[k] = 0.0
@@ -812,13 +823,7 @@ def _area_samples(buf, node_area, start, start_hash, rot0, inst_inv, det_inst, e
         r20, r21, r22 = rot0[2, 0], rot0[2, 1], rot0[2, 2]
         alive = True
         while i32[o_prim + node] < 0:
-            a = i32[o_alt0 + node]
-            nalt = i32[o_nalt + node]
-            if nalt > 1:
-                u = _draw(h)
-                last = a + nalt - 1
-                while a < last and not f64[o_cum + a] > u:
-                    a += 1
+            a = _alternative(i32, f64, o_alt0, o_nalt, o_cum, node, h)
             c0 = i32[o_ac0 + a]
             nc = i32[o_anc + a]
             total = 0.0

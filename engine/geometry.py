@@ -26,6 +26,7 @@ import numpy as np
 from numba import njit
 
 from .bvh import REC_WORDS, STACK_BUDGET, aligned_empty, build_bvh, pack_bvh
+from . import dcsg as D
 from .csg import CSG, CSG_SCRATCH_WORDS, H_CSG, MESH, flatten_csg, pack_blob
 from .primitives import check_primitive, prim_local_bounds
 from .scene import SceneError, _affine
@@ -75,15 +76,18 @@ H_PRIM_INV = 15       # float64[P*12]
 H_PRIM_PARAMS = 16    # float64[P*4]
 H_INST_IDENT = 17     # int32[I]: 1 if the instance transform is the identity
 H_SINGLE = 18         # the only instance in the TLAS, or -1 (then the TLAS is walked)
-# word 19 is reserved for engine/csg.py (H_CSG: its blob's offset in the float64 section)
+# word 19 is reserved for engine/csg.py (H_CSG: its blob's offset in the float64 section),
+# word 20 for engine/dcsg.py (H_DCSG: the L-system graphs' blob)
 
 # Stack words a two-level traversal may need: two int32 words per entry,
 # at most STACK_BUDGET entries per level (guaranteed by bvh.pack_bvh). The
 # ray-CSG kernel's interval lists follow (engine/csg.py), so no ray allocates.
 TRAV_WORDS = 2 * 2 * STACK_BUDGET
-STACK_WORDS = TRAV_WORDS + CSG_SCRATCH_WORDS
+STACK_WORDS = TRAV_WORDS + CSG_SCRATCH_WORDS + D.SCRATCH_WORDS   # then the DCSG ray stack
 # shape_ref of a CSG solid: CSG_REF - root node (far below any -1 - primitive row)
 CSG_REF = -(1 << 30)
+# shape kind of an L-system (after CSG); its shape_ref is dcsg.DCSG_REF - graph
+DCSG = CSG + 1
 
 
 @njit(cache=True)
@@ -377,6 +381,8 @@ def _pack_blas(proto_root, n_nodes, blas_min, blas_max, blas_a, blas_count, shap
                       tri4, lane_shape, shape_ref)
     is_csg = shape_kind[:n_shapes] == CSG
     shape_ref[is_csg] = CSG_REF - shape_index[:n_shapes][is_csg]
+    is_dcsg = shape_kind[:n_shapes] == DCSG
+    shape_ref[is_dcsg] = D.DCSG_REF - shape_index[:n_shapes][is_dcsg]
 
     return rec_parts, proto_slot, blas_need, tri4, lane_shape, shape_ref, n_packets
 
@@ -419,7 +425,7 @@ def _place_instances(scene, proto_root, proto_n_surfaces, blas_min, blas_max):
 
 
 def _prototype_shapes(proto, pi_, csg, n_csg, n_materials, degenerate, uv_clamped, leaf_slot,
-                      leaf_proto, leaf_root):
+                      leaf_proto, leaf_root, graphs=()):
     """A prototype's shapes in input order: mesh triangles, primitives, then one
     shape per CSG solid (its roots start at csg.roots[n_csg]), with their surface
     slots; records dropped and clamped triangles, and each CSG leaf's slot.
@@ -485,6 +491,16 @@ def _prototype_shapes(proto, pi_, csg, n_csg, n_materials, degenerate, uv_clampe
             leaf_root[k] = root
             surf.append(("mesh" if csg.leaf_kind[k] == MESH else "csg", csg.leaf_name[k]))
 
+    # an L-system is one shape over its graph's box (after the CSG solids); it has
+    # no surface slot: its photons go into orientation lightmaps (thesis 7.2)
+    for gi, graph, ls in graphs:
+        lo, hi = _pad(*graph.bounds())
+        k_kind.append(np.array([DCSG], np.int32))
+        k_mat.append(np.array([ls.materials[0]], np.int32))
+        k_surf.append(np.array([-1], np.int32))
+        k_lo.append(lo[None])
+        k_hi.append(hi[None])
+        csg_roots.append(gi)
     kinds = np.concatenate(k_kind) if k_kind else np.zeros(0, np.int32)
     mats = np.concatenate(k_mat) if k_mat else np.zeros(0, np.int32)
     surfs = np.concatenate(k_surf) if k_surf else np.zeros(0, np.int32)
@@ -495,213 +511,373 @@ def _prototype_shapes(proto, pi_, csg, n_csg, n_materials, degenerate, uv_clampe
     return kinds, mats, surfs, lo, hi, tris, uvs, k_prim, csg_roots, surf
 
 
-def compile_geometry(scene):
-    """Flattens scene.prototypes / scene.instances; returns (Geometry, info)."""
-    t0 = time.perf_counter()
-    n_materials = len(scene.materials)
+class _Parts:
+    """The shape, triangle, primitive and BLAS rows of compile_geometry, appended
+    phase by phase in their final order, with running counts (absolute ids)."""
 
-    # per prototype, in BVH leaf order
-    sh_kind, sh_index, sh_mat, sh_surf = [], [], [], []
-    tri_p, tri_uv = [], []
-    pr_kind, pr_params, pr_xf, pr_inv = [], [], [], []
-    b_min, b_max, b_a, b_cnt = [], [], [], []
-    proto_root, proto_n_surf, proto_depth = [], [], []
-    proto_start, proto_count, sh_proto = [], [], []
-    n_shapes = n_tris = n_prims = n_nodes = 0
-    degenerate = {}
-    uv_clamped = {}
-    surfaces = []
-    # all CSG solids at once: node ids are global, one blob for the trace
-    csg = flatten_csg([(r, f"prototype '{p.name}'") for p in scene.prototypes for r in p.csg],
-                      n_materials, mesh_uvs=lambda m, w: _check_mesh(m, w, n_materials)[:3])
-    n_leaves = csg.leaf_kind.shape[0]
-    leaf_slot = np.zeros(n_leaves, np.int64)
-    leaf_proto = np.zeros(n_leaves, np.int64)
-    leaf_root = np.zeros(n_leaves, np.int64)
-    n_csg = 0
+    def __init__(self, n_leaves):
+        self.sh_kind, self.sh_index, self.sh_mat, self.sh_surf, self.sh_proto = [], [], [], [], []
+        self.tri_p, self.tri_uv = [], []
+        self.pr_kind, self.pr_params, self.pr_xf, self.pr_inv = [], [], [], []
+        self.b_min, self.b_max, self.b_a, self.b_cnt = [], [], [], []
+        self.proto_root, self.proto_n_surf, self.proto_depth = [], [], []
+        self.proto_start, self.proto_count = [], []
+        # n_shapes counts BVH shapes only: the CSG virtual shapes follow them
+        self.n_shapes = self.n_tris = self.n_prims = self.n_nodes = 0
+        self.n_csg = 0                        # CSG solids placed so far (index into csg.roots)
+        self.degenerate, self.uv_clamped, self.surfaces = {}, {}, []
+        # per CSG leaf: its surface slot, owning prototype and root node
+        self.leaf_slot = np.zeros(n_leaves, np.int64)
+        self.leaf_proto = np.zeros(n_leaves, np.int64)
+        self.leaf_root = np.zeros(n_leaves, np.int64)
+        self.vs0 = 0                          # first virtual shape
+        self.dcsg_vs0 = 0                     # first virtual shape of an L-system terminal
+        self.dcsg_prims = 0
+        self.prim_row_leaf = {}               # primitive row of a CSG primitive leaf -> leaf
 
-    for pi_, proto in enumerate(scene.prototypes):
-        kinds, mats, surfs, lo, hi, tris, uvs, k_prim, csg_roots, surf = _prototype_shapes(
-            proto, pi_, csg, n_csg, n_materials, degenerate, uv_clamped, leaf_slot, leaf_proto, leaf_root)
-        n_csg += len(proto.csg)
-        surfaces.append(surf)
-        S = kinds.shape[0]
-        # input-order row of each shape inside its kind's table
-        is_tri = kinds == 0
-        row = np.where(is_tri, np.cumsum(is_tri) - 1, np.cumsum(~is_tri) - 1)
+    def add_shapes(self, kind, index, material, surface, proto):
+        self.sh_kind.append(kind)
+        self.sh_index.append(index)
+        self.sh_mat.append(material)
+        self.sh_surf.append(surface)
+        self.sh_proto.append(proto)
 
-        bvh = build_bvh(lo, hi)
-        order = bvh.items.astype(np.int64)           # BVH leaf order of the shapes
-        kinds_o = kinds[order]
-        is_csg = kinds_o == CSG
-        tri_rows = row[order][kinds_o == 0]
-        prim_rows = row[order][(kinds_o != 0) & ~is_csg]
-        new_index = np.empty(S, np.int32)
-        new_index[kinds_o == 0] = n_tris + np.arange(tri_rows.size)
-        new_index[(kinds_o != 0) & ~is_csg] = n_prims + np.arange(prim_rows.size)
-        # CSG shapes are the last shapes of the input order; their index is the root node
-        csg_root_in = np.full(S, -1, np.int64)
-        if csg_roots:
-            csg_root_in[S - len(csg_roots):] = csg_roots
-        new_index[is_csg] = csg_root_in[order][is_csg]
-        sh_kind.append(kinds_o)
-        sh_index.append(new_index)
-        sh_mat.append(mats[order])
-        sh_surf.append(surfs[order])
-        tri_p.append(tris[tri_rows])
-        tri_uv.append(uvs[tri_rows])
-        for r in prim_rows:
-            kid, params, xf, inv = k_prim[r]
-            pr_kind.append(kid)
-            pr_params.append(params)
-            pr_xf.append(xf)
-            pr_inv.append(inv)
-        n_tris += tri_rows.size
-        n_prims += prim_rows.size
+    def add_triangles(self, p, uv):
+        self.tri_p.append(p)
+        self.tri_uv.append(uv)
+        self.n_tris += p.shape[0]
 
-        a = bvh.node_a.copy()
-        interior = bvh.node_count == 0
-        if S > 0:
-            a[interior] += n_nodes                    # child node index
-            a[~interior] += n_shapes                  # position in blas_items
-        b_min.append(bvh.node_min)
-        b_max.append(bvh.node_max)
-        b_a.append(a)
-        b_cnt.append(bvh.node_count)
-        proto_root.append(n_nodes)
-        proto_n_surf.append(len(surf))
-        proto_depth.append(bvh.depth)
-        proto_start.append(n_shapes)
-        proto_count.append(S)
-        sh_proto.append(np.full(S, pi_, np.int32))
-        n_nodes += bvh.n_nodes
-        n_shapes += S
+    def add_primitive(self, kid, params, xf, inv):
+        self.pr_kind.append(kid)
+        self.pr_params.append(params)
+        self.pr_xf.append(xf)
+        self.pr_inv.append(inv)
+        self.n_prims += 1
 
-    # Virtual shapes: one per CSG primitive leaf, one per CSG mesh triangle,
-    # after all BVH shapes (outside every BVH). A CSG hit reports one, so the
-    # owning leaf's material and lightmap slot apply (thesis 5.2.1).
-    vs0 = n_shapes
-    prim_row_leaf = {}
-    for k in range(n_leaves):
+
+# Phase results of compile_geometry (the tuples _pack_blas and _place_instances return)
+_ShapeArrays = namedtuple("_ShapeArrays", [
+    "shape_kind", "shape_index", "shape_material", "shape_surface", "shape_proto",
+    "tri_p", "tri_uv", "prim_kind", "prim_params", "prim_xf", "prim_inv",
+    "blas_min", "blas_max", "blas_a", "blas_count", "blas_items",
+    "proto_root", "proto_n_surfaces", "proto_shape_start", "proto_shape_count"])
+_BlasPack = namedtuple("_BlasPack", ["rec_parts", "proto_slot", "need", "tri4", "lane_shape",
+                                     "shape_ref", "n_packets"])
+_Instances = namedtuple("_Instances", ["proto", "xf", "inv", "lm_base", "n_lightmaps",
+                                       "lo", "hi", "live"])
+_Tlas = namedtuple("_Tlas", ["bvh", "items", "pi", "n_rec", "need"])
+
+
+def _flatten_scene_csg(scene, n_materials):
+    """All CSG solids at once: node ids are global, one blob for the trace."""
+    return flatten_csg([(r, f"prototype '{p.name}'") for p in scene.prototypes for r in p.csg],
+                       n_materials, mesh_uvs=lambda m, w: _check_mesh(m, w, n_materials)[:3])
+
+
+def _leaf_order_rows(kinds, order, csg_roots, n_tris, n_prims):
+    """Renumbers a prototype's shapes into BVH leaf order `order`: -> (shape index
+    in that order, its triangle rows, its primitive rows, both as input-order rows
+    of the prototype's tables). Triangles and primitives get consecutive absolute
+    rows from n_tris / n_prims."""
+    S = kinds.shape[0]
+    # input-order row of each shape inside its kind's table
+    is_tri = kinds == 0
+    row = np.where(is_tri, np.cumsum(is_tri) - 1, np.cumsum(~is_tri) - 1)
+    kinds_o = kinds[order]
+    is_csg = kinds_o >= CSG            # CSG solids and L-systems
+    tri_rows = row[order][kinds_o == 0]
+    prim_rows = row[order][(kinds_o != 0) & ~is_csg]
+    new_index = np.empty(S, np.int32)
+    new_index[kinds_o == 0] = n_tris + np.arange(tri_rows.size)
+    new_index[(kinds_o != 0) & ~is_csg] = n_prims + np.arange(prim_rows.size)
+    # CSG solids, then L-systems, are the last shapes of the input order; their
+    # index is the root node or the graph (csg_roots holds both, in that order)
+    csg_root_in = np.full(S, -1, np.int64)
+    if csg_roots:
+        csg_root_in[S - len(csg_roots):] = csg_roots
+    new_index[is_csg] = csg_root_in[order][is_csg]
+    return new_index, tri_rows, prim_rows
+
+
+def _add_blas(parts, bvh, n_shapes, n_surfaces):
+    """Appends a prototype's BVH to the shared BLAS arrays, with absolute node
+    and blas_items ids."""
+    a = bvh.node_a.copy()
+    interior = bvh.node_count == 0
+    if n_shapes > 0:
+        a[interior] += parts.n_nodes              # child node index
+        a[~interior] += parts.n_shapes            # position in blas_items
+    parts.b_min.append(bvh.node_min)
+    parts.b_max.append(bvh.node_max)
+    parts.b_a.append(a)
+    parts.b_cnt.append(bvh.node_count)
+    parts.proto_root.append(parts.n_nodes)
+    parts.proto_n_surf.append(n_surfaces)
+    parts.proto_depth.append(bvh.depth)
+    parts.proto_start.append(parts.n_shapes)
+    parts.proto_count.append(n_shapes)
+    parts.n_nodes += bvh.n_nodes
+    parts.n_shapes += n_shapes
+
+
+def _add_prototype(parts, pi_, proto, csg, n_materials, graphs=()):
+    """Prototype pi_'s shapes, triangles and primitives in BVH leaf order, and its BLAS."""
+    kinds, mats, surfs, lo, hi, tris, uvs, k_prim, csg_roots, surf = _prototype_shapes(
+        proto, pi_, csg, parts.n_csg, n_materials, parts.degenerate, parts.uv_clamped,
+        parts.leaf_slot, parts.leaf_proto, parts.leaf_root, graphs)
+    parts.n_csg += len(proto.csg)
+    parts.surfaces.append(surf)
+    S = kinds.shape[0]
+    bvh = build_bvh(lo, hi)
+    order = bvh.items.astype(np.int64)           # BVH leaf order of the shapes
+    new_index, tri_rows, prim_rows = _leaf_order_rows(kinds, order, csg_roots,
+                                                      parts.n_tris, parts.n_prims)
+    parts.add_shapes(kinds[order], new_index, mats[order], surfs[order],
+                     np.full(S, pi_, np.int32))
+    parts.add_triangles(tris[tri_rows], uvs[tri_rows])
+    for r in prim_rows:
+        parts.add_primitive(*k_prim[r])
+    _add_blas(parts, bvh, S, len(surf))
+
+
+def _add_csg_virtual_shapes(csg, parts):
+    """Virtual shapes: one per CSG primitive leaf, one per CSG mesh triangle,
+    after all BVH shapes (outside every BVH). A CSG hit reports one, so the
+    owning leaf's material and lightmap slot apply (thesis 5.2.1)."""
+    parts.vs0 = parts.n_shapes
+    for k in range(csg.leaf_kind.shape[0]):
         kid = int(csg.leaf_kind[k])
         if kid == MESH:
             t0, nt = int(csg.leaf_tri0[k]), int(csg.leaf_ntri[k])
-            sh_kind.append(np.zeros(nt, np.int32))
-            sh_index.append(n_tris + np.arange(nt, dtype=np.int32))
-            sh_mat.append(csg.mtri_material[t0:t0 + nt].astype(np.int32))
-            tri_p.append(csg.mtri[t0:t0 + nt].reshape(-1, 3, 3))
-            tri_uv.append(csg.mtri_uv[t0:t0 + nt])
-            n_tris += nt
+            kind = np.zeros(nt, np.int32)
+            index = parts.n_tris + np.arange(nt, dtype=np.int32)
+            material = csg.mtri_material[t0:t0 + nt].astype(np.int32)
+            parts.add_triangles(csg.mtri[t0:t0 + nt].reshape(-1, 3, 3), csg.mtri_uv[t0:t0 + nt])
         else:
             nt = 1
-            sh_kind.append(np.array([kid], np.int32))
-            sh_index.append(np.array([n_prims], np.int32))
-            sh_mat.append(csg.leaf_material[k:k + 1].astype(np.int32))
-            pr_kind.append(kid)
-            pr_params.append(csg.leaf_params[k])
-            pr_xf.append(csg.leaf_xf[k])
-            pr_inv.append(csg.leaf_inv[k])
-            prim_row_leaf[n_prims] = k
-            n_prims += 1
-        sh_surf.append(np.full(nt, leaf_slot[k], np.int32))
-        sh_proto.append(np.full(nt, leaf_proto[k], np.int32))
-    csg_blob = pack_blob(csg, vs0)
+            kind = np.array([kid], np.int32)
+            index = np.array([parts.n_prims], np.int32)
+            material = csg.leaf_material[k:k + 1].astype(np.int32)
+            parts.prim_row_leaf[parts.n_prims] = k
+            parts.add_primitive(kid, csg.leaf_params[k], csg.leaf_xf[k], csg.leaf_inv[k])
+        parts.add_shapes(kind, index, material, np.full(nt, parts.leaf_slot[k], np.int32),
+                         np.full(nt, parts.leaf_proto[k], np.int32))
 
-    cat = lambda lst, shape, dt: (np.ascontiguousarray(np.concatenate(lst).astype(dt))
-                                  if lst else np.zeros(shape, dt))
-    shape_kind = cat(sh_kind, 0, np.int32)
-    shape_index = cat(sh_index, 0, np.int32)
-    shape_material = cat(sh_mat, 0, np.int32)
-    shape_surface = cat(sh_surf, 0, np.int32)
-    shape_proto = cat(sh_proto, 0, np.int32)
-    tri_p_a = cat(tri_p, (0, 3, 3), np.float64)
-    tri_uv_a = cat(tri_uv, (0, 3, 2), np.float64)
-    prim_kind = np.array(pr_kind, np.int32).reshape(-1)
-    prim_params = np.array(pr_params, np.float64).reshape(-1, 4)
-    prim_xf = np.array(pr_xf, np.float64).reshape(-1, 3, 4)
-    prim_inv = np.array(pr_inv, np.float64).reshape(-1, 3, 4)
-    blas_min = cat(b_min, (0, 3), np.float32)
-    blas_max = cat(b_max, (0, 3), np.float32)
-    blas_a = cat(b_a, 0, np.int32)
-    blas_count = cat(b_cnt, 0, np.int32)
-    blas_items = np.arange(n_shapes, dtype=np.int32)
-    proto_root_a = np.array(proto_root, np.int32).reshape(-1)
-    proto_n_surfaces = np.array(proto_n_surf, np.int32).reshape(-1)
 
-    rec_parts, proto_slot, blas_need, tri4, lane_shape, shape_ref, n_packets = _pack_blas(
-        proto_root, n_nodes, blas_min, blas_max, blas_a, blas_count, shape_kind, shape_index,
-        tri_p_a, n_shapes)
-    inst_proto, inst_xf, inst_inv, inst_lm_base, n_lightmaps, t_lo, t_hi, live = _place_instances(
-        scene, proto_root, proto_n_surfaces, blas_min, blas_max)
-    live_ids = np.nonzero(live)[0].astype(np.int32)
-    tl = build_bvh(t_lo[live_ids], t_hi[live_ids])
-    tlas_items = live_ids[tl.items] if live_ids.size else np.zeros(0, np.int32)
-    _, tlas_pi, n_tlas_rec, tlas_need = pack_bvh(tl.node_min, tl.node_max, tl.node_a,
-                                                 tl.node_count)
+def _lsystem_graphs(scene, n_materials, notes):
+    """Each prototype's L-systems as scene graphs [(global graph id, DCSG, LSystem)],
+    in prototype order; a grammar that cannot be one (context-sensitive, or choices
+    that move what follows) is derived and its primitives instanced instead,
+    with a note. -> (per prototype list, the scene with those primitives added)."""
+    from dataclasses import replace
+    from . import lsystem as LS
+    from . import turtle as T
+    from .scene import LSystem
+    per_proto, graphs, prototypes = [], [], list(scene.prototypes)
+    for pi_, proto in enumerate(scene.prototypes):
+        mine, extra = [], []
+        for ls in proto.lsystems:
+            what = f"L-system '{ls.name}' in prototype '{proto.name}'"
+            if not isinstance(ls, LSystem) or not isinstance(ls.grammar, str):
+                _fail(what, "needs a grammar text")
+            mats = tuple(int(m) for m in ls.materials) or (0,)
+            if any(not 0 <= m < max(n_materials, 1) for m in mats):
+                _fail(what, f"material slots {mats} are not all scene materials (0..{n_materials - 1})")
+            ls = replace(ls, materials=mats)
+            grammar = LS.parse(ls.grammar, name=ls.name)
+            if ls.seed is not None:
+                grammar = replace(grammar, seed=int(ls.seed))
+            try:
+                graph = D.DCSG(grammar, ls.steps)
+            except D.DCSGUnsupported as exc:
+                der = LS.derive(grammar, ls.steps)
+                prims = T.to_primitives(T.interpret(der.modules, grammar.angle, grammar.width),
+                                        name=ls.name)
+                extra += [replace(p, material=mats[min(int(p.material), len(mats) - 1)]) for p in prims]
+                notes.append(f"{what}: {exc}; {len(prims):,} primitives instanced")
+                continue
+            mine.append((len(graphs), graph, ls))
+            graphs.append(graph)
+        if extra:
+            prototypes[pi_] = replace(proto, primitives=list(proto.primitives) + extra)
+        per_proto.append(mine)
+    if any(p is not q for p, q in zip(prototypes, scene.prototypes)):
+        scene = replace(scene, prototypes=prototypes)
+    return per_proto, graphs, scene
+
+
+def _add_dcsg_virtual_shapes(per_proto, graphs, parts):
+    """Virtual shapes: one per terminal primitive of every graph, after the CSG ones.
+    A DCSG hit reports one, so the material its `;(i)` selected applies."""
+    parts.dcsg_vs0 = int(sum(len(k) for k in parts.sh_kind))
+    for pi_, mine in enumerate(per_proto):
+        for gi, graph, ls in mine:
+            a = graph.arrays()
+            n = a.prim_kind.shape[0]
+            first = parts.dcsg_prims
+            mats = np.asarray(ls.materials, np.int32)[np.minimum(a.prim_material, len(ls.materials) - 1)]
+            parts.add_shapes(np.full(n, DCSG, np.int32), first + np.arange(n, dtype=np.int32),
+                             mats, np.full(n, -1, np.int32), np.full(n, pi_, np.int32))
+            parts.dcsg_prims += n
+
+
+def _dcsg_layout(per_proto, graphs, stubs, vs0):
+    """What compile.py needs of the graphs (OL stubs, area estimation); not plain data."""
+    stub_first, n = [], 0
+    for recs in stubs:
+        stub_first.append(n)
+        n += len(recs)
+    roots, node_area, n0 = [], [], 0
+    for g in graphs:
+        roots.append(g.arrays().root + n0)
+        node_area.append(D.node_areas(g))
+        n0 += len(g.nodes)
+    return {"graphs": graphs, "proto_graphs": [[gi for gi, _, _ in mine] for mine in per_proto],
+            "stubs": stubs, "stub_first": stub_first, "roots": roots, "vs0": vs0,
+            "node_area": np.concatenate(node_area) if node_area else np.zeros(0)}
+
+
+def _cat(lst, shape, dt):
+    return np.ascontiguousarray(np.concatenate(lst).astype(dt)) if lst else np.zeros(shape, dt)
+
+
+def _shape_arrays(parts):
+    """The appended rows as the contiguous arrays of the Geometry."""
+    return _ShapeArrays(
+        shape_kind=_cat(parts.sh_kind, 0, np.int32),
+        shape_index=_cat(parts.sh_index, 0, np.int32),
+        shape_material=_cat(parts.sh_mat, 0, np.int32),
+        shape_surface=_cat(parts.sh_surf, 0, np.int32),
+        shape_proto=_cat(parts.sh_proto, 0, np.int32),
+        tri_p=_cat(parts.tri_p, (0, 3, 3), np.float64),
+        tri_uv=_cat(parts.tri_uv, (0, 3, 2), np.float64),
+        prim_kind=np.array(parts.pr_kind, np.int32).reshape(-1),
+        prim_params=np.array(parts.pr_params, np.float64).reshape(-1, 4),
+        prim_xf=np.array(parts.pr_xf, np.float64).reshape(-1, 3, 4),
+        prim_inv=np.array(parts.pr_inv, np.float64).reshape(-1, 3, 4),
+        blas_min=_cat(parts.b_min, (0, 3), np.float32),
+        blas_max=_cat(parts.b_max, (0, 3), np.float32),
+        blas_a=_cat(parts.b_a, 0, np.int32),
+        blas_count=_cat(parts.b_cnt, 0, np.int32),
+        blas_items=np.arange(parts.n_shapes, dtype=np.int32),
+        proto_root=np.array(parts.proto_root, np.int32).reshape(-1),
+        proto_n_surfaces=np.array(parts.proto_n_surf, np.int32).reshape(-1),
+        proto_shape_start=np.array(parts.proto_start, np.int32).reshape(-1),
+        proto_shape_count=np.array(parts.proto_count, np.int32).reshape(-1))
+
+
+def _build_tlas(inst):
+    """TLAS over the instances whose prototype has a box, packed into records."""
+    live_ids = np.nonzero(inst.live)[0].astype(np.int32)
+    tl = build_bvh(inst.lo[live_ids], inst.hi[live_ids])
+    items = live_ids[tl.items] if live_ids.size else np.zeros(0, np.int32)
+    _, pi, n_rec, need = pack_bvh(tl.node_min, tl.node_max, tl.node_a, tl.node_count)
+    return _Tlas(tl, items, pi, n_rec, need)
+
+
+def _pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob):
+    """The trace buffer: both BVHs' records, packets and the arrays the traversal reads."""
     # TLAS records first, then the BLAS records (their child refs shift by that)
-    blas_rec = (np.concatenate(rec_parts) if rec_parts else np.zeros((0, REC_WORDS), np.int32))
+    blas_rec = (np.concatenate(blas.rec_parts) if blas.rec_parts
+                else np.zeros((0, REC_WORDS), np.int32))
     blas_rec = blas_rec.copy()
     inner = blas_rec[:, 28:32] == 0
-    blas_rec[:, 24:28][inner] += n_tlas_rec
-    records = np.concatenate([tlas_pi.reshape(-1, REC_WORDS), blas_rec]).reshape(-1)
+    blas_rec[:, 24:28][inner] += tlas.n_rec
+    records = np.concatenate([tlas.pi.reshape(-1, REC_WORDS), blas_rec]).reshape(-1)
     # identity instances let the traversal reuse the world ray's setup; a
     # single instance needs no TLAS walk at all (its root box test repeats
     # the BLAS one)
-    ident = np.all(inst_xf == np.eye(4)[:3], axis=(1, 2)).astype(np.int32).reshape(-1)
-    trace = _build_trace(
-        records, n_tlas_rec,
-        [(H_SHAPE_REF, shape_ref), (H_LANE_SHAPE, lane_shape),
-         (H_PROTO_SLOT, proto_slot + n_tlas_rec), (H_INST_PROTO, inst_proto),
-         (H_TLAS_ITEMS, tlas_items), (H_PRIM_KIND, prim_kind), (H_INST_IDENT, ident)],
-        [(H_TRI4, tri4), (H_INST_INV, inst_inv), (H_PRIM_INV, prim_inv),
-         (H_PRIM_PARAMS, prim_params), (H_CSG, csg_blob)],
-        extra=[(H_SINGLE, int(tlas_items[0]) if len(tlas_items) == 1 else -1)])
-    t_arr = trace_arrays_raw(trace)
+    ident = np.all(inst.xf == np.eye(4)[:3], axis=(1, 2)).astype(np.int32).reshape(-1)
+    items = tlas.items
+    return _build_trace(
+        records, tlas.n_rec,
+        [(H_SHAPE_REF, blas.shape_ref), (H_LANE_SHAPE, blas.lane_shape),
+         (H_PROTO_SLOT, blas.proto_slot + tlas.n_rec), (H_INST_PROTO, inst.proto),
+         (H_TLAS_ITEMS, items), (H_PRIM_KIND, sa.prim_kind), (H_INST_IDENT, ident)],
+        [(H_TRI4, blas.tri4), (H_INST_INV, inst.inv), (H_PRIM_INV, sa.prim_inv),
+         (H_PRIM_PARAMS, sa.prim_params), (H_CSG, csg_blob), (D.H_DCSG, dcsg_blob)],
+        extra=[(H_SINGLE, int(items[0]) if len(items) == 1 else -1)])
 
-    g = Geometry(
-        shape_kind=shape_kind, shape_index=shape_index, shape_material=shape_material,
-        shape_surface=shape_surface, shape_proto=shape_proto, tri_p=tri_p_a, tri_uv=tri_uv_a,
-        prim_kind=prim_kind, prim_params=prim_params, prim_xf=prim_xf, prim_inv=prim_inv,
-        blas_min=blas_min, blas_max=blas_max, blas_a=blas_a, blas_count=blas_count,
-        blas_items=blas_items, blas_pf=t_arr[1], blas_pi=t_arr[3],
-        proto_root=proto_root_a, proto_slot=proto_slot, proto_n_surfaces=proto_n_surfaces,
-        proto_shape_start=np.array(proto_start, np.int32).reshape(-1),
-        proto_shape_count=np.array(proto_count, np.int32).reshape(-1),
-        inst_proto=inst_proto, inst_xf=inst_xf, inst_inv=inst_inv, inst_lm_base=inst_lm_base,
+
+def _geometry_tuple(sa, blas, inst, tlas, trace):
+    """The Geometry: the phases' arrays and the record views into the trace."""
+    t_arr = trace_arrays_raw(trace)
+    tl = tlas.bvh
+    return Geometry(
+        **sa._asdict(), blas_pf=t_arr[1], blas_pi=t_arr[3], proto_slot=blas.proto_slot,
+        inst_proto=inst.proto, inst_xf=inst.xf, inst_inv=inst.inv, inst_lm_base=inst.lm_base,
         tlas_min=tl.node_min, tlas_max=tl.node_max, tlas_a=tl.node_a, tlas_count=tl.node_count,
-        tlas_items=np.ascontiguousarray(tlas_items, dtype=np.int32),
+        tlas_items=np.ascontiguousarray(tlas.items, dtype=np.int32),
         tlas_pf=t_arr[0], tlas_pi=t_arr[2], trace=trace,
         # views made here, once: numba repeats its size and alignment checks
         # for a view made inside a kernel on every call
         trace_i64=trace.view(np.int64), trace_f32=trace.view(np.float32),
         trace_i32=trace.view(np.int32), trace_f64=trace.view(np.float64),
     )
+
+
+def _geometry_info(scene, parts, csg, blas, inst, tlas, g, t0, dcsg=None, notes=()):
+    """compile_geometry's info dict (counts, notes, layout for compile.py)."""
     info = {
-        "n_shapes": n_shapes,
-        "n_triangles": n_tris,
-        "n_primitives": n_prims,
-        "n_degenerate": int(sum(degenerate.values())),
-        "degenerate": degenerate,                 # {"mesh 'x' in prototype 'y'": dropped}
-        "uv_clamped": uv_clamped,                 # {mesh: triangles whose UVs left [0,1]²}
+        "n_shapes": parts.n_shapes,
+        "n_triangles": parts.n_tris,
+        "n_primitives": parts.n_prims,
+        "n_degenerate": int(sum(parts.degenerate.values())),
+        "degenerate": parts.degenerate,           # {"mesh 'x' in prototype 'y'": dropped}
+        "uv_clamped": parts.uv_clamped,           # {mesh: triangles whose UVs left [0,1]²}
         "n_instances": len(scene.instances),
-        "n_lightmaps": n_lightmaps,
-        "surfaces": surfaces,                     # per prototype: [(kind, name)] by slot
-        "blas_nodes": n_nodes,
-        "tlas_nodes": tl.n_nodes,
-        "blas_depth": max(proto_depth) if proto_depth else 0,
-        "tlas_depth": tl.depth,
-        "stack_entries": tlas_need + blas_need,   # worst case of one traversal
-        "n_packets": n_packets,
-        "trace_bytes": int(trace.nbytes),
+        "n_lightmaps": inst.n_lightmaps,
+        "surfaces": parts.surfaces,               # per prototype: [(kind, name)] by slot
+        "blas_nodes": parts.n_nodes,
+        "tlas_nodes": tlas.bvh.n_nodes,
+        "blas_depth": max(parts.proto_depth) if parts.proto_depth else 0,
+        "tlas_depth": tlas.bvh.depth,
+        "stack_entries": tlas.need + blas.need,   # worst case of one traversal
+        "n_packets": blas.n_packets,
+        "trace_bytes": int(g.trace.nbytes),
         "build_seconds": time.perf_counter() - t0,
     }
     info.update(csg.info)
-    if n_leaves:
+    if dcsg is not None and dcsg["graphs"]:
+        info["dcsg_layout"] = dcsg
+        info["lsystems"] = [dict(g.stats(), name=ls.name) for mine in parts.lsystems
+                            for _, g, ls in mine]
+    if notes:
+        info["lsystem_notes"] = list(notes)
+    if csg.leaf_kind.shape[0]:
         # for compile.py (lightmaps of the leaves); not plain data, popped there
-        info["csg_layout"] = {"flat": csg, "prim_row_leaf": prim_row_leaf, "leaf_root": leaf_root,
-                              "vs0": vs0,
+        info["csg_layout"] = {"flat": csg, "prim_row_leaf": parts.prim_row_leaf,
+                              "leaf_root": parts.leaf_root, "vs0": parts.vs0,
                               "trace": (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)}
-    return g, info
+    return info
+
+
+def compile_geometry(scene):
+    """Flattens scene.prototypes / scene.instances; returns (Geometry, info)."""
+    t0 = time.perf_counter()
+    n_materials = len(scene.materials)
+    notes = []
+    per_proto, graphs, scene = _lsystem_graphs(scene, n_materials, notes)
+    csg = _flatten_scene_csg(scene, n_materials)
+    parts = _Parts(csg.leaf_kind.shape[0])
+    parts.lsystems = per_proto
+    for pi_, proto in enumerate(scene.prototypes):
+        _add_prototype(parts, pi_, proto, csg, n_materials, per_proto[pi_])
+    _add_csg_virtual_shapes(csg, parts)
+    csg_blob = pack_blob(csg, parts.vs0)
+    _add_dcsg_virtual_shapes(per_proto, graphs, parts)
+    dcsg_blob, _, stubs = D.pack_blob(graphs, parts.dcsg_vs0 if graphs else D.NO_VSHAPE,
+                                      [ls.name for mine in per_proto for _, _, ls in mine])
+    dcsg = _dcsg_layout(per_proto, graphs, stubs, parts.dcsg_vs0)
+    sa = _shape_arrays(parts)
+    blas = _BlasPack(*_pack_blas(
+        parts.proto_root, parts.n_nodes, sa.blas_min, sa.blas_max, sa.blas_a, sa.blas_count,
+        sa.shape_kind, sa.shape_index, sa.tri_p, parts.n_shapes))
+    inst = _Instances(*_place_instances(scene, parts.proto_root, sa.proto_n_surfaces,
+                                        sa.blas_min, sa.blas_max))
+    tlas = _build_tlas(inst)
+    g = _geometry_tuple(sa, blas, inst, tlas, _pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob))
+    return g, _geometry_info(scene, parts, csg, blas, inst, tlas, g, t0, dcsg, notes)
 
 
 def new_stack():

@@ -34,6 +34,7 @@ import numpy as np
 from numba import njit
 
 from . import lightmap as LM
+from .dcsg import dcsg_vs0
 from .primitives import _octa_encode
 from .scene import SceneError
 
@@ -43,6 +44,8 @@ OrientationMaps = namedtuple("OrientationMaps", [
     "lid",            # int32[K]  lightmap id of OL k in the scene's lightmaps
     "parent",         # int32[K]  enclosing OL, -1 at the top
     "max_rel_error",  # float64[K] a bin above this relative error defers upwards
+    "inst_stub0",     # int64[I]  L-system OL stubs (thesis 7.4): a DCSG hit with stub index j
+                      #           records into OL inst_stub0[i] + j; -1: the instance has none
 ])
 
 MAX_LEVELS = 16
@@ -51,7 +54,8 @@ MAX_LEVELS = 16
 def empty_maps(n_instances):
     """Routing for a scene without OLs (the kernels always take one)."""
     return OrientationMaps(np.full(n_instances, -1, np.int32), np.zeros(n_instances, np.int8),
-                           np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0))
+                           np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0),
+                           np.full(n_instances, -1, np.int64))
 
 
 def levels(maps):
@@ -115,7 +119,8 @@ def plan(scene):
                                  f"is deeper than {MAX_LEVELS}")
             seen.add(j)
             j = int(parent[j])
-    return OrientationMaps(maps.inst_ol, maps.inst_keep, np.zeros(K, np.int32), parent, rel)
+    return OrientationMaps(maps.inst_ol, maps.inst_keep, np.zeros(K, np.int32), parent, rel,
+                           maps.inst_stub0)
 
 
 def covered_instances(maps, k):
@@ -184,13 +189,23 @@ def lookup(lm, ol, k, nx, ny, nz, mode, out):
     _lookup_level(lm, ol.lid[k], nx, ny, nz, mode, out)
 
 
+@njit(cache=True, inline="always")
+def hit_ol(g, ol, inst, shape, face):
+    """Innermost OL a hit records into and reads from: an L-system hit's stub
+    (its face is the stub index, engine/dcsg.py) or the instance's OL (-1: none)."""
+    if face >= 0 and ol.inst_stub0[inst] >= 0 and \
+            shape >= dcsg_vs0((g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)):
+        return ol.inst_stub0[inst] + face
+    return ol.inst_ol[inst]
+
+
 @njit(cache=True)
 def surface_irradiance(g, lm, ol, inst, shape, face, u, v, nx, ny, nz, mode, out):
     """Stored irradiance at a hit: the surface's own lightmap, or its OL where
     it has none or (backup OL) where the texel is too noisy. n: the world
     normal as the ray query returns it. False when nothing is stored there."""
     lid, f, s, t = LM.lightmap_slot(g, lm, inst, shape, face, u, v)
-    k = ol.inst_ol[inst]
+    k = hit_ol(g, ol, inst, shape, face)
     if lid >= 0 and (k < 0 or _rel_error(lm, LM.record_index(lm, lid, f, s, t))
                      <= ol.max_rel_error[k]):
         LM.lookup(lm, lid, f, s, t, mode, out)

@@ -117,7 +117,7 @@ def _trace_chunk(g, ms, ls, lm, ol, seed, first, n_total, max_bounces, record_fr
                         rec_point[i, rec, 5] = nz
                     rec += 1
                 # the hit's normal bin in its OL and every level above (thesis 6.2)
-                k = ol.inst_ol[inst]
+                k = OL.hit_ol(g, ol, inst, shape, face)
                 while k >= 0 and rec < n_rec:
                     rec_texel[i, rec] = OL.bin_index(lm, ol, k, nx, ny, nz)
                     for b in range(nb):

@@ -41,6 +41,16 @@ def _count(least, most=2 ** 31 - 1):
     return parse
 
 
+def _size(text):
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        w = h = 0
+    if not (1 <= w <= 16384 and 1 <= h <= 16384):
+        raise argparse.ArgumentTypeError(f"must be WIDTHxHEIGHT in pixels (e.g. 640x480), got '{text}'")
+    return w, h
+
+
 def _add_common(p):
     p.add_argument("--photons", type=_count(0), default=None, help="photons to shoot (default: scene setting)")
     p.add_argument("--seed", type=_count(0), default=None, help="random seed (default: scene setting)")
@@ -90,6 +100,11 @@ def build_parser():
                     help="write the JSON report here (default: standard output)")
     ls.add_argument("--string", action="store_true", help="include the derived string")
     ls.add_argument("--steps", type=_count(0), default=None, help="derivation length (default: the grammar's)")
+    ls.add_argument("--render", metavar="IMG", default=None,
+                    help="also render it through its scene graph in a default studio (.png or .exr)")
+    ls.add_argument("--photons", type=_count(0), default=200_000, help="photons for --render")
+    ls.add_argument("--samples", type=_count(1), default=4, help="pixel samples for --render")
+    ls.add_argument("--size", type=_size, default=(320, 320), metavar="WxH", help="image size for --render")
     ls.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     ls.set_defaults(func=lsystem_main)
     return p
@@ -346,6 +361,49 @@ def demo_main(args):
     return 0
 
 
+def _render_lsystem(grammar, args, report):
+    """The grammar in engine/demo_scenes.lsystem_studio, through its scene graph -> report."""
+    from .engine import demo_scenes, session
+    text = pathlib.Path(args.grammar).read_text()
+    b = report["bounds"]
+    scene = demo_scenes.lsystem_studio(text, name=grammar.source_name, steps=args.steps,
+                                       width=args.size[0], height=args.size[1],
+                                       bounds=None if not report.get("bounds_exact") else (b["min"], b["max"]))
+    settings = session.Settings(photons=args.photons, samples=args.samples)
+    t0 = time.perf_counter()
+    cs = session.compile(scene)
+    t1 = time.perf_counter()
+    stats = session.photon_pass(cs, settings)
+    t2 = time.perf_counter()
+    image = session.render(cs, settings)
+    t3 = time.perf_counter()
+    save_image(image, args.render)
+    return {"image": str(pathlib.Path(args.render).resolve()), "width": args.size[0],
+            "height": args.size[1], "photons": int(stats.photons),
+            "orientation_lightmaps": len(cs.info.get("orientation_lightmaps", [])),
+            "seconds": {"compile": t1 - t0, "photon_pass": t2 - t1, "render": t3 - t2}}
+
+
+def save_image(rgb, path):
+    """Writes an (H, W, 3) linear float image, top row first, as the extension says
+    (configure_output: 8-bit 'Standard' PNG or float OpenEXR)."""
+    import numpy as np
+    import bpy
+    h, w = rgb.shape[:2]
+    rgba = np.ones((h, w, 4), np.float32)
+    rgba[..., :3] = rgb[::-1, :, :3]            # Blender stores the bottom row first
+    img = bpy.data.images.new("photon_lightmaps_output", w, h, float_buffer=True)
+    sc = bpy.data.scenes.new("photon_lightmaps_output")
+    try:
+        img.pixels.foreach_set(rgba.ravel())
+        configure_output(sc, path)
+        pathlib.Path(path).resolve().parent.mkdir(parents=True, exist_ok=True)
+        img.save_render(str(pathlib.Path(path).resolve()), scene=sc)
+    finally:
+        bpy.data.images.remove(img)
+        bpy.data.scenes.remove(sc)
+
+
 def lsystem_main(args):
     """CLI: the grammar's counts, bounds and scene-graph statistics as JSON (no bpy)."""
     from .bake.render import peak_rss_bytes
@@ -355,8 +413,12 @@ def lsystem_main(args):
         grammar = lsystem.load(args.grammar)
     except OSError as exc:
         raise InputError(f"{args.grammar}: cannot read the grammar ({exc.strerror or exc})") from None
+    if args.render:
+        check_format(args.render)           # before the work
     t0 = time.perf_counter()
     report = lsystem_stats.summary(grammar, args.steps, with_string=args.string)
+    if args.render:
+        report["render"] = _render_lsystem(grammar, args, report)
     report["timings"]["total"] = time.perf_counter() - t0
     report["memory"]["peak_rss_bytes"] = peak_rss_bytes()
     text = json.dumps(report, indent=2)

@@ -103,3 +103,35 @@ def furnace_sphere(rho=0.5, flux=100.0, radius=1.0, source=(0.0, 0.0, 0.0), mesh
                      lightmap_resolution=resolution)
     s.lights.append(Light("point", power=flux, transform=translate(*source), name="source"))
     return s
+
+
+def lsystem_studio(grammar_text, name="lsystem", steps=None, width=320, height=320, bounds=None):
+    """An L-system lit in a default studio: a ground plane under its bounds, a sun
+    from the upper left and a camera framing the bounds (turtle frame: up is +Z).
+    bounds: (lo, hi) of the object (default: its scene graph's box)."""
+    from .dcsg import DCSG
+    from .lsystem import parse
+    from .scene import LSystem
+    if bounds is None:
+        lo, hi = DCSG(parse(grammar_text, name=name), steps).bounds()
+    else:
+        lo, hi = (np.asarray(b, np.float64) for b in bounds)
+    size = float(np.max(hi - lo)) or 1.0
+    centre = 0.5 * (lo + hi)
+    sc = Scene(n_bands=3)
+    ground = sc.add_material(Material(diffuse=0.6))
+    bark = sc.add_material(Material(diffuse=(0.45, 0.32, 0.2)))
+    leaf = sc.add_material(Material(diffuse=(0.25, 0.55, 0.2)))
+    sc.add_object(Primitive("quad", material=ground), name="ground", lightmap_resolution=64,
+                  transform=compose(translate(centre[0], centre[1], lo[2]), scale(2.0 * size)))
+    sc.prototypes.append(Prototype(name=name, lsystems=[LSystem(grammar_text, name=name, steps=steps,
+                                                                materials=(bark, leaf))]))
+    sc.instances.append(Instance(len(sc.prototypes) - 1, name=name))
+    sc.lights.append(Light("sun", power=3.0, transform=compose(rotate("z", -35), rotate("x", 40))))
+    sc.environment = 0.05
+    fov = math.radians(39.6)
+    dist = 0.5 * size / math.tan(0.5 * fov) * 1.35
+    sc.camera = Camera(transform=compose(translate(centre[0], centre[1] - dist, centre[2]),
+                                         rotate("x", 90)),
+                       fov=fov, width=int(width), height=int(height))
+    return sc

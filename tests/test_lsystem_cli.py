@@ -1,6 +1,8 @@
 """`python -m photon_lightmaps lsystem FILE`: counts through the scene graph, one-line errors."""
 import json
 
+import numpy as np
+
 from photon_lightmaps import cli
 
 ABOP_124A = "axiom: F\nderivation length: {n}\nangle: 25.7\nproduction:\nF --> F[+F]F[-F]F\n"
@@ -45,3 +47,24 @@ def test_bad_grammar_is_one_line_with_exit_code_2(tmp_path, capsys):
     assert err.count("\n") == 1 and "line 4, column" in err and "Traceback" not in err
     rc, _, err = _run(capsys, tmp_path / "missing.lsys")
     assert rc == 2 and "cannot read" in err
+
+
+def test_render_through_the_graph_in_the_studio(tmp_path, capsys):
+    from photon_lightmaps.engine.lsystem_presets import preset_text
+    f = tmp_path / "tree.lsys"
+    f.write_text(preset_text("sympodial_tree"))
+    out = tmp_path / "tree.png"
+    rc, text, _ = _run(capsys, f, "--render", out, "--size", "48x40", "--photons", 20000,
+                       "--samples", 1)
+    r = json.loads(text)
+    assert rc == 0 and out.stat().st_size > 0
+    assert (r["render"]["width"], r["render"]["height"]) == (48, 40)
+    # the tree's own OL and one per stub (7.4), all photons accounted for
+    assert r["render"]["orientation_lightmaps"] > 1 and r["render"]["photons"] == 20000
+    import bpy
+    img = bpy.data.images.load(str(out))
+    try:
+        px = np.array(img.pixels[:]).reshape(40, 48, 4)
+        assert px[..., :3].max() > 0.2 and px[..., :3].std() > 0.01      # lit, not flat
+    finally:
+        bpy.data.images.remove(img)

@@ -80,8 +80,9 @@ density) until the features span several texels.
 Modules: pipeline.py (BakeSettings; prepare -> compute -> commit), images.py
 (image policy, the one save-or-pack), hooks.py (UV and OL material hooks),
 csg_atlas.py, orientation.py (orientation lightmaps), bake_api.py (Blender's
-Bake button), render.py (the render pipeline's Blender end). The command
-`python -m photon_lightmaps bake` is in cli.py.
+Bake button), render.py (the render pipeline's Blender end), lsystem_preview.py (an
+L-system object's viewport preview: the grammar -> its Geometry Nodes group and realized
+mesh). The command `python -m photon_lightmaps bake` is in cli.py.
 """
 from .hooks import HOOK_PREFIX, HOOK_PROP, add_lightmap_hook, remove_lightmap_hook  # noqa: F401,E402
 from .images import IMAGE_SUFFIX, LIGHTMAP_DIR, OWNER_PROP, BakedMap, check_writable, write_exr  # noqa: F401,E402

@@ -6,7 +6,7 @@ assignment), so 100 linked duplicates cost one prototype and 100 transforms.
 import numpy as np
 
 from ..engine.scene import Instance
-from . import csg
+from . import csg, lsystems
 from .camera import camera
 from .context import ExportContext, InstanceRecord, matrix
 from .lights import light
@@ -45,15 +45,19 @@ def _run(ctx, camera_override, resolution):
     router = OLRouter(bscene, ctx.report) if ctx.use_ols else None
     for inst in dg.object_instances:
         ob = inst.object
+        parent = inst.parent if inst.is_instance else None
+        if lsystems.is_preview(ob.original, parent):
+            # An L-system's preview (its meshes, instances, organs): the engine traces the grammar.
+            continue
         if ob.type not in ("MESH", "LIGHT"):
             if ob.type in ("CURVES", "POINTCLOUD", "VOLUME", "GREASEPENCIL"):
                 skipped_types.add(ob.type)
             continue
         original = ob.original
-        parent = inst.parent if inst.is_instance else None
+        is_lsystem = parent is None and lsystems.is_lsystem(original)
         if viewport and _hidden_from_render(original, parent):
             continue
-        if not inst.is_instance and not inst.show_self:
+        if not inst.is_instance and not inst.show_self and not is_lsystem:
             continue
         if original in operands:
             # Visible in render or not, an operand is geometry of the solid it cuts.
@@ -67,7 +71,8 @@ def _run(ctx, camera_override, resolution):
         # Instances a geometry-nodes instancer makes of its own geometry are not the
         # original object's solid; real objects (even instanced ones) are.
         own_geometry = parent is None or parent.original is None or parent.original != original
-        proto = csg.csg_prototype(ctx, ob) if own_geometry else None
+        proto = (lsystems.lsystem_prototype(ctx, ob) if is_lsystem
+                 else csg.csg_prototype(ctx, ob) if own_geometry else None)
         if proto is None:
             proto = prototype(ctx, ob, ob.data)
         if proto < 0:

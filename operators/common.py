@@ -1,4 +1,5 @@
-"""What several operators share: the Object Mode poll and the image output options."""
+"""What several operators share: the Object Mode poll, the image output options, selecting
+what an Add operator made."""
 from bpy.props import BoolProperty
 
 
@@ -24,3 +25,12 @@ class ImageOutputOptions:
     pack: BoolProperty(
         name="Pack Images", default=False,
         description="Pack the images into the .blend instead of saving them to //lightmaps/")
+
+
+def select_only(context, ob):
+    """Makes `ob` the only selected and the active object, as Blender's Add operators do."""
+    for other in context.selected_objects:
+        if other != ob:
+            other.select_set(False)
+    ob.select_set(True)
+    context.view_layer.objects.active = ob

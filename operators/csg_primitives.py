@@ -28,6 +28,7 @@ from .. import messages
 from ..export.csg import PARAMS_PROP, PRIMITIVE_PROP, SOLID_KINDS
 from ..engine.primitives import KIND_IDS, N_FACES, prim_point
 from ..engine.scene import SceneError
+from .common import select_only
 
 LIGHTMAP_UV = "Lightmap"
 # Welding distance in the unit-size local frame: seam duplicates differ by ~1e-16,
@@ -198,11 +199,7 @@ class PHOTON_LIGHTMAPS_OT_csg_primitive_add(bpy.types.Operator):
                                       collection=context.collection)
         except Exception as exc:  # noqa: BLE001  (reported to the user instead of a traceback)
             return messages.operator_failed(self, exc)
-        for other in context.selected_objects:
-            if other != ob:
-                other.select_set(False)
-        ob.select_set(True)
-        context.view_layer.objects.active = ob
+        select_only(context, ob)
         return {"FINISHED"}
 
 

@@ -1,6 +1,6 @@
 """Where the user finds the operators: the Render and Object menus, Add > Photon
-CSG Primitive, the orientation-lightmap entries, and a Bake panel in Render
-Properties.
+CSG Primitive, Add > Photon L-System, the orientation-lightmap entries, and a Bake
+panel in Render Properties.
 
 The panel exists because Blender's own Bake panel belongs to Cycles (it is shown
 for Cycles only); with this engine active it offers Blender's Bake button, which
@@ -8,7 +8,7 @@ lands in bake/bake_api.py, next to our lightmap bake.
 """
 import bpy
 
-from ..operators import bake, csg_primitives
+from ..operators import bake, csg_primitives, lsystem
 from ..operators import orientation_lightmaps as ol_ops
 from ..operators.render_engine import ENGINE_ID
 
@@ -69,6 +69,8 @@ class PHOTON_LIGHTMAPS_PT_bake(bpy.types.Panel):
 def menu_add(self, context):
     self.layout.operator_menu_enum(csg_primitives.PHOTON_LIGHTMAPS_OT_csg_primitive_add.bl_idname, "kind",
                                    text="Photon CSG Primitive", icon="MOD_BOOLEAN")
+    self.layout.operator_menu_enum(lsystem.PHOTON_LIGHTMAPS_OT_lsystem_add.bl_idname, "preset",
+                                   text="Photon L-System", icon="OUTLINER_OB_CURVES")
 
 
 def ol_menu(self, context):

@@ -187,6 +187,129 @@ def _draw_csg(layout, ob):
                   icon='MOD_BOOLEAN')
 
 
+def _size(n):
+    n = float(n)
+    for unit in ("B", "KB", "MB", "GB", "TB"):
+        if abs(n) < 1000.0 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000.0
+
+
+def _count(n):
+    n = float(n)
+    return f"{n:,.0f}" if n < 1e15 else f"{n:.3g}"
+
+
+def lsystem_summary(ob):
+    """(text, icon) lines the L-system panel shows below the settings: the grammar's status,
+    the preview path, OL stubs, organs and the engine's statistics (export/lsystems.py)."""
+    from ..export import lsystems as L
+    props = ob.photon_lightmaps.lsystem
+    meta = L.info(ob)
+    lines = []
+    if props.status:
+        lines.append((props.status, 'ERROR'))
+        lines.append(("The preview shows the last valid grammar", 'INFO'))
+    path = meta.get("path")
+    if path == "symbols":
+        syms = meta.get("symbols", [])
+        lines.append((f"Preview: Repeat Zone over {len(syms)} symbol{'s' if len(syms) != 1 else ''}, "
+                      f"depth {meta.get('depth', 0)}", 'NODETREE'))
+    elif path == "flattened":
+        lines.append((f"Preview: flattened, depth {meta.get('depth', 0)}", 'MESH_DATA'))
+        lines.append((meta.get("note", ""), 'DOT'))
+    for a in meta.get("approximate", []):
+        lines.append((f"Preview is approximate: {a}", 'INFO'))
+    lines.append((f"Blender shows at most {L.MAX_PREVIEW_DEPTH} nested instance levels: "
+                  f"the preview depth is capped at {L.MAX_PREVIEW_DEPTH}", 'INFO'))
+    stubs = meta.get("ol_stubs", [])
+    lines.append(("OL stubs: " + (", ".join(stubs) if stubs else "none (one OL over the object)"), 'SPHERE'))
+    organs = meta.get("organs", [])
+    if organs:
+        resolve = _organ_lookup(ob)
+        lines.append(("Organs: " + ", ".join(f"{n} -> {resolve(n)}" for n in organs), 'OUTLINER_OB_GROUP_INSTANCE'))
+    st = meta.get("stats", {})
+    if "error" in st:
+        lines.append((f"Statistics: {st['error']}", 'ERROR'))
+    elif st:
+        approx = "" if st.get("exact", True) else " (expected)"
+        lines.append((f"Implicit primitives: {_count(st['primitives'])}{approx} at {st.get('steps')} steps", 'MOD_PARTICLES'))
+        if st.get("graph"):
+            lines.append((f"DCSG nodes: {st['dcsg_nodes']:,}, graph memory {_size(st['graph_bytes'])}", 'OUTLINER'))
+        else:
+            lines.append(("Context-sensitive: derived and instanced (no scene graph)", 'OUTLINER'))
+        lines.append((f"Flattened instances would cost ~{_size(st['flat_bytes'])} in Cycles "
+                      f"(~{L.CYCLES_BYTES_PER_INSTANCE / 1000:.1f} KB per instance)", 'MEMORY'))
+        steps = int(st.get("steps", -1))
+        if steps > L.MAX_PREVIEW_DEPTH:
+            lines.append((f"Cycles shows at most {L.MAX_PREVIEW_DEPTH} nested instance levels: these "
+                          f"{steps} steps as nested instances would not show there", 'ERROR'))
+    return lines
+
+
+def _organ_lookup(ob):
+    from ..bake.lsystem_preview import organ_resolver
+    resolve = organ_resolver(ob)
+
+    def name(n):
+        t = resolve(n)
+        if t is None:
+            return "missing"
+        return f"collection '{t.name}'" if isinstance(t, bpy.types.Collection) else f"'{t.name}'"
+    return name
+
+
+class PHOTON_LIGHTMAPS_PT_lsystem(_EnginePanel, bpy.types.Panel):
+    bl_label = "Photon L-System"
+    bl_context = "object"
+
+    @classmethod
+    def poll(cls, context):
+        from ..export import lsystems as L
+        return super().poll(context) and L.is_lsystem(context.object)
+
+    def draw(self, context):
+        from ..export import lsystems as L
+        from ..operators import lsystem as lsystem_ops
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        ob = context.object
+        s = ob.photon_lightmaps.lsystem
+        text = L.grammar_text(ob)
+        layout.prop(ob, f'["{L.TEXT_PROP}"]', text="Grammar")
+        row = layout.row(align=True)
+        if text is None:
+            row.label(text="No grammar Text", icon='ERROR')
+        elif lsystem_ops.text_editor_area(context) is not None:
+            row.operator(lsystem_ops.PHOTON_LIGHTMAPS_OT_lsystem_edit_text.bl_idname,
+                         text=f"Edit '{text.name}'", icon='TEXT')
+        else:
+            row.label(text=f"Grammar: {text.name}", icon='TEXT')
+        row.operator(lsystem_ops.PHOTON_LIGHTMAPS_OT_lsystem_update.bl_idname, text="", icon='FILE_REFRESH')
+        col = layout.column()
+        row = col.row(heading="Render Iterations")
+        row.prop(s, "use_render_iterations", text="")
+        sub = row.row()
+        sub.active = s.use_render_iterations
+        sub.prop(s, "render_iterations", text="")
+        col.prop(s, "preview_iterations")
+        row = col.row(heading="Angle")
+        row.prop(s, "use_angle", text="")
+        sub = row.row()
+        sub.active = s.use_angle
+        sub.prop(s, "angle", text="")
+        row = col.row(heading="Seed")
+        row.prop(s, "use_seed", text="")
+        sub = row.row()
+        sub.active = s.use_seed
+        sub.prop(s, "seed", text="")
+        col.prop(s, "organs")
+        box = layout.box()
+        for line, icon in lsystem_summary(ob):
+            box.label(text=line, icon=icon)
+
+
 class PHOTON_LIGHTMAPS_PT_material_slots(_EnginePanel, bpy.types.Panel):
     bl_label = ""
     bl_context = "material"
@@ -280,6 +403,7 @@ class PHOTON_LIGHTMAPS_PT_world(_EnginePanel, bpy.types.Panel):
 classes = (
     PHOTON_LIGHTMAPS_PT_render,
     PHOTON_LIGHTMAPS_PT_object,
+    PHOTON_LIGHTMAPS_PT_lsystem,
     PHOTON_LIGHTMAPS_PT_material_slots,
     PHOTON_LIGHTMAPS_PT_material_surface,
     PHOTON_LIGHTMAPS_PT_light,

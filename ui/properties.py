@@ -1,14 +1,65 @@
-"""Settings stored in .blend files: `Scene.photon_lightmaps` and `Object.photon_lightmaps`.
+"""Settings stored in .blend files: `Scene.photon_lightmaps` and `Object.photon_lightmaps`
+(with `Object.photon_lightmaps.lsystem` for L-system objects).
 
-The scene defaults are engine.session.Settings' (one copy): code reads the
-PropertyGroup into that typed object, never into a dict of its own.
+The scene defaults are engine.session.Settings' (one copy), the L-system ones
+export.lsystems.LSystemSettings': code reads the PropertyGroup into that typed
+object, never into a dict of its own.
 """
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
+from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
+                       StringProperty)
 
 from ..engine.session import Settings
+from ..export.lsystems import MAX_PREVIEW_DEPTH, LSystemSettings
 
 _D = Settings()
+_L = LSystemSettings()
+
+
+def _lsystem_changed(self, context):
+    """A setting of an L-system object changed: regenerate its preview."""
+    from ..bake.lsystem_preview import update_preview
+    from ..export.lsystems import is_lsystem
+    ob = self.id_data
+    if isinstance(ob, bpy.types.Object) and is_lsystem(ob):
+        update_preview(ob)
+
+
+class PhotonLSystemSettings(bpy.types.PropertyGroup):
+    """Per-object settings of an L-system object (Add > Photon L-System)."""
+    use_render_iterations: BoolProperty(
+        name="Override Iterations", default=_L.use_render_iterations, update=_lsystem_changed,
+        description="Render this many derivation steps instead of the grammar's derivation length")
+    render_iterations: IntProperty(
+        name="Render Iterations", default=_L.render_iterations, min=0, soft_max=40,
+        update=_lsystem_changed,
+        description="Derivation steps a render traces (the engine expands them lazily, without "
+                    "unrolling the instances)")
+    preview_iterations: IntProperty(
+        name="Preview Iterations", default=_L.preview_iterations, min=0, max=MAX_PREVIEW_DEPTH,
+        update=_lsystem_changed,
+        description=f"Derivation steps the viewport preview shows (at most {MAX_PREVIEW_DEPTH}: Blender "
+                    "drops instances nested deeper; never more than the render depth)")
+    use_seed: BoolProperty(
+        name="Override Seed", default=_L.use_seed, update=_lsystem_changed,
+        description="Use this seed instead of the grammar's for the stochastic choices")
+    seed: IntProperty(
+        name="Seed", default=_L.seed, min=0, update=_lsystem_changed,
+        description="Seed of the stochastic choices (the same seed gives the same plant)")
+    use_angle: BoolProperty(
+        name="Override Angle", default=_L.use_angle, update=_lsystem_changed,
+        description="Use this turtle angle instead of the grammar's")
+    angle: FloatProperty(
+        name="Angle", default=_L.angle, min=-360.0, max=360.0, update=_lsystem_changed,
+        description="Turtle turn of + - & ^ \\ / without a parameter, in degrees")
+    organs: PointerProperty(
+        name="Organs", type=bpy.types.Collection, update=_lsystem_changed,
+        description="Where ~(name) finds its organ: the object of that name in this collection "
+                    "(or a child collection of that name); without one, any object or collection "
+                    "of that name")
+    status: StringProperty(
+        name="Status", default="",
+        description="The last grammar error (line and column), empty when the grammar is fine")
 
 
 class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
@@ -68,9 +119,10 @@ class PhotonLightmapsObjectSettings(bpy.types.PropertyGroup):
         name="Backup", default=False,
         description="The objects keep their own lightmaps; this orientation lightmap is read only "
                     "where their texels received too few photons")
+    lsystem: PointerProperty(type=PhotonLSystemSettings)
 
 
-classes = (PhotonLightmapsSceneSettings, PhotonLightmapsObjectSettings)
+classes = (PhotonLightmapsSceneSettings, PhotonLSystemSettings, PhotonLightmapsObjectSettings)
 
 
 def register():

@@ -1,0 +1,906 @@
+"""The viewport preview of an L-system object: the grammar (export/lsystems.py conventions)
+-> the object's Geometry Nodes group and, where needed, its realized mesh. Like the rest of
+bake/, it turns engine results (the turtle's drawings, the scene graph's expansion) into
+Blender data; bpy is imported inside the functions that write it.
+
+The grammar (a Text datablock) is the source of truth; the node group is regenerated from it
+for the viewport only, by one of two paths (recorded in ``ob["photon_lsys"]["path"]`` and
+shown in the panel):
+
+* ``"symbols"``: grammars that fit one Repeat Zone (`symbol_plan`: context-free,
+  deterministic, successors whose structure does not depend on the depth, e.g. every ABOP
+  bracketed system). Per rewritable symbol X (module and incoming turtle state) the zone
+  holds a GEOMETRY item ``Geo X`` and a MATRIX item ``Exit X``; each step builds X's new
+  geometry as Join over its successor of Transform(Geometry to Instance(Set Geometry
+  Name(Geo Y, "Y")), T) and its new exit as the product of the turtle moves and the
+  children's exits (needed where, as in F -> FF, offsets grow with the depth). Segments are
+  Mesh Cylinder / Mesh Cone nodes, spheres UV Spheres, boxes Mesh Cubes, organs Object /
+  Collection Info instances; ``;(i)`` sets the material index. Exact at the preview depth
+  (every leaf where the engine puts a primitive).
+* ``"flattened"``: everything else (stochastic, parametric with ever-changing parameters,
+  context-sensitive). The engine's own expansion at the preview depth (`flat_preview`:
+  DCSG.flatten, or derive + turtle for context-sensitive grammars) is realized in Python
+  into the object's mesh (12-sided cylinders and frustums, UV spheres, boxes, a face
+  attribute ``lsys_primitive`` numbering the primitives), and the group passes it through.
+  Organs are not shown on this path; above MAX_PREVIEW_PRIMITIVES the depth is lowered.
+
+The preview depth is min(preview iterations, render depth, 6): Blender (viewport and Cycles)
+drops instances nested deeper than 6 levels. Renders with this engine trace the grammar at
+the render depth. Editing the Text does not re-evaluate Geometry Nodes, so a timer
+(operators/lsystem.py, every TEXT_POLL_SECONDS) runs `check_texts`, which regenerates
+previews whose text changed and then stayed unchanged for one poll (not at every
+keystroke); Update Preview runs `update_preview` on demand. A grammar error goes to the
+panel's status and leaves the preview as it was.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import messages
+from ..engine import lsystem as LS
+from ..engine.scene import SceneError
+from ..engine.turtle import TurtleState, to_primitives
+from ..export import lsystems as L
+
+# Rewritable symbols (distinct module and turtle state) the per-symbol Repeat Zone takes.
+MAX_PREVIEW_SYMBOLS = 48
+# Primitives a flattened preview realizes at most (its depth is lowered to fit).
+MAX_PREVIEW_PRIMITIVES = 30_000
+SEGMENTS = 12
+SPHERE_RINGS = 6
+PRIMITIVE_ATTR = "lsys_primitive"
+ITERATIONS = "Iterations"
+
+
+# ---------------------------------------------------------------- preview plan
+
+class PlanUnfit(Exception):
+    """The grammar does not fit the per-symbol Repeat Zone; the message says why."""
+
+
+@dataclass
+class Drawing:
+    """What one module draws in its own (turtle start) frame: an engine primitive kind
+    ("cylinder", "frustum", "cone", "sphere", "box"; params (top radius,) for a frustum) or an
+    "organ" (params (name,)); `matrix` 4x4 maps the unit shape into the module's frame."""
+    kind: str
+    params: tuple
+    matrix: np.ndarray
+    material: int
+
+
+@dataclass
+class Child:
+    """One drawn child of a symbol's successor: a rewritable symbol (index) or a constant
+    drawing, placed by the product of `factors` (4x4 constants, or int k: the exit matrix
+    of symbol k one level down), left to right."""
+    symbol: int | None
+    drawing: Drawing | None
+    factors: tuple
+
+
+@dataclass
+class Symbol:
+    module: object                  # lsystem.Module
+    state: tuple                    # turtle (width, drawn width, material) it is entered with
+    label: str
+    initial: list                   # [Drawing] at step 0 (what the module draws itself)
+    initial_exit: np.ndarray        # 4x4 turtle after the module at step 0
+    children: list                  # [Child] of one rewriting step
+    exit: tuple                     # factors: the turtle after one rewriting step
+
+
+@dataclass
+class SymbolPlan:
+    symbols: list
+    root: list                      # [Child] of the axiom
+
+
+def _fold(factors):
+    """Multiplies adjacent constant factors; drops identities."""
+    out = []
+    for f in factors:
+        if isinstance(f, np.ndarray):
+            if out and isinstance(out[-1], np.ndarray):
+                out[-1] = out[-1] @ f
+            else:
+                out.append(f)
+        else:
+            out.append(f)
+    out = [f for f in out if not (isinstance(f, np.ndarray) and np.array_equal(f, np.eye(4)))]
+    return tuple(out)
+
+
+class _Restart(Exception):
+    """The grammar changes the width: plan again with exact turtle states."""
+
+
+class _Planner:
+    """Builds a SymbolPlan. Symbols are found breadth first from the axiom; a symbol first
+    met at distance j below it is read at levels <= max_depth - j only, so its successor
+    must look the same at those levels alone, and one met at max_depth needs no rule."""
+
+    def __init__(self, grammar, max_depth, max_symbols, canonical):
+        self.g = grammar
+        self.angle, self.width = grammar.angle, grammar.width
+        self.max_depth, self.max_symbols = max_depth, max_symbols
+        # Without any '!' the width never changes, so every segment is a cylinder of the
+        # grammar's width whatever the previous drawn width was: states drop it.
+        self.canonical = canonical
+        self.exit_memo = {}
+        self.term_memo = {}
+        self.syms = {}              # (module, state) -> index
+        self.plan_syms = []
+        self.dist = []
+        self.succ = []
+        self.queue = []
+
+    def norm(self, st):
+        return (st[0], None, st[2]) if self.canonical else st
+
+    def alts(self, m):
+        a = self.g.alternatives(m)
+        if len(a) > 1:
+            raise PlanUnfit(f"module {m} has {len(a)} stochastic alternatives (Geometry Nodes cannot "
+                            "choose per branch)")
+        return a
+
+    def terminal(self, m, st):
+        """(drawings, exit 4x4, exit state) of module m at step 0 entered with state st."""
+        key = (m, st)
+        r = self.term_memo.get(key)
+        if r is None:
+            if m.symbol == "!" and self.canonical:
+                raise _Restart()
+            ts = TurtleState(self.angle, self.width)
+            ts.width, ts.drawn, ts.material = st
+            ts.apply(m)
+            geom = ts.geometry()
+            draws = []
+            for p in to_primitives(geom):
+                full = np.eye(4)
+                full[:3] = np.asarray(p.transform, np.float64)[:3]
+                draws.append(Drawing(p.kind, tuple(p.params), full, int(p.material)))
+            for o in geom.organs:
+                draws.append(Drawing("organ", (o.name,), np.asarray(o.matrix, np.float64), int(o.material)))
+            r = self.term_memo[key] = (draws, ts.matrix(), self.norm((ts.width, ts.drawn, ts.material)))
+        return r
+
+    def exit_state(self, m, st, k):
+        a = self.alts(m) if k > 0 else []
+        if not a:
+            return self.terminal(m, st)[2]
+        key = (m, st, k)
+        r = self.exit_memo.get(key)
+        if r is None:
+            if len(self.exit_memo) > 20_000:
+                raise PlanUnfit("too many distinct modules for a per-symbol preview")
+            r = self.exit_memo[key] = self.children(a[0][0].apply(m), st, k - 1)[1]
+        return r
+
+    def children(self, succ, st, k):
+        """[(module, entry state)] of the non-bracket modules of `succ` entered with st, their
+        successors at step k, and the state after them."""
+        out, stack = [], []
+        for c in succ:
+            if c.symbol == "[":
+                stack.append(st)
+            elif c.symbol == "]":
+                if not stack:
+                    raise PlanUnfit("unmatched ']'")
+                st = stack.pop()
+            else:
+                if c.symbol == "!" and self.canonical:
+                    raise _Restart()
+                out.append((c, st))
+                st = self.exit_state(c, st, k)
+        return out, st
+
+    def uniform_children(self, succ, st, levels, what):
+        ref = None
+        for k in levels:
+            ch, _ = self.children(succ, st, k)
+            if ref is None:
+                ref = ch
+            elif ch != ref:
+                raise PlanUnfit(f"the turtle state (width or material) inside {what} depends on the "
+                                "depth, so one Repeat Zone step cannot stand for every level")
+        return ref
+
+    def symbol(self, m, st, dist):
+        key = (m, st)
+        i = self.syms.get(key)
+        if i is not None:
+            return i
+        if len(self.syms) >= self.max_symbols:
+            raise PlanUnfit(f"more than {self.max_symbols} distinct rewritable modules within "
+                            f"{self.max_depth} steps (parameters that keep changing)")
+        i = self.syms[key] = len(self.plan_syms)
+        draws, ex, _ = self.terminal(m, st)
+        self.plan_syms.append(Symbol(m, st, str(m), draws, ex, [], (ex,)))
+        self.dist.append(dist)
+        self.succ.append(self.alts(m)[0][0].apply(m))
+        self.queue.append(i)
+        return i
+
+    def walk(self, succ, entries, dist):
+        """Children and exit factors of a successor whose modules enter with `entries`."""
+        from ..engine.dcsg import M0    # the turtle's start frame; child -> parent is E @ M0
+        it = iter(entries)
+        F, stack, kids = [M0.copy()], [], []
+        for c in succ:
+            if c.symbol == "[":
+                stack.append(list(F))
+                continue
+            if c.symbol == "]":
+                F = stack.pop()
+                continue
+            cm, cst = next(it)
+            T = _fold(F + [M0])
+            if self.alts(cm):
+                k = self.symbol(cm, cst, dist)
+                kids.append(Child(k, None, T))
+                F = list(T) + [k]
+            else:
+                draws, ex, _ = self.terminal(cm, cst)
+                kids.extend(Child(None, d, T) for d in draws)
+                F = list(_fold(list(T) + [ex]))
+        return kids, _fold(F)
+
+    def build(self):
+        start = self.norm((self.width, None, 0))
+        axiom = list(self.g.axiom)
+        D = self.max_depth
+        ref = self.uniform_children(axiom, start, range(0, D + 1), "the axiom")
+        root, _ = self.walk(axiom, ref, 0)
+        q = 0
+        while q < len(self.queue):
+            i = self.queue[q]
+            q += 1
+            s, d = self.plan_syms[i], self.dist[i]
+            if d >= D:
+                continue            # read at step 0 only: no rule needed
+            ref = self.uniform_children(self.succ[i], s.state, range(0, D - d), f"the successor of {s.module}")
+            s.children, s.exit = self.walk(self.succ[i], ref, d + 1)
+        # Labels: the module, plus #n where one module is entered in several states.
+        seen = {}
+        for s in self.plan_syms:
+            n = seen[s.label] = seen.get(s.label, 0) + 1
+            if n > 1:
+                s.label = f"{s.label} #{n}"
+        return SymbolPlan(self.plan_syms, root)
+
+
+def symbol_plan(grammar, max_depth=L.MAX_PREVIEW_DEPTH, max_symbols=MAX_PREVIEW_SYMBOLS):
+    """The per-symbol Repeat Zone plan of a context-free, deterministic grammar whose
+    successors' structure does not depend on the depth, valid for every depth up to
+    `max_depth` (every ABOP-style bracketed system; parametric ones whose parameters take
+    few values within max_depth steps, such as fractals that scale by a constant). Raises
+    PlanUnfit where the grammar does not fit (stochastic, context-sensitive, too many
+    distinct modules, width or material changes that leave a successor differently per
+    level)."""
+    if not grammar.is_context_free:
+        raise PlanUnfit("context-sensitive productions do not fit a per-symbol Repeat Zone")
+    try:
+        return _Planner(grammar, max_depth, max_symbols, canonical=True).build()
+    except _Restart:
+        return _Planner(grammar, max_depth, max_symbols, canonical=False).build()
+
+
+def plan_primitives(plan, depth):
+    """Engine primitives (organs excluded) the plan draws at `depth` (a self-check against
+    DCSG.implicit_primitives)."""
+    n = [sum(d.kind != "organ" for d in s.initial) for s in plan.symbols]
+    for _ in range(depth):
+        n = [sum(n[c.symbol] if c.symbol is not None else int(c.drawing.kind != "organ")
+                 for c in s.children) for s in plan.symbols]
+    return sum(n[c.symbol] if c.symbol is not None else int(c.drawing.kind != "organ") for c in plan.root)
+
+
+@dataclass
+class FlatPreview:
+    """Primitives of the engine's own expansion at the preview depth, in object space."""
+    kinds: list                     # engine kind names
+    params: np.ndarray              # (n,) frustum top radius (1 for the others)
+    transforms: np.ndarray          # (n, 3, 4)
+    materials: np.ndarray           # (n,) int slot
+    depth: int
+    source: str                     # "dcsg" (DCSG.flatten) or "derived" (derive + turtle)
+
+
+def flat_preview(grammar, depth, limit=MAX_PREVIEW_PRIMITIVES):
+    """The engine's expansion at `depth` or, when that exceeds `limit` primitives, at the
+    deepest depth below that fits. Raises LSystemError / SceneError as the engine would."""
+    from ..engine.dcsg import DCSG, DCSGUnsupported
+    from ..engine.primitives import KIND_IDS
+    names = {v: k for k, v in KIND_IDS.items()}
+    for d in range(depth, -1, -1):
+        try:
+            g = DCSG(grammar, steps=d)
+        except DCSGUnsupported:
+            g = None
+        if g is not None:
+            if g.implicit_primitives > limit and d > 0:
+                continue
+            f = g.flatten(limit=max(limit, 1) * 2)
+            return FlatPreview([names[int(k)] for k in f.kind], f.params[:, 0].copy(), f.transform.copy(),
+                               f.material.copy(), d, "dcsg")
+        try:
+            der = LS.derive(grammar, d, cap=max(limit, 1) * 20)
+        except LS.LSystemGrowthError:
+            if d > 0:
+                continue
+            raise
+        from ..engine.turtle import interpret
+        prims = to_primitives(interpret(der.modules, grammar.angle, grammar.width))
+        if len(prims) > limit and d > 0:
+            continue
+        return FlatPreview([p.kind for p in prims],
+                           np.array([p.params[0] if p.params else 1.0 for p in prims], np.float64),
+                           np.array([np.asarray(p.transform, np.float64)[:3] for p in prims]).reshape(-1, 3, 4),
+                           np.array([p.material for p in prims], np.int64), d, "derived")
+    raise SceneError("nothing to preview")   # unreachable: depth 0 always returns
+
+
+# ---------------------------------------------------------------- node-group generation
+
+class _Tree:
+    """Small helper over a node tree: nodes with inputs set, links, cached constants."""
+
+    def __init__(self, ng):
+        self.ng = ng
+        self.consts = {}
+        self.products = {}
+        self.column = {}
+
+    def node(self, idname, x=0, **inputs):
+        n = self.ng.nodes.new(idname)
+        y = self.column.get(x, 0)
+        n.location = (x * 220, -y)
+        self.column[x] = y + 160
+        for k, v in inputs.items():
+            n.inputs[k.replace("_", " ")].default_value = v
+        return n
+
+    def link(self, out, inp):
+        self.ng.links.new(out, inp)
+
+    def matrix(self, m, x=0):
+        """Socket of a constant 4x4: a Combine Transform where m is translation x rotation x
+        positive scale (every turtle frame and unit-shape placement), else a Combine Matrix.
+        Only non-default inputs are set (each set costs a tree update)."""
+        m = np.asarray(m, np.float64)
+        key = np.round(m, 12).tobytes()
+        s = self.consts.get(key)
+        if s is None:
+            trs = _trs(m)
+            if trs is not None:
+                n = self.node("FunctionNodeCombineTransform", x)
+                t, euler, scale = trs
+                if np.any(t != 0.0):
+                    n.inputs["Translation"].default_value = t
+                if np.any(euler != 0.0):
+                    n.inputs["Rotation"].default_value = euler
+                if np.any(scale != 1.0):
+                    n.inputs["Scale"].default_value = scale
+            else:
+                n = self.node("FunctionNodeCombineMatrix", x)
+                for c in range(4):
+                    for r in range(4):
+                        if m[r, c] != float(r == c):
+                            n.inputs[f"Column {c + 1} Row {r + 1}"].default_value = float(m[r, c])
+            n.hide = True
+            s = self.consts[key] = n.outputs[0]
+        return s
+
+    def product(self, factors, exits, x=0):
+        """Socket of the left-to-right product of factors (constants, or int k: exits[k]).
+        Products are cached by prefix, so siblings share their common turtle path."""
+        if not factors:
+            return self.matrix(np.eye(4), x)
+        keys = tuple(np.round(f, 12).tobytes() if isinstance(f, np.ndarray) else f for f in factors)
+        cache = self.products.setdefault(id(exits), {})
+        n = len(keys)
+        while n > 1 and keys[:n] not in cache:
+            n -= 1
+        if n == 1:
+            f = factors[0]
+            cur = self.matrix(f, x) if isinstance(f, np.ndarray) else exits[f]
+        else:
+            cur = cache[keys[:n]]
+        for i in range(n, len(keys)):
+            f = factors[i]
+            s = self.matrix(f, x) if isinstance(f, np.ndarray) else exits[f]
+            mm = self.node("FunctionNodeMatrixMultiply", x)
+            self.link(cur, mm.inputs[0])
+            self.link(s, mm.inputs[1])
+            cur = cache[keys[:i + 1]] = mm.outputs[0]
+        return cur
+
+    def transform(self, geo, mat, x=0):
+        t = self.node("GeometryNodeTransform", x)
+        t.inputs["Mode"].default_value = "Matrix"
+        self.link(geo, t.inputs["Geometry"])
+        self.link(mat, t.inputs["Transform"])
+        return t.outputs[0]
+
+
+def _trs(m):
+    """(translation, XYZ Euler, scale) with m = T R S (S > 0 diagonal), or None."""
+    from mathutils import Matrix
+    if not np.allclose(m[3], (0.0, 0.0, 0.0, 1.0)):
+        return None
+    a = m[:3, :3]
+    scale = np.linalg.norm(a, axis=0)
+    if not np.all(scale > 1e-12):
+        return None
+    r = a / scale
+    if not (np.allclose(r.T @ r, np.eye(3), atol=1e-9) and np.linalg.det(r) > 0):
+        return None
+    euler = np.array(Matrix(r.tolist()).to_euler("XYZ"))
+    scale = np.where(np.abs(scale - 1.0) < 1e-12, 1.0, scale)
+    euler = np.where(np.abs(euler) < 1e-12, 0.0, euler)
+    t = np.where(np.abs(m[:3, 3]) < 1e-15, 0.0, m[:3, 3])
+    return t, euler, scale
+
+
+# Unit shapes in the engine's canonical frames (engine/primitives.py): Mesh Cone spans
+# z in [0, depth], so it is moved down by 1.
+_CONE_SHIFT = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, -1.0], [0, 0, 0, 1]])
+
+
+class _Shapes:
+    def __init__(self, tree, organ):
+        self.t, self.organ, self.cache = tree, organ, {}
+
+    def unit(self, d):
+        """(geometry socket of the unit shape, extra 4x4 into the canonical frame) or None."""
+        t = self.t
+        if d.kind == "organ":
+            return self.organ(d.params[0])
+        if d.kind == "cylinder":
+            key = ("cylinder",)
+        elif d.kind in ("frustum", "cone"):
+            key = ("cone", round(float(d.params[0]) if d.kind == "frustum" and d.params else 0.0, 9))
+        elif d.kind in ("sphere", "box"):
+            key = (d.kind,)
+        else:
+            return None
+        s = self.cache.get(key)
+        if s is None:
+            if key[0] == "cylinder":
+                n = t.node("GeometryNodeMeshCylinder", 0, Vertices=SEGMENTS, Radius=1.0, Depth=2.0)
+                s = (n.outputs["Mesh"], np.eye(4))
+            elif key[0] == "cone":
+                n = t.node("GeometryNodeMeshCone", 0, Vertices=SEGMENTS, Radius_Top=key[1],
+                           Radius_Bottom=1.0, Depth=2.0)
+                s = (n.outputs["Mesh"], _CONE_SHIFT)
+            elif key[0] == "box":
+                n = t.node("GeometryNodeMeshCube", 0, Size=(2.0, 2.0, 2.0))
+                s = (n.outputs["Mesh"], np.eye(4))
+            else:
+                n = t.node("GeometryNodeMeshUVSphere", 0, Segments=SEGMENTS, Rings=SPHERE_RINGS, Radius=1.0)
+                s = (n.outputs["Mesh"], np.eye(4))
+            self.cache[key] = s
+        return s
+
+    def drawing(self, d, x=1):
+        """Geometry socket of one drawing in its module's frame, or None (nothing drawn)."""
+        key = ("drawing", d.kind, d.params, np.round(d.matrix, 12).tobytes(), d.material)
+        if key in self.cache:
+            return self.cache[key]
+        u = self.unit(d)
+        out = None
+        if u is not None:
+            geo, pre = u
+            out = self.t.transform(geo, self.t.matrix(d.matrix @ pre, x), x)
+            if d.kind != "organ" and d.material:
+                sm = self.t.node("GeometryNodeSetMaterialIndex", x)
+                sm.inputs["Material Index"].default_value = int(d.material)
+                self.t.link(out, sm.inputs["Geometry"])
+                out = sm.outputs[0]
+        self.cache[key] = out
+        return out
+
+
+def _clear(ng):
+    ng.nodes.clear()
+    ng.interface.clear()
+    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    s = ng.interface.new_socket(ITERATIONS, in_out="INPUT", socket_type="NodeSocketInt")
+    s.min_value, s.max_value = 0, L.MAX_PREVIEW_DEPTH
+    s.description = f"Preview depth (Blender shows at most {L.MAX_PREVIEW_DEPTH} nested levels)"
+
+
+def _join(tree, sockets, x):
+    if len(sockets) == 1:
+        return sockets[0]
+    j = tree.node("GeometryNodeJoinGeometry", x)
+    for s in reversed(sockets):     # a multi-input socket lists the last link first
+        tree.link(s, j.inputs[0])
+    return j.outputs[0]
+
+
+def build_symbol_tree(ng, plan, organ=lambda name: None):
+    """Fills `ng` with the per-symbol Repeat Zone of `plan` (a SymbolPlan).
+    organ(name) -> (geometry socket maker) is asked for `~(name)` drawings."""
+    _clear(ng)
+    tree = _Tree(ng)
+    gin = tree.node("NodeGroupInput", -1)
+    gout = tree.node("NodeGroupOutput", 8)
+    shapes = _Shapes(tree, lambda name: _organ_socket(tree, organ(name)))
+    rin = tree.node("GeometryNodeRepeatInput", 2)
+    rout = tree.node("GeometryNodeRepeatOutput", 6)
+    rin.pair_with_output(rout)
+    items = rout.repeat_items
+    names = []
+    for i, s in enumerate(plan.symbols):
+        g, e = f"Geo {i} {s.label}", f"Exit {i} {s.label}"
+        if i == 0:
+            items[0].name = g
+        else:
+            items.new("GEOMETRY", g)
+        items.new("MATRIX", e)
+        names.append((g, e))
+    tree.link(gin.outputs[ITERATIONS], rin.inputs["Iterations"])
+    # step 0: what each symbol draws itself, and the turtle after it
+    for s, (g, e) in zip(plan.symbols, names):
+        draws = [shapes.drawing(d, 1) for d in s.initial]
+        draws = [d for d in draws if d is not None]
+        if draws:
+            tree.link(_join(tree, draws, 1), rin.inputs[g])
+        tree.link(tree.matrix(s.initial_exit, 1), rin.inputs[e])
+    # one rewriting step
+    exits = [rin.outputs[e] for _, e in names]
+    inst = {}
+
+    def instance(k):
+        if k not in inst:
+            sn = tree.node("GeometryNodeSetGeometryName", 3, Name=plan.symbols[k].label)
+            tree.link(rin.outputs[names[k][0]], sn.inputs["Geometry"])
+            gi = tree.node("GeometryNodeGeometryToInstance", 3)
+            tree.link(sn.outputs[0], gi.inputs[0])
+            inst[k] = gi.outputs[0]
+        return inst[k]
+
+    const_inst = {}
+
+    def drawing_instance(d):
+        geo = shapes.drawing(d, 3)
+        if geo is None:
+            return None
+        key = id(geo)
+        if key not in const_inst:
+            gi = tree.node("GeometryNodeGeometryToInstance", 3)
+            tree.link(geo, gi.inputs[0])
+            const_inst[key] = gi.outputs[0]
+        return const_inst[key]
+
+    for s, (g, e) in zip(plan.symbols, names):
+        parts = []
+        for c in s.children:
+            src = instance(c.symbol) if c.symbol is not None else drawing_instance(c.drawing)
+            if src is not None:
+                parts.append(tree.transform(src, tree.product(c.factors, exits, 4), 5))
+        if parts:
+            tree.link(_join(tree, parts, 5), rout.inputs[g])
+        tree.link(tree.product(s.exit, exits, 4), rout.inputs[e])
+    # the axiom, at the depth the zone reached (no extra instance level)
+    final = [rout.outputs[e] for _, e in names]
+    parts = []
+    for c in plan.root:
+        if c.symbol is not None:
+            src = rout.outputs[names[c.symbol][0]]
+        else:
+            src = drawing_instance(c.drawing)
+        if src is not None:
+            parts.append(tree.transform(src, tree.product(c.factors, final, 7), 7))
+    if parts:
+        tree.link(_join(tree, parts, 7), gout.inputs[0])
+
+
+def _organ_socket(tree, target):
+    """(geometry socket, identity) instancing an organ object or collection, or None."""
+    import bpy
+    if target is None:
+        return None
+    if isinstance(target, bpy.types.Collection):
+        n = tree.node("GeometryNodeCollectionInfo", 0)
+        n.inputs["Collection"].default_value = target
+        n.inputs["Reset Children"].default_value = True
+        return n.outputs["Instances"], np.eye(4)
+    n = tree.node("GeometryNodeObjectInfo", 0)
+    n.inputs["Object"].default_value = target
+    n.inputs["As Instance"].default_value = True
+    n.transform_space = "ORIGINAL"
+    return n.outputs["Geometry"], np.eye(4)
+
+
+def build_passthrough_tree(ng):
+    """The flattened path's group: the object's own (realized preview) mesh, unchanged."""
+    _clear(ng)
+    tree = _Tree(ng)
+    gin = tree.node("NodeGroupInput", 0)
+    gout = tree.node("NodeGroupOutput", 2)
+    tree.link(gin.outputs[0], gout.inputs[0])
+
+
+# ---------------------------------------------------------------- realized preview mesh
+
+def _ring(n, z, r=1.0):
+    a = 2.0 * np.pi * np.arange(n) / n
+    return np.stack([r * np.cos(a), r * np.sin(a), np.full(n, z)], axis=1)
+
+
+def _cylinder_template(n=SEGMENTS):
+    v = np.vstack([_ring(n, -1.0), _ring(n, 1.0)])
+    i = np.arange(n)
+    faces = [[int(a), int((a + 1) % n), int((a + 1) % n + n), int(a + n)] for a in i]
+    faces.append([int(a) for a in i[::-1]])        # bottom cap, facing -z
+    faces.append([int(a + n) for a in i])          # top cap, facing +z
+    return v, faces
+
+
+def _sphere_template(n=SEGMENTS, rings=SPHERE_RINGS):
+    verts = [(0.0, 0.0, -1.0)]
+    for k in range(1, rings):
+        th = np.pi * k / rings
+        verts.extend(_ring(n, -np.cos(th), np.sin(th)).tolist())
+    verts.append((0.0, 0.0, 1.0))
+    top = len(verts) - 1
+    faces = [[0, 1 + (a + 1) % n, 1 + a] for a in range(n)]
+    for k in range(rings - 2):
+        b = 1 + k * n
+        faces.extend([[b + a, b + (a + 1) % n, b + n + (a + 1) % n, b + n + a] for a in range(n)])
+    b = 1 + (rings - 2) * n
+    faces.extend([[b + a, b + (a + 1) % n, top] for a in range(n)])
+    return np.asarray(verts, np.float64), faces
+
+
+def _box_template():
+    v = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
+    faces = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    return v, faces
+
+
+def realize(flat):
+    """(vertices (V,3), face sizes, face corner vertices, face material, face primitive) of
+    a FlatPreview: each primitive's unit shape through its transform."""
+    cyl_v, cyl_f = _cylinder_template()
+    sph_v, sph_f = _sphere_template()
+    verts, sizes, corners, mats, prim = [], [], [], [], []
+    base = 0
+    templates = {"sphere": (sph_v, sph_f), "box": _box_template(), "tube": (cyl_v, cyl_f)}
+    groups = {name: [] for name in templates}
+    for i, k in enumerate(flat.kinds):
+        groups[k if k in ("sphere", "box") else "tube"].append(i)
+    for name, idx in groups.items():
+        if not idx:
+            continue
+        idx = np.asarray(idx)
+        tv, tf = templates[name]
+        local = np.broadcast_to(tv, (len(idx),) + tv.shape).copy()
+        if name == "tube":
+            # frustum (and cone: top radius 0) shrinks the top ring; cylinders keep t = 1
+            t = np.array([flat.params[i] if flat.kinds[i] == "frustum" else
+                          (0.0 if flat.kinds[i] == "cone" else 1.0) for i in idx])
+            local[:, SEGMENTS:, :2] *= t[:, None, None]
+        xf = flat.transforms[idx]
+        world = np.einsum("pij,pvj->pvi", xf[:, :, :3], local) + xf[:, None, :, 3]
+        verts.append(world.reshape(-1, 3))
+        fs = np.array([len(f) for f in tf])
+        fc = np.concatenate([np.asarray(f) for f in tf])
+        nv = tv.shape[0]
+        offs = base + nv * np.arange(len(idx))
+        corners.append((fc[None, :] + offs[:, None]).reshape(-1))
+        sizes.append(np.tile(fs, len(idx)))
+        mats.append(np.repeat(flat.materials[idx], len(tf)))
+        prim.append(np.repeat(idx, len(tf)))
+        base += nv * len(idx)
+    if not verts:
+        z = np.zeros(0, np.int64)
+        return np.zeros((0, 3)), z, z, z, z
+    return (np.concatenate(verts), np.concatenate(sizes), np.concatenate(corners),
+            np.concatenate(mats), np.concatenate(prim))
+
+
+def fill_mesh(me, flat):
+    """Replaces `me`'s geometry with the realized primitives of a FlatPreview."""
+    v, sizes, corners, mats, prim = realize(flat)
+    me.clear_geometry()
+    if len(sizes) == 0:
+        me.attributes.new(PRIMITIVE_ATTR, "INT", "FACE")
+        me.update()
+        return
+    me.vertices.add(len(v))
+    me.vertices.foreach_set("co", v.astype(np.float32).reshape(-1))
+    me.loops.add(len(corners))
+    me.loops.foreach_set("vertex_index", corners.astype(np.int32))
+    me.polygons.add(len(sizes))
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32)
+    me.polygons.foreach_set("loop_start", starts)
+    me.polygons.foreach_set("material_index", mats.astype(np.int32))
+    attr = me.attributes.new(PRIMITIVE_ATTR, "INT", "FACE")
+    attr.data.foreach_set("value", prim.astype(np.int32))
+    me.update(calc_edges=True)
+
+
+# ---------------------------------------------------------------- preview update
+
+def organ_resolver(ob):
+    """`~(name)` -> the object of that name in the organ collection (or anywhere), else the
+    child collection (or any collection) of that name."""
+    import bpy
+    props = ob.photon_lightmaps.lsystem
+    coll = props.organs
+
+    def resolve(name):
+        if coll is not None:
+            o = coll.all_objects.get(name)
+            if o is not None:
+                return o
+            if coll.name == name:
+                return coll
+            c = coll.children_recursive
+            c = next((x for x in c if x.name == name), None)
+            if c is not None:
+                return c
+        o = bpy.data.objects.get(name)
+        if o is not None and o != ob:
+            return o
+        return bpy.data.collections.get(name)
+    return resolve
+
+
+def _status(ob, text):
+    try:
+        ob.photon_lightmaps.lsystem.status = text
+    except AttributeError:
+        pass
+
+
+def _editable(ob):
+    return ob.library is None and (ob.override_library is None or not ob.override_library.is_system_override)
+
+
+def update_preview(ob, force=True):
+    """Regenerates the preview of L-system object `ob` from its grammar.
+    Returns the status text ("" when fine). A grammar the engine refuses sets the status
+    and leaves the preview as it was; nothing raises for the user's input."""
+    if not _editable(ob):
+        return ""
+    text = L.grammar_text(ob)
+    if text is None:
+        msg = f"object '{ob.name}': no grammar Text (set one in the panel)" if L.is_lsystem(ob) else \
+            "not an L-system object"
+        _status(ob, msg)
+        return msg
+    src = text.as_string()
+    h = L.text_hash(src)
+    meta = L.info(ob)
+    if not force and meta.get("checked") == h:
+        return ob.photon_lightmaps.lsystem.status
+    meta["checked"] = h
+    settings = L.settings_of(ob)
+    try:
+        user, grammar = L.parse(src, text.name, settings)
+        depth = L.preview_depth(grammar, settings)
+        try:
+            plan = symbol_plan(grammar)
+            expect = None
+            if grammar.is_context_free:
+                from ..engine.dcsg import DCSG
+                expect = DCSG(grammar, steps=depth).implicit_primitives
+            if expect is not None and plan_primitives(plan, depth) != expect:
+                raise PlanUnfit("the per-symbol plan disagrees with the engine's expansion")
+            flat, why = None, ""
+        except PlanUnfit as exc:
+            plan, why = None, str(exc)
+            flat = flat_preview(grammar, depth)
+        try:
+            stats = L.statistics(grammar, settings.steps)
+        except (LS.LSystemError, SceneError) as exc:
+            stats = {"error": messages.describe(exc)}
+    except (LS.LSystemError, SceneError) as exc:
+        msg = messages.describe(exc)
+        ob[L.INFO_PROP] = meta
+        _status(ob, msg)
+        return msg
+    mod = _ensure_modifier(ob, text)
+    # Duplicates share the node group and mesh: regenerating must not change the other's.
+    if mod.node_group.users > 1:
+        mod.node_group = mod.node_group.copy()
+    if ob.data.users > 1:
+        ob.data = ob.data.copy()
+    ng = mod.node_group
+    approx = []             # where the preview differs from what a render traces
+    if plan is not None:
+        build_symbol_tree(ng, plan, organ_resolver(ob))
+        ob.data.clear_geometry()
+        path, labels, note = "symbols", [s.label for s in plan.symbols], ""
+    else:
+        build_passthrough_tree(ng)
+        fill_mesh(ob.data, flat)
+        path, labels = "flattened", []
+        note = f"the engine's expansion, realized as a mesh: {why}"
+        if flat.depth < depth:
+            approx.append(f"depth lowered to {flat.depth} to stay under {MAX_PREVIEW_PRIMITIVES:,} primitives")
+            depth = flat.depth
+        if L.organ_names(src):
+            approx.append("organs (~) are not shown on this path")
+    ident = {i.name: i.identifier for i in ng.interface.items_tree
+             if i.item_type == "SOCKET" and i.in_out == "INPUT"}
+    mod[ident[ITERATIONS]] = int(depth)
+    steps = L.render_steps(grammar, settings)
+    if steps is not None and steps > depth:
+        approx.append(f"shows depth {depth} of {steps}; renders with this engine trace all {steps}")
+    meta.update({"version": L.FORMAT_VERSION, "hash": h, "path": path, "depth": int(depth),
+                 "symbols": labels, "note": note, "approximate": approx, "stats": stats,
+                 "ol_stubs": L.ol_stub_lines(user), "organs": L.organ_names(src)})
+    ob[L.INFO_PROP] = meta
+    ng[L.INFO_PROP] = {k: meta[k] for k in ("version", "hash", "path", "depth")}
+    ng[L.TEXT_PROP] = text
+    ob.data.update()
+    ob.update_tag()
+    _status(ob, "")
+    return ""
+
+
+def _ensure_modifier(ob, text):
+    import bpy
+    mod = L.lsystem_modifier(ob)
+    if mod is None:
+        mod = ob.modifiers.new(L.MODIFIER_NAME, "NODES")
+    if mod.node_group is None:
+        mod.node_group = bpy.data.node_groups.new(f"{ob.name} L-System", "GeometryNodeTree")
+    ng = mod.node_group
+    if L.INFO_PROP not in ng.keys():
+        ng[L.INFO_PROP] = {"version": L.FORMAT_VERSION}
+    ng[L.TEXT_PROP] = text
+    return mod
+
+
+def new_lsystem_object(name=None, *, preset=None, text=None, location=(0.0, 0.0, 0.0), collection=None):
+    """Creates and links an L-system object: a Text datablock with the grammar (`text`, or
+    the preset's), an empty mesh and the Geometry Nodes modifier, with its preview built."""
+    import bpy
+    if text is None:
+        preset = preset or L.presets()[0][0]
+        text = L.preset_text(preset)
+    label = next((lab for n, lab, _ in L.presets() if n == preset), None) if preset else None
+    name = name or (label.split(" (")[0] if label else "L-System")
+    tb = bpy.data.texts.new(f"{name}.lsys")
+    tb.from_string(text)
+    me = bpy.data.meshes.new(name)
+    ob = bpy.data.objects.new(name, me)
+    ob.location = location
+    ob[L.TEXT_PROP] = tb
+    ob[L.INFO_PROP] = {"version": L.FORMAT_VERSION}
+    (collection or bpy.context.scene.collection).objects.link(ob)
+    _ensure_modifier(ob, tb)
+    update_preview(ob)
+    return ob
+
+
+# object name -> hash of its text at the previous poll (the timer waits for typing to pause)
+_SEEN = {}
+
+
+def check_texts(settle=False):
+    """Regenerates every editable L-system object whose grammar text changed (the timer's
+    body). settle=True (the timer): only texts unchanged since the previous call, so a
+    preview is not rebuilt at every keystroke."""
+    import bpy
+    for ob in bpy.data.objects:
+        if L.INFO_PROP not in ob.keys() or not _editable(ob):
+            continue
+        text = L.grammar_text(ob)
+        if text is None:
+            continue
+        h = L.text_hash(text.as_string())
+        previous, _SEEN[ob.name] = _SEEN.get(ob.name), h
+        if L.info(ob).get("checked") != h and (not settle or previous == h):
+            update_preview(ob, force=False)

@@ -266,6 +266,60 @@ def _cone_hits(ox, oy, oz, dx, dy, dz):
 
 
 @njit(cache=True)
+def _frustum_hits(tr, ox, oy, oz, dx, dy, dz):
+    # Solid: rho < k := r(z) = (1 - s) - s z with slope s = (1 - tr) / 2 in
+    # [0, 1/2], and -1 < z < 1. As for the cone (these are its formulas scaled
+    # by 1/4 when tr = 0, bit for bit), rho - k is convex along the line, so
+    # the nappe k > 0 holds one interval; squaring gives g = rho^2 - k^2 =
+    # a t^2 + 2 h t + c, whose roots may lie on the mirrored nappe (k < 0,
+    # above the virtual apex z = 1 / s - 1 >= 1), hence the nappe checks.
+    # s = 0 is the cylinder: a >= 0 and no mirrored nappe.
+    s = 0.5 * (1.0 - tr)
+    k0 = (1.0 - s) - s * oz
+    sz = s * dz                    # k = k0 - sz t along the line
+    a = dx * dx + dy * dy - sz * sz
+    h = ox * dx + oy * dy + k0 * sz
+    c = ox * ox + oy * oy - k0 * k0
+    if a > 0.0:
+        disc = h * h - a * c
+        if not disc > 0.0:
+            return 0, _INF, _INF, _INF, _INF
+        r0, r1 = _sorted_roots(a, h, c, disc)
+        # g < 0 between the roots, a segment inside one nappe
+        if not k0 - sz * (0.5 * (r0 + r1)) > 0.0:
+            return 0, _INF, _INF, _INF, _INF
+        lo, hi = r0, r1
+    elif a < 0.0:
+        # steeper than the side (so s > 0, dz != 0): g < 0 outside the roots,
+        # one half-line per nappe; the real one (k -> +inf) is towards -z
+        disc = h * h - a * c
+        if not disc > 0.0:
+            return 0, _INF, _INF, _INF, _INF
+        r0, r1 = _sorted_roots(a, h, c, disc)
+        if dz > 0.0:
+            lo, hi = -_INF, r0
+        else:
+            lo, hi = r1, _INF
+    elif h != 0.0:
+        # parallel to a generator: g is linear, one crossing
+        r = -c / (2.0 * h)
+        if not k0 - sz * r > 0.0:
+            return 0, _INF, _INF, _INF, _INF
+        if h > 0.0:
+            lo, hi = -_INF, r
+        else:
+            lo, hi = r, _INF
+    elif s == 0.0 and c < 0.0:
+        # cylinder, line along the axis inside it (with s > 0, a = h = 0
+        # forces c >= 0: a line on the side, grazing)
+        lo, hi = -_INF, _INF
+    else:
+        return 0, _INF, _INF, _INF, _INF
+    z0, z1 = _slab(oz, dz, -1.0, 1.0)
+    return _pair(max(lo, z0), min(hi, z1))
+
+
+@njit(cache=True)
 def _paraboloid_hits(ox, oy, oz, dx, dy, dz):
     # Solid: g = rho^2 - z <= 0 (convex along any line) and z <= 1.
     a = dx * dx + dy * dy

@@ -2,7 +2,9 @@
 
 One photon pass with direct light recorded (like Cycles' Diffuse bake,
 Direct + Indirect, no Color) fills every OL's bins; each OL empty then owns
-an R×R float RGBA image:
+an R×R float RGBA image, and so does each L-system object for its automatic
+OL (engine/compile._lsystem_orientation; thesis 7.3) unless a collection OL
+covers it (that empty's image and hook then hold it):
 
 * RGB = E/pi per direction bin, E the irradiance of the bin, after the
   hierarchy rule of the renderer (engine/orientation_lightmap.lookup): a bin
@@ -12,11 +14,17 @@ an R×R float RGBA image:
 
 Pixel (x, y) is bin (x, y), rows bottom-up, at the octahedral coordinates of
 the world normal (engine/primitives._octa_encode). Images are named
-"<empty>_Lightmap" and follow the image policy of images.py exactly (ours are
-updated in place, a user's image of that name is kept unless `overwrite`), and
-are saved by the same images.store.
+"<owner>_Lightmap" (owner: the empty, or the L-system object) and follow the
+image policy of images.py exactly (ours are updated in place, a user's image
+of that name is kept unless `overwrite`), and are saved by the same
+images.store.
 
-Material hook: hooks.add_ol_hook.
+Material hook: hooks.add_ol_hook, owned (OL_HOOK_PROP) by the empty or the
+L-system object; remove_orientation_lightmap deletes either's image and nodes.
+An L-system's OL stubs (`ol stub:`, one OL each) are not baked apart: the
+object's image is its whole OL (every level holds its subtree), because the
+hook looks bins up by normal only and cannot tell which stub a pixel of the
+realized preview belongs to.
 
 REPORTS keeps the last render's or bake's per-OL numbers for the panel.
 """
@@ -32,6 +40,7 @@ from ..engine import orientation_lightmap as OL
 from ..engine import session
 from ..engine.scene import SceneError
 from ..export import export_scene, is_orientation_lightmap
+from ..export.lsystems import is_lsystem
 from . import hooks, images
 from .hooks import OL_HOOK_PROP  # noqa: F401  (re-exported: tests and the panel read it here)
 
@@ -74,14 +83,24 @@ def record_report(cs, scene_name, source, report=None):
 
 
 def last_report(scene_name, ob):
-    """The last render's or bake's summary for OL empty `ob` (None if never run)."""
+    """The last render's or bake's summary for OL empty `ob`, or for an L-system object's
+    automatic OL once baked (None if never run)."""
     s = REPORTS.get((scene_name, ob.name))
-    if s is None and ob.get(REPORT_PROP):
-        try:
-            s = json.loads(ob[REPORT_PROP])
-        except (TypeError, ValueError):
-            s = None
+    if s is None:
+        s = _stored_report(ob)
+        if s is not None:
+            # an L-system's OL is named after its object: a later render keeps it under that name
+            s = REPORTS.get((scene_name, s.get("name")), s)
     return s
+
+
+def _stored_report(ob):
+    """The summary the last bake stored on `ob` (None if none or unreadable)."""
+    try:
+        s = json.loads(ob[REPORT_PROP]) if ob.get(REPORT_PROP) else None
+    except (TypeError, ValueError):
+        s = None
+    return s if isinstance(s, dict) else None
 
 
 # --------------------------------------------------------------------------------------
@@ -147,10 +166,12 @@ def octa_decode(s, t):
 
 @dataclass
 class OLBakeResult:
-    maps: dict = field(default_factory=dict)       # empty name -> rgba (R, R, 4)
-    images: dict = field(default_factory=dict)     # empty name -> image name
-    paths: dict = field(default_factory=dict)      # empty name -> saved file (None: unsaved/packed)
-    covered: dict = field(default_factory=dict)    # empty name -> covered object names (innermost, hooked)
+    # keyed by owner: the OL empty's name, or an L-system object's (its automatic OL)
+    maps: dict = field(default_factory=dict)       # owner name -> rgba (R, R, 4)
+    images: dict = field(default_factory=dict)     # owner name -> image name
+    paths: dict = field(default_factory=dict)      # owner name -> saved file (None: unsaved/packed)
+    covered: dict = field(default_factory=dict)    # owner name -> covered object names (innermost, hooked)
+    lsystems: dict = field(default_factory=dict)   # L-system object name -> engine OL name it bakes
     rows: list = field(default_factory=list)       # summaries (see summarize)
     hooked: list = field(default_factory=list)     # materials given an OL hook
     warnings: list = field(default_factory=list)
@@ -163,9 +184,9 @@ def compute(depsgraph, settings, progress=None):
     warnings = []
     scene, emap = export_scene(depsgraph, report=lambda level, msg: None)
     warnings.extend(emap.warnings)
-    if not scene.orientation_lightmaps:
+    if not scene.orientation_lightmaps and not lsystem_instances(emap):
         raise SceneError(f"scene '{depsgraph.scene.name}': no usable orientation lightmap (add one with "
-                         "Object > Add Orientation Lightmap to Collection)")
+                         "Object > Add Orientation Lightmap to Collection) and no L-system object")
     # Only the OL bins are baked: per-object lightmaps would cost memory and time for
     # nothing, and recording never changes where photons go.
     for inst in scene.instances:
@@ -198,21 +219,13 @@ def bake_orientation_lightmaps(context_or_depsgraph, *, photons=None, seed=None,
         res.warnings.extend(row["warnings"])
     # Everything is computed: only now touch images and materials.
     images.check_output(save_dir, pack)
+    store = dict(overwrite=overwrite, save_dir=save_dir, pack=pack)
     names = [row["empty"] for row in emap.orientation_lightmaps]   # engine OL order
     for k, name in enumerate(names):
         empty = bpy.data.objects.get(name)
         if empty is None:
             continue
-        rgba = ol_rgba(cs, k)
-        r = rgba.shape[0]
-        img = images.target_image(empty, r, r, overwrite, res.warnings)
-        img[OL_IMAGE_PROP] = name
-        images.write_pixels(img, rgba)
-        path = images.store(img, name, save_dir=save_dir, pack=pack)
-        res.maps[name], res.images[name], res.paths[name] = rgba, img.name, path
-        summary = next((s for s in res.rows if s["name"] == name), None)
-        if summary is not None:
-            empty[REPORT_PROP] = json.dumps(summary)
+        img = _bake_ol(cs, k, empty, res, **store)
         row = emap.orientation_lightmaps[k]
         covered = sorted({emap.instances[i].object_name for i in row["instances"]
                           if not emap.instances[i].is_instance})
@@ -224,6 +237,22 @@ def bake_orientation_lightmaps(context_or_depsgraph, *, photons=None, seed=None,
             else:
                 objs = [bpy.data.objects[n] for n in covered if n in bpy.data.objects]
                 res.hooked += hooks.add_ol_hook(empty, img, objs, res.warnings)
+    # L-system objects no collection OL covers: their automatic OL (the OLs after the
+    # empties' are the compiler's), baked to an image the object owns.
+    for i in lsystem_instances(emap):
+        k = int(cs.orientation.inst_ol[i])
+        ob = bpy.data.objects.get(emap.instances[i].object_name)
+        if k < len(names) or ob is None:
+            continue
+        img = _bake_ol(cs, k, ob, res, **store)
+        res.covered[ob.name] = [ob.name]
+        res.lsystems[ob.name] = res.rows[k]["name"]
+        if int(cs.orientation.inst_stub0[i]) >= 0:
+            res.warnings.append(f"L-system object '{ob.name}': its OL stubs are baked into its one "
+                                "orientation lightmap image (EEVEE shows the whole object's light by "
+                                "normal; renders with this engine use each stub's own)")
+        if hook_materials:
+            res.hooked += hooks.add_ol_hook(ob, img, [ob], res.warnings)
     if res.maps and images.in_memory_only(save_dir, pack):
         res.warnings.append("the .blend is not saved yet: the orientation lightmap images live only "
                             "in memory (save the .blend and bake again, or pack them)")
@@ -231,23 +260,53 @@ def bake_orientation_lightmaps(context_or_depsgraph, *, photons=None, seed=None,
     return res
 
 
-def remove_orientation_lightmap(empty):
-    """Deletes OL empty `empty`, its baked images and its material hook nodes; nothing else.
+def _bake_ol(cs, k, owner, res, *, overwrite, save_dir, pack):
+    """OL k of a traced compiled scene -> the image `owner` (an OL empty or an L-system
+    object) owns, written, saved or packed, and recorded in `res`; the OL's report row
+    goes onto the owner. -> the image."""
+    name = owner.name
+    rgba = ol_rgba(cs, k)
+    r = rgba.shape[0]
+    img = images.target_image(owner, r, r, overwrite, res.warnings)
+    img[OL_IMAGE_PROP] = name
+    images.write_pixels(img, rgba)
+    path = images.store(img, name, save_dir=save_dir, pack=pack)
+    res.maps[name], res.images[name], res.paths[name] = rgba, img.name, path
+    owner[REPORT_PROP] = json.dumps(res.rows[k])
+    return img
+
+
+def lsystem_instances(emap):
+    """Engine instance ids of L-system objects (their own geometry, not duplis)."""
+    return [i for i, r in enumerate(emap.instances)
+            if not r.is_instance and emap.prototypes[r.prototype].uv_source == "lsystem"]
+
+
+def remove_orientation_lightmap(ob):
+    """Deletes OL empty `ob`, its baked images and its material hook nodes; nothing else.
 
     Objects, UV layers and materials are left as they were before the OL was
-    added, so their own lightmaps are used again. -> summary dict."""
+    added, so their own lightmaps are used again. For an L-system object, removes
+    what the bake added for its automatic OL (image, hook nodes, report) and keeps
+    the object. -> summary dict ("removed_object": whether `ob` was deleted)."""
     import bpy
-    if not is_orientation_lightmap(empty):
-        raise ValueError(f"object '{empty.name}' is not an orientation lightmap")
-    name = empty.name
+    empty = is_orientation_lightmap(ob)
+    if not empty and not is_lsystem(ob):
+        raise ValueError(f"object '{ob.name}' is not an orientation lightmap")
+    name = ob.name
     nodes = hooks.remove_ol_hook(name)
     owned = [im for im in bpy.data.images
              if im.library is None and im.get(OL_IMAGE_PROP) == name and im.get(images.OWNER_PROP) == name]
     image_names = [im.name for im in owned]
     for im in owned:
         bpy.data.images.remove(im)
+    ol_name = name
+    if not empty and ob.get(REPORT_PROP) is not None:
+        ol_name = (_stored_report(ob) or {}).get("name", name)
+        del ob[REPORT_PROP]
     for sc in bpy.data.scenes:
-        REPORTS.pop((sc.name, name), None)
-    bpy.data.objects.remove(empty)
-    return {"empty": name, "nodes": nodes, "images": image_names}
+        REPORTS.pop((sc.name, ol_name), None)
+    if empty:
+        bpy.data.objects.remove(ob)
+    return {"empty": name, "nodes": nodes, "images": image_names, "removed_object": bool(empty)}
 

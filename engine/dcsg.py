@@ -280,8 +280,9 @@ class DCSG:
             np.array(p_kind, np.int64), np.array(p_params, np.float64).reshape(-1, 4),
             np.array(p_inv, np.float64).reshape(-1, 3, 4), np.array(p_mat, np.int64),
             ids[id(self.root)], np.uint64(self.root_hash),
-            # DFS: each level leaves at most (children - 1) siblings on the stack
-            (widest) * (self.root.depth + 2) + 1)
+            # DFS pops one entry and pushes its children: along the deepest path each
+            # interior level leaves (widest - 1) siblings, the last one `widest`
+            1 + (widest - 1) * self.root.depth + 1)
         return self._arrays
 
     def flatten(self, limit=2_000_000):

@@ -14,6 +14,7 @@ from .. import messages
 from ..bake import orientation as ol_bake
 from ..engine import session
 from ..export import is_orientation_lightmap
+from ..export.lsystems import is_lsystem
 from .common import ImageOutputOptions, ObjectModeOperator
 
 
@@ -127,9 +128,14 @@ def suggest(context, *, photons=None, pilot_photons=30_000, min_photons_per_texe
     return props, kept
 
 
+def _removable(ob):
+    """An OL empty, or an L-system object (whose automatic OL the bake may have baked)."""
+    return ob is not None and (is_orientation_lightmap(ob) or is_lsystem(ob))
+
+
 def _active_ol(context):
     ob = context.object
-    return ob if ob is not None and is_orientation_lightmap(ob) else None
+    return ob if _removable(ob) else None
 
 
 # --------------------------------------------------------------------------------------
@@ -175,13 +181,15 @@ class PHOTON_LIGHTMAPS_OT_add_orientation_lightmap(ObjectModeOperator, bpy.types
 
 class PHOTON_LIGHTMAPS_OT_remove_orientation_lightmap(bpy.types.Operator):
     """Remove an orientation lightmap: deletes only its Empty, its baked image and the material
-    nodes its bake added; the objects use their own lightmaps again"""
+    nodes its bake added; the objects use their own lightmaps again. On an L-system object:
+    deletes the baked image and material nodes of its own orientation lightmap, keeps the object"""
     bl_idname = "photon_lightmaps.remove_orientation_lightmap"
     bl_label = "Remove Orientation Lightmap"
     bl_options = {"REGISTER", "UNDO"}
 
     name: StringProperty(name="Name", default="",
-                         description="Orientation lightmap Empty to remove; empty uses the active object")
+                         description="Orientation lightmap Empty (or L-system object whose baked "
+                                     "orientation lightmap) to remove; empty uses the active object")
 
     @classmethod
     def poll(cls, context):
@@ -189,12 +197,13 @@ class PHOTON_LIGHTMAPS_OT_remove_orientation_lightmap(bpy.types.Operator):
 
     def execute(self, context):
         ob = bpy.data.objects.get(self.name) if self.name else _active_ol(context)
-        if ob is None or not is_orientation_lightmap(ob):
+        if not _removable(ob):
             what = f"'{self.name}'" if self.name else "the active object"
             self.report({"ERROR"}, f"{what} is not an orientation lightmap")
             return {"CANCELLED"}
         info = ol_bake.remove_orientation_lightmap(ob)
-        self.report({"INFO"}, f"Removed orientation lightmap '{info['empty']}' ({len(info['images'])} "
+        what = "orientation lightmap" if info["removed_object"] else "the baked orientation lightmap of"
+        self.report({"INFO"}, f"Removed {what} '{info['empty']}' ({len(info['images'])} "
                               f"image(s), {info['nodes']} material node(s))")
         return {"FINISHED"}
 

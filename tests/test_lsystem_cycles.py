@@ -5,21 +5,26 @@ materials by generation) resting on a grey ground plane, a sun, a black world; 6
 pixels. This engine traces the grammar (analytic spheres through its scene graph, indirect
 light from the object's automatic orientation lightmap); Cycles renders the preview the
 Geometry Nodes group realizes, exact at this depth (the "symbols" Repeat-Zone path: one UV
-sphere where the engine puts a sphere). The preview's UV spheres are raised to 96 x 48 here
-(the viewport's 12 x 6 lose about 4 % of the silhouette area and shade in facets): a
-96 x 48 sphere's projected area is within 0.2 % of the analytic one.
+sphere where the engine puts a sphere). The preview's UV spheres are raised to 96 x 48 here:
+the viewport's 12 x 6 lose about 4.5 % of the silhouette (a 12-gon has 0.955 of its
+circle's area) and shade in facets; a 96-gon has 0.9993.
 
-Bounds (measured values in the printout; run with -s):
-* over the pixels the flake covers: mean within 4 % of Cycles (per channel);
-* the whole image: mean within 3 %;
-* 4 x 4-pixel blocks: median relative error within 6 %, and every block within 10 % of
-  the brightest block.
-Cycles: CPU, 512 samples, no denoising, no adaptive sampling (blender_session.render_exr),
-about 1.5 % noise per block. What remains is the orientation lightmap's averaging: the
-flake's indirect light is looked up by normal for the whole object (thesis ch. 6-7), so
-the crevices between spheres read the object's mean for their direction. An albedo changed
-in one render only (0.8 -> 0.65 on the largest sphere) moves the flake's mean by ~10 % and
-fails the first bound.
+Bounds (measured values in the printout; run with -s), Cycles with a 1-pixel box filter
+(this engine averages each pixel over its square), CPU, 512 samples, no denoising, no
+adaptive sampling (blender_session.render_exr):
+* over the pixels the flake covers: mean within 4 % of Cycles, per channel (measured
+  -1.4 %; photon seeds 0-2 with Cycles' default filter: -1.1 to -2.1 %);
+* the whole image: mean within 3 % (measured -0.3 %; seeds 0-2: -0.3 to -1.2 %);
+* 4 x 4-pixel blocks holding light (above 5 % of the brightest): median relative error
+  within 4 % (measured 1.3 %; the noise floor is about 1.5 %), and every block within
+  12 % of the brightest block (measured 7.2 %; 7.8-8.8 % with the default filter).
+The largest block errors are where direct light does not reach, in the crevices between a
+lit sphere and its neighbours: Cycles has 0.1-0.2 there from the neighbours' light bounced
+at close range, this engine reads the flake's one orientation lightmap (thesis ch. 6-7),
+which averages indirect light by normal over the whole object, and shows about 0.04.
+An albedo changed in the Cycles render only (render_pair's albedo_cycles: 0.8 -> 0.65 on
+the largest sphere, slot 0) fails three bounds (measured: flake +9.6 to +12.5 %, image
++4.4 %, a block 20 % of the brightest off).
 """
 import math
 
@@ -70,40 +75,66 @@ def coverage(scene, flake, path):
     return img[..., 3]
 
 
-@pytest.mark.xfail(strict=True, reason="measured 2026-12-02: on the sphereflake's own pixels "
-                   "ours/Cycles = 0.78, 0.76, 0.56 (R, G, B) while the whole image is within 17 %; the "
-                   "cause not found yet (suspects: the one orientation lightmap averaging the flake's "
-                   "self-shadowing by normal, or the preview's tessellation); open, see issue 12's note")
+def render_pair(scene, tmp_path, albedo_cycles=None):
+    """(ours, Cycles) RGB of the scene; albedo_cycles: base colour of material slot 0 in the
+    Cycles render only (to check that the comparison can fail)."""
+    ours = render_exr(scene, ENGINE, tmp_path / "ours.exr")[..., :3]
+    if albedo_cycles is not None:
+        flake = bpy.data.objects["flake"]
+        bsdf = flake.material_slots[0].material.node_tree.nodes["Principled BSDF"]
+        bsdf.inputs["Base Color"].default_value = (*albedo_cycles, 1.0)
+    ref = render_exr(scene, "CYCLES", tmp_path / "cycles.exr", cycles_samples=CYCLES_SAMPLES)[..., :3]
+    return ours, ref
+
+
 def test_sphereflake_matches_cycles_on_its_realized_preview(tmp_path, monkeypatch):
     monkeypatch.setattr(PV, "SEGMENTS", SEGMENTS)
     monkeypatch.setattr(PV, "SPHERE_RINGS", RINGS)
     scene = bpy.context.scene
-    flake = flake_scene(scene)
+    # Object-linked slots: see test_preview_instances_show_the_objects_materials.
+    flake = flake_scene(scene, link="OBJECT")
     demo_blend.add_camera(scene, (0.0, -8.0, 2.5), (math.radians(79.4), 0.0, 0.0))
     r = scene.render
     r.resolution_x, r.resolution_y, r.resolution_percentage = W, H, 100
     scene.view_settings.view_transform = "Standard"
+    # this engine averages each pixel over its square: Cycles' box filter of 1 pixel is the same
+    scene.cycles.pixel_filter_type, scene.cycles.filter_width = "BOX", 1.0
     s = scene.photon_lightmaps
     s.photons, s.samples = 400_000, 16
 
-    ours = render_exr(scene, ENGINE, tmp_path / "ours.exr")[..., :3]
+    ours, ref = render_pair(scene, tmp_path)
     run = render_engine.LAST_RUN
     assert [row["name"] for row in run.orientation_lightmaps] == [f"{flake.name} (L-system)"]
-    ref = render_exr(scene, "CYCLES", tmp_path / "cycles.exr", cycles_samples=CYCLES_SAMPLES)[..., :3]
     mask = coverage(scene, flake, tmp_path / "mask.exr") > 0.999
     assert 300 < mask.sum() < 0.6 * W * H, mask.sum()
 
     obj = ours[mask].mean(axis=0) / ref[mask].mean(axis=0)
     whole = ours.mean() / ref.mean()
     bo, br = block_means(ours).mean(axis=2), block_means(ref).mean(axis=2)
-    rel = np.abs(bo - br) / np.maximum(br, 1e-3 * br.max())
-    median_block = float(np.median(rel))
+    lit = br > 0.05 * br.max()                  # blocks with something to compare
+    rel = np.abs(bo - br)[lit] / br[lit]
+    median_block, p90_block = float(np.median(rel)), float(np.percentile(rel, 90))
     max_block = float(np.abs(bo - br).max() / br.max())
     print(f"\nsphereflake vs Cycles: flake pixels ({mask.sum()}) ours/Cycles {np.round(obj, 4)}, "
-          f"image {whole:.4f}; 4x4 blocks: median rel. error {median_block:.4f}, max deviation "
-          f"{max_block:.4f} of the brightest; ours {run.seconds['total']:.1f} s "
-          f"({run.photons:,} photons)")
+          f"image {whole:.4f}; {lit.sum()} 4x4 blocks: median rel. error {median_block:.4f}, "
+          f"90th percentile {p90_block:.4f}, max deviation {max_block:.4f} of the brightest; "
+          f"ours {run.seconds['total']:.1f} s ({run.photons:,} photons)")
     assert np.all(np.abs(obj - 1.0) < 0.04), obj
     assert abs(whole - 1.0) < 0.03, whole
-    assert median_block < 0.06, median_block
-    assert max_block < 0.10, max_block
+    assert median_block < 0.04, median_block
+    assert max_block < 0.12, max_block
+
+
+@pytest.mark.parametrize("link", ["OBJECT", pytest.param("DATA", marks=pytest.mark.xfail(
+    strict=True, reason="bake/lsystem_preview.py: the meshes the symbols-path preview generates "
+    "carry no material list, so their instances leave mesh-linked slots empty and Cycles and "
+    "EEVEE render the default surface (and EEVEE shows no OL hook); object-linked slots work"))])
+def test_preview_instances_show_the_objects_materials(link):
+    flake = flake_scene(bpy.context.scene, link=link)
+    dg = bpy.context.evaluated_depsgraph_get()
+    want = [s.material.name for s in flake.material_slots]
+    seen = [[s.material.name if s.material else None for s in inst.object.material_slots]
+            for inst in dg.object_instances
+            if inst.is_instance and inst.parent is not None and inst.parent.original == flake]
+    assert len(seen) >= 91
+    assert all(m == want for m in seen), seen[0]

@@ -696,6 +696,7 @@ def _lsystem_graphs(scene, n_materials, notes):
                 extra += [replace(p, material=mats[min(int(p.material), len(mats) - 1)]) for p in prims]
                 notes.append(f"{what}: {exc}; {len(prims):,} primitives instanced")
                 continue
+            _check_graph(graph, what)
             mine.append((len(graphs), graph, ls))
             graphs.append(graph)
         if extra:
@@ -704,6 +705,22 @@ def _lsystem_graphs(scene, n_materials, notes):
     if any(p is not q for p, q in zip(prototypes, scene.prototypes)):
         scene = replace(scene, prototypes=prototypes)
     return per_proto, graphs, scene
+
+
+def _check_graph(graph, what):
+    """A graph the kernels can trace: finite tables, and a box inside MAX_COORDINATE
+    (1.24a at 60 steps is 1e41 m tall: float32 boxes and ray offsets lose all meaning)."""
+    lo, hi = graph.bounds()
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        _fail(what, "has no finite extent (nothing drawn, or lengths overflow); check its parameters")
+    if max(np.abs(lo).max(), np.abs(hi).max()) > MAX_COORDINATE:
+        _fail(what, f"reaches {max(np.abs(lo).max(), np.abs(hi).max()):.3g} m from its origin (at most "
+                    f"{MAX_COORDINATE:g}); use fewer steps or shorter segments")
+    a = graph.arrays()
+    # (node boxes may be empty, +-inf, for nodes that draw nothing: the rays skip them)
+    for name in ("child_inv", "child_rot", "prim_inv", "prim_params", "alt_cum"):
+        if not np.all(np.isfinite(getattr(a, name))):
+            _fail(what, f"its scene graph has non-finite {name.replace('_', ' ')}; check its parameters")
 
 
 def _add_dcsg_virtual_shapes(per_proto, graphs, parts):

@@ -58,3 +58,14 @@ def render_exr(scene, engine, path, cycles_samples=128):
     im.file_format, im.color_depth, im.color_mode = "OPEN_EXR", "32", "RGBA"
     bpy.ops.render.render(write_still=True)
     return read_image(path)
+
+
+def empty_blender_file(tmp_path_factory, monkeypatch):
+    """Generator body of an autouse fixture: a factory-empty file, a per-session UV cache
+    and no orientation-bake reports left from an earlier test; yields the scene."""
+    import bpy
+    from photon_lightmaps.bake import orientation as ol_bake
+    monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(tmp_path_factory.getbasetemp() / "uvcache"))
+    ol_bake.REPORTS.clear()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    yield bpy.context.scene

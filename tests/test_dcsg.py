@@ -12,21 +12,7 @@ from photon_lightmaps.engine import dcsg as D
 from photon_lightmaps.engine import lsystem as LS
 from photon_lightmaps.engine import turtle as T
 from photon_lightmaps.engine.primitives import KIND_IDS, hits_batch
-
-ABOP_124A = """axiom: F
-derivation length: {n}
-angle: 25.7
-production:
-F --> F[+F]F[-F]F
-"""
-
-# parametric, tapering (frustums), spheres and material slots
-TAPERED = """axiom: !(0.4) A(1)
-derivation length: 5
-angle: 30
-production:
-A(s) : s > 0.2 --> F(s) !(s * 0.1) [ + A(s * 0.7) ] [ - ;(1) A(s * 0.6) @O(0.05) ] / A(s * 0.8)
-"""
+from lsystem_grammars import ABOP_124A, TAPERED, quadrature_area
 
 # stochastic, with alternatives that leave the turtle in the same place
 STOCHASTIC = """axiom: F
@@ -187,21 +173,6 @@ def test_grammars_that_cannot_be_a_graph_are_refused():
                         "A --> F : 0.5\nA --> F F : 0.5\n"))
 
 
-def _quadrature_area(flat, n=24):
-    """Exact-to-quadrature total area of the flattened primitives (midpoint rule per chart)."""
-    from photon_lightmaps.engine.primitives import prim_nfaces, prim_point
-    total = 0.0
-    for kind, params, xf in zip(flat.kind, flat.params, flat.transform):
-        L = xf[:, :3]
-        cof = np.linalg.det(L) * np.linalg.inv(L).T
-        for f in range(prim_nfaces(int(kind))):
-            for i in range(n):
-                for j in range(n):
-                    q = prim_point(int(kind), params, f, (i + 0.5) / n, (j + 0.5) / n)
-                    total += np.linalg.norm(cof @ np.cross(q[3:6], q[6:9])) / (n * n)
-    return total
-
-
 def test_area_estimate_is_unbiased_under_an_instance_transform():
     g = LS.parse(TAPERED.replace("derivation length: 5", "derivation length: 3"))
     graph = D.DCSG(g)
@@ -213,6 +184,6 @@ def test_area_estimate_is_unbiased_under_an_instance_transform():
     inv = np.linalg.inv(xf)[:3]
     area, var = D.estimate_graph_areas(views, graph, D.node_areas(graph), graph.arrays().root,
                                        graph.root_hash, np.eye(3), inv, 8, 40000, seed=3)
-    exact = 4.0 * _quadrature_area(graph.flatten())           # scale 2: area x 4
+    exact = 4.0 * quadrature_area(graph.flatten())           # scale 2: area x 4
     assert abs(area.sum() - exact) < 4 * np.sqrt(var.sum())
     assert np.sqrt(var.sum()) < 0.02 * exact

@@ -23,17 +23,14 @@ from photon_lightmaps.bake import lsystem_preview as PV  # noqa: E402
 from photon_lightmaps.bake import orientation as ol_bake  # noqa: E402
 from photon_lightmaps.export import lsystems as L  # noqa: E402
 
-from blender_session import addon  # noqa: E402,F401  (session-wide registration)
+from blender_session import empty_blender_file, addon  # noqa: E402,F401  (session-wide registration)
 
 SUN_ROTATION = (math.radians(50.0), 0.0, math.radians(30.0))
 
 
 @pytest.fixture(autouse=True)
 def empty_file(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(tmp_path_factory.getbasetemp() / "uvcache"))
-    ol_bake.REPORTS.clear()
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    yield bpy.context.scene
+    yield from empty_blender_file(tmp_path_factory, monkeypatch)
 
 
 def flake_scene(scene, link="DATA"):

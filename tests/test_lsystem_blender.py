@@ -20,6 +20,7 @@ from photon_lightmaps.export import lsystems as L  # noqa: E402
 from photon_lightmaps.ui import panels  # noqa: E402
 
 from blender_session import addon  # noqa: E402,F401  (session-wide registration)
+from lsystem_grammars import TAPERED  # noqa: E402
 
 ABOP_124A = L.FALLBACK_PRESET_TEXT
 # two rewritable symbols, F -> FF (exits that grow with the depth)
@@ -39,12 +40,7 @@ A --> !(0.05) F [ + & B ] /(45) A
 B --> ;(1) F(0.5) @O(0.2) !(0.02) F
 """
 # parametric: every level has new parameter values (the flattened path)
-PARAMETRIC = """axiom: !(0.4) A(1)
-derivation length: 5
-angle: 30
-production:
-A(s) : s > 0.2 --> F(s) !(s * 0.1) [ + A(s * 0.7) ] [ - ;(1) A(s * 0.6) @O(0.05) ] / A(s * 0.8)
-"""
+PARAMETRIC = TAPERED
 STOCHASTIC = """axiom: F
 derivation length: 4
 angle: 22.5

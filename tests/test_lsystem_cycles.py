@@ -38,7 +38,7 @@ from photon_lightmaps.bake import lsystem_preview as PV  # noqa: E402
 from photon_lightmaps.bake import render as render_engine  # noqa: E402
 from photon_lightmaps.bake import orientation as ol_bake  # noqa: E402
 
-from blender_session import addon, render_exr  # noqa: E402,F401  (addon: session-wide registration)
+from blender_session import empty_blender_file, addon, render_exr  # noqa: E402,F401  (addon: session-wide registration)
 from test_lsystem_bake import flake_scene  # noqa: E402
 
 ENGINE = "PHOTON_LIGHTMAPS"
@@ -49,10 +49,7 @@ SEGMENTS, RINGS = 96, 48
 
 @pytest.fixture(autouse=True)
 def empty_file(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(tmp_path_factory.getbasetemp() / "uvcache"))
-    ol_bake.REPORTS.clear()
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    yield bpy.context.scene
+    yield from empty_blender_file(tmp_path_factory, monkeypatch)
 
 
 def block_means(img, n=4):

@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from lsystem_grammars import quadrature_area
 from photon_lightmaps.engine import lightmap as LM
 from photon_lightmaps.engine import dcsg as D
 from photon_lightmaps.engine import lsystem as LS
@@ -69,21 +70,7 @@ def test_an_lsystem_gets_one_orientation_lightmap_of_its_own():
     assert cs.instance_lightmaps[1] == []            # no per-primitive lightmaps (7.2)
     # its area estimate is the flattened primitives' area (scale 1.3: x 1.69)
     flat = D.DCSG(LS.parse(TREE)).flatten()
-    assert rows[0]["area"] == pytest.approx(1.69 * _area(flat), rel=4 * rows[0]["area_rel_error"])
-
-
-def _area(flat):
-    from photon_lightmaps.engine.primitives import prim_nfaces, prim_point
-    total, n = 0.0, 16
-    for kind, params, xf in zip(flat.kind, flat.params, flat.transform):
-        L = xf[:, :3]
-        cof = np.linalg.det(L) * np.linalg.inv(L).T
-        for f in range(prim_nfaces(int(kind))):
-            for i in range(n):
-                for j in range(n):
-                    q = prim_point(int(kind), params, f, (i + 0.5) / n, (j + 0.5) / n)
-                    total += np.linalg.norm(cof @ np.cross(q[3:6], q[6:9])) / (n * n)
-    return total
+    assert rows[0]["area"] == pytest.approx(1.69 * quadrature_area(flat, 16), rel=4 * rows[0]["area_rel_error"])
 
 
 def test_photons_on_the_graph_are_the_photons_on_its_flattening():
@@ -141,3 +128,13 @@ def test_render_of_a_graph_matches_its_flattening():
     rel = np.abs(a[diff] - b[diff]).sum() / b[diff].sum()
     assert rel < 0.05
     assert a.sum() == pytest.approx(b.sum(), rel=0.01)
+
+
+@pytest.mark.parametrize("text,match", [
+    ("axiom: F\nderivation length: 60\nangle: 25.7\nproduction:\nF --> F[+F]F[-F]F\n", "reaches"),
+    ("axiom: + -\n", "no finite extent"),
+])
+def test_an_lsystem_out_of_range_is_refused_by_name(text, match):
+    from photon_lightmaps.engine.scene import SceneError
+    with pytest.raises(SceneError, match=f"L-system 'tree'.*{match}"):
+        compile_scene(_scene(text))

@@ -62,6 +62,10 @@ from .turtle import TurtleState, to_primitives
 M0 = np.diag([-1.0, -1.0, 1.0, 1.0])
 # Exits of alternatives must agree to this (relative to the node's extent).
 EXIT_TOLERANCE = 1e-9
+# Edges whose subtree has at most this many primitive paths get exact boxes; the
+# whole pass evaluates at most EXACT_ROWS support directions (engine setup time).
+EXACT_PATHS = 1 << 16
+EXACT_ROWS = 1 << 23
 _CORNERS = np.array([[x, y, z, 1.0] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
 
 
@@ -70,7 +74,8 @@ class DCSGUnsupported(SceneError):
 
 
 class _Node:
-    __slots__ = ("key", "alts", "prim", "exit", "state", "lo", "hi", "n_prims", "depth", "stub")
+    __slots__ = ("key", "alts", "prim", "exit", "state", "lo", "hi", "n_prims", "depth", "stub",
+                 "paths", "edge_boxes")
 
     def __init__(self, key):
         self.key = key
@@ -87,12 +92,14 @@ DCSGArrays = namedtuple("DCSGArrays", [
     "alt_cum",                       # float64[A]: running normalised probability
     "alt_child0", "alt_nchild",      # int64[A]
     "child_node", "child_j",         # int64[C]: child node, index in the successor (hash)
-    "child_inv",                     # float64[C, 3, 4]: parent frame -> child frame
+    "child_inv",                     # float64[C, 3, 4]: parent frame -> child frame (-> the
+                                     # primitive's frame where the child is a terminal)
     "child_rot",                     # float64[C, 3, 3]: child -> parent rotation (normals)
+    "child_box",                     # float64[C, 6]: the child's subtree box in the parent frame
     "prim_kind", "prim_params",      # int64[P], float64[P, 4]
     "prim_inv",                      # float64[P, 3, 4]: node frame -> primitive
     "prim_material",                 # int64[P]
-    "root", "root_hash", "stack_size",
+    "root", "root_hash", "stack_size", "depth",
 ])
 
 
@@ -119,6 +126,7 @@ class DCSG:
         # axiom module i gets lsystem.root_hash(seed, i) as in derive()
         self.root = self._rule(None, self.steps + 1, (self.width, None, 0), [list(grammar.axiom)])
         self.root_hash = LS.splitmix64(grammar.seed & LS.MASK)
+        self._tighten_boxes()
 
     # ------------------------------------------------------------ building
 
@@ -215,6 +223,73 @@ class DCSG:
         n.n_prims = n_prims
         return n
 
+    # ------------------------------------------------------------ tight boxes
+
+    def _topological(self):
+        """All nodes, parents before children (a memoised child may predate its parent)."""
+        order, seen, stack = [], set(), [(n, False) for n in reversed(self.nodes)]
+        while stack:
+            n, done = stack.pop()
+            if done:
+                order.append(n)
+            elif id(n) not in seen:
+                seen.add(id(n))
+                stack.append((n, True))
+                stack.extend((c, False) for _, ch in n.alts for c, _, _ in ch)
+        return order[::-1]
+
+    def _tighten_boxes(self):
+        """Each edge's box in its parent's frame, and each node's box (the union of its
+        edges', over all alternatives). Carrying a child's box through the rotation
+        into the parent's frame inflates it at every level (x5.6 in volume over ten
+        forks of a tree), so an edge whose subtree has at most EXACT_PATHS primitive
+        paths gets the exact box of its primitives' boxes instead: the subtree's
+        support function along the parent's six axes, h(e) = max over children of
+        e.t + h_child(R^T e). One pass, parents first, carries every such edge's
+        directions down the graph at once. Larger subtrees fall back to the child's
+        box through the transform (exact boxes below them keep that tight too)."""
+        order = self._topological()
+        for n in reversed(order):
+            n.paths = 1 if n.prim is not None else sum(c.paths for _, ch in n.alts for c, _, _ in ch)
+            n.edge_boxes = [np.full((len(ch), 6), np.nan) for _, ch in n.alts]
+        axes = np.vstack([np.eye(3), -np.eye(3)])
+        edges, pending, rows = [], {}, 0
+        for n in order:
+            for a, (_, ch) in enumerate(n.alts):
+                for i, (c, to_parent, _) in enumerate(ch):
+                    if c.paths <= EXACT_PATHS and rows + 6 * c.paths <= EXACT_ROWS:
+                        pending.setdefault(id(c), []).append(
+                            (axes @ to_parent[:3, :3], axes @ to_parent[:3, 3],
+                             np.full(6, len(edges)), np.arange(6)))
+                        edges.append((n, a, i))
+                        rows += 6 * c.paths
+        h = np.full((len(edges), 6), -np.inf)
+        for n in order:
+            batch = pending.pop(id(n), None)
+            if not batch:
+                continue
+            D, off, tag, slot = (np.concatenate(x) for x in zip(*batch))
+            if n.prim is not None:
+                corners = _CORNERS @ n.prim[2].T            # the primitive's box, node frame
+                np.maximum.at(h, (tag, slot), off + (D @ corners.T).max(axis=1))
+                continue
+            for _, ch in n.alts:
+                for c, to_parent, _ in ch:
+                    pending.setdefault(id(c), []).append(
+                        (D @ to_parent[:3, :3], off + D @ to_parent[:3, 3], tag, slot))
+        for (n, a, i), v in zip(edges, h):
+            n.edge_boxes[a][i] = np.concatenate([-v[3:], v[:3]])     # lo, hi
+        for n in reversed(order):                         # children first: fallbacks, unions
+            if n.prim is not None:
+                continue
+            lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+            for (_, ch), boxes in zip(n.alts, n.edge_boxes):
+                for (c, to_parent, _), b in zip(ch, boxes):
+                    if np.isnan(b[0]):
+                        b[:3], b[3:] = _box_through(c.lo, c.hi, to_parent)
+                    lo, hi = np.minimum(lo, b[:3]), np.maximum(hi, b[3:])
+            n.lo, n.hi = lo, hi
+
     # ------------------------------------------------------------ reading
 
     @property
@@ -246,22 +321,28 @@ class DCSG:
         node_alt0, node_nalt = np.zeros(N, np.int64), np.zeros(N, np.int64)
         node_prim, node_stub = np.full(N, -1, np.int64), np.zeros(N, np.int64)
         alt_cum, alt_c0, alt_nc = [], [], []
-        ch_node, ch_j, ch_inv, ch_rot = [], [], [], []
+        ch_node, ch_j, ch_inv, ch_rot, ch_box = [], [], [], [], []
         p_kind, p_params, p_inv, p_mat = [], [], [], []
         widest = 1
         for i, n in enumerate(self.nodes):
             node_lo[i], node_hi[i] = n.lo, n.hi
             node_stub[i] = n.stub
             node_alt0[i], node_nalt[i] = len(alt_cum), len(n.alts)
-            for cum, children in n.alts:
+            for (cum, children), boxes in zip(n.alts, n.edge_boxes):
                 alt_cum.append(cum)
+                ch_box.extend(boxes)
                 alt_c0.append(len(ch_node))
                 alt_nc.append(len(children))
                 widest = max(widest, len(children))
                 for c, to_parent, j in children:
                     ch_node.append(ids[id(c)])
                     ch_j.append(j)
-                    ch_inv.append(np.linalg.inv(to_parent)[:3])
+                    inv = np.linalg.inv(to_parent)
+                    if c.prim is not None:       # a terminal's edge goes straight to its primitive
+                        full = np.eye(4)
+                        full[:3] = c.prim[2]
+                        inv = np.linalg.inv(full) @ inv
+                    ch_inv.append(inv[:3])
                     ch_rot.append(to_parent[:3, :3])
             if n.prim is not None:
                 kind, params, xf, mat = n.prim
@@ -277,12 +358,13 @@ class DCSG:
             np.array(alt_cum, np.float64), np.array(alt_c0, np.int64), np.array(alt_nc, np.int64),
             np.array(ch_node, np.int64), np.array(ch_j, np.int64),
             np.array(ch_inv, np.float64).reshape(-1, 3, 4), np.array(ch_rot, np.float64).reshape(-1, 3, 3),
+            np.array(ch_box, np.float64).reshape(-1, 6),
             np.array(p_kind, np.int64), np.array(p_params, np.float64).reshape(-1, 4),
             np.array(p_inv, np.float64).reshape(-1, 3, 4), np.array(p_mat, np.int64),
             ids[id(self.root)], np.uint64(self.root_hash),
             # DFS pops one entry and pushes its children: along the deepest path each
             # interior level leaves (widest - 1) siblings, the last one `widest`
-            1 + (widest - 1) * self.root.depth + 1)
+            1 + (widest - 1) * self.root.depth + 1, int(self.root.depth))
         return self._arrays
 
     def flatten(self, limit=2_000_000):
@@ -344,13 +426,17 @@ BLOB_HEADER = 32
 (B_NGRAPH, B_VS0, B_NPRIM, B_STACK,
  B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC, B_CH_NODE, B_CH_J,
  B_PRIM_KIND, B_GRAPH_ROOT, B_GRAPH_HASH, B_GRAPH_STUB, B_STUB_ADDR,
- B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_PRIM_PARAMS, B_PRIM_INV) = range(23)
+ B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV) = range(24)
 
-# Ray scratch, in the caller's int32 stack from word s0 (engine/geometry.py
-# STACK_WORDS): per entry 16 float64 (ray, object rotation, entry t), 2 uint64
-# (hash, stub) and 1 int32 (node); then the closest hit's normal and stub.
+# Ray scratch, in the caller's int32 stack from (even) word s0 (engine/geometry.py
+# STACK_WORDS): per entry 7 float64 (the ray in the entry's frame, entry t), 2
+# uint64 (hash, stub) and 3 int32 (node, edge it came by, depth); then the edge
+# path to the current node and to the closest hit (MAX_DEPTH int32 each, for the
+# hit normal), then the result: normal, stub and address.
 STACK_ENTRIES = 192
-SCRATCH_WORDS = STACK_ENTRIES * (32 + 4 + 1) + 16
+MAX_DEPTH = 192
+_E_F, _E_U, _E_I = 7, 2, 3
+SCRATCH_WORDS = STACK_ENTRIES * (2 * _E_F + 2 * _E_U + _E_I) + 2 * MAX_DEPTH + 16
 H_DCSG = 20       # trace header word: the blob's offset in the float64 section
 NO_VSHAPE = 2 ** 31 - 1
 # shape_ref of an L-system: DCSG_REF - graph (below every CSG ref, CSG_REF - root)
@@ -408,7 +494,7 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
     index counts over all graphs' records in this order."""
     i32_keys = (B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC,
                 B_CH_NODE, B_CH_J, B_PRIM_KIND)
-    f64_keys = (B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_PRIM_PARAMS, B_PRIM_INV)
+    f64_keys = (B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV)
     i32 = {k: [] for k in i32_keys}
     f64 = {k: [] for k in f64_keys}
     roots, hashes, stub_rows, stub_addr, prim_graph = [], [], [], [], []
@@ -417,10 +503,11 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
     stubs = []
     for gi, g in enumerate(graphs):
         a = g.arrays()
-        if a.stack_size > STACK_ENTRIES:
+        if a.stack_size > STACK_ENTRIES or a.depth >= MAX_DEPTH:
             what = names[gi] if names else g.grammar.source_name
             raise SceneError(f"L-system '{what}': branching x depth needs {a.stack_size} ray-stack "
-                             f"entries (at most {STACK_ENTRIES}); use fewer steps or split the rule")
+                             f"entries and {a.depth} levels (at most {STACK_ENTRIES} and "
+                             f"{MAX_DEPTH - 1}); use fewer steps or split the rule")
         stack = max(stack, a.stack_size)
         i32[B_NODE_ALT0].append(a.node_alt0 + a0)
         i32[B_NODE_NALT].append(a.node_nalt)
@@ -435,6 +522,7 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
         f64[B_ALT_CUM].append(a.alt_cum)
         f64[B_CH_INV].append(a.child_inv.reshape(-1, 12))
         f64[B_CH_ROT].append(a.child_rot.reshape(-1, 9))
+        f64[B_CH_BOX].append(a.child_box.reshape(-1))
         f64[B_PRIM_PARAMS].append(a.prim_params)
         f64[B_PRIM_INV].append(a.prim_inv.reshape(-1, 12))
         roots.append(a.root + n0)
@@ -549,7 +637,8 @@ def _tables(i64, w, iw):
             iw + i64[w + B_NODE_STUB], iw + i64[w + B_ALT_C0], iw + i64[w + B_ALT_NC],
             iw + i64[w + B_CH_NODE], iw + i64[w + B_CH_J], iw + i64[w + B_PRIM_KIND],
             w + i64[w + B_NODE_BOX], w + i64[w + B_ALT_CUM], w + i64[w + B_CH_INV],
-            w + i64[w + B_CH_ROT], w + i64[w + B_PRIM_PARAMS], w + i64[w + B_PRIM_INV])
+            w + i64[w + B_CH_ROT], w + i64[w + B_CH_BOX], w + i64[w + B_PRIM_PARAMS],
+            w + i64[w + B_PRIM_INV])
 
 
 @njit(**INLINE)
@@ -574,55 +663,74 @@ def _box_entry(f64, b, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return t0 if t0 <= t1 else math.inf
 
 
+@njit(**INLINE)
+def _scratch(s0):
+    """Offsets of the ray scratch: float64 entries, uint64 entries (float64 / uint64
+    index), then int32 indices of the nodes, edges, depths, path, best path, result."""
+    fb = s0 // 2
+    hb = fb + _E_F * STACK_ENTRIES
+    nb = 2 * (hb + _E_U * STACK_ENTRIES)
+    eb = nb + STACK_ENTRIES
+    db = eb + STACK_ENTRIES
+    pb = db + STACK_ENTRIES
+    bp = pb + MAX_DEPTH
+    rb = bp + MAX_DEPTH
+    return fb, hb, nb, eb, db, pb, bp, rb + rb % 2
+
+
 @njit(**CORE)
 def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
     """Closest hit of a prototype-space ray with DCSG `graph`, expanded lazily:
     (t, virtual shape id); (tmax, -1) on a miss. On a hit the normal (prototype
     space) and the stub's index in the scene's stub table (-1: none) are left for
-    `dcsg_hit_surface`. any_hit: stop at the first hit (occlusion)."""
+    `dcsg_hit_surface`. any_hit: stop at the first hit (occlusion).
+
+    Like a BVH node, a node holds its children's boxes in its own frame, so a
+    child is entered (its ray transformed, pushed) only when the ray meets its box;
+    the nearest child is expanded first. Entries carry only the ray: the hit's
+    normal is rotated to the object by the edge path, once per ray."""
     i64, f32, i32, f64 = buf
     w, iw = dcsg_base(buf)
     (o_alt0, o_nalt, o_prim, o_stub, o_ac0, o_anc, o_chn, o_chj, o_pk,
-     o_box, o_cum, o_cinv, o_crot, o_pp, o_pinv) = _tables(i64, w, iw)
+     o_box, o_cum, o_cinv, o_crot, o_cbox, o_pp, o_pinv) = _tables(i64, w, iw)
     root = i32[iw + i64[w + B_GRAPH_ROOT] + graph]
     fs = stack.view(np.float64)
     us = stack.view(np.uint64)
-    fb = s0 // 2                       # float64 / uint64 index of the scratch
-    hb = fb + 16 * STACK_ENTRIES
-    nb = s0 + 36 * STACK_ENTRIES       # int32 index of the node ids
-    rb = nb + STACK_ENTRIES + (nb + STACK_ENTRIES) % 2
+    fb, hb, nb, eb, db, pb, bp, rb = _scratch(s0)
     rf = rb // 2                       # result: normal (3 float64), stub (int32 at rb + 6), address
     t_root = _box_entry(f64, o_box + 6 * root, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if t_root == math.inf:
         return tmax, -1
-    f = fb
-    fs[f], fs[f + 1], fs[f + 2], fs[f + 3], fs[f + 4], fs[f + 5] = ox, oy, oz, dx, dy, dz
-    for k in range(9):
-        fs[f + 6 + k] = 1.0 if k % 4 == 0 else 0.0
-    fs[f + 15] = t_root
+    fs[fb], fs[fb + 1], fs[fb + 2], fs[fb + 3], fs[fb + 4], fs[fb + 5] = ox, oy, oz, dx, dy, dz
+    fs[fb + 6] = t_root
     us[hb] = _u64(i32, iw + i64[w + B_GRAPH_HASH] + 2 * graph)
     us[hb + 1] = np.uint64(0)
-    stack[nb] = root
+    stack[nb], stack[eb], stack[db] = root, -1, 0
     sp = 1
     tbest = tmax
     best_p = -1
+    best_d = 0
     best_s = np.uint64(0)
     best_h = np.uint64(0)
     bnx, bny, bnz = 0.0, 0.0, 1.0
     while sp > 0:
         sp -= 1
-        f = fb + 16 * sp
-        if fs[f + 15] >= tbest:
+        f = fb + _E_F * sp
+        if fs[f + 6] >= tbest:
             continue
         node = stack[nb + sp]
+        d = stack[db + sp]
+        e = stack[eb + sp]
+        stack[pb + d] = e                # ancestors' edges at 1..d-1 are still in place (DFS)
         h = us[hb + 2 * sp]
         stub = h if i32[o_stub + node] else us[hb + 2 * sp + 1]
-        # copied out: the children are pushed over this very entry
+        # copied out: the children are pushed over this very entry. Entries hold the
+        # parent's ray; it enters the child's frame only now, past the tbest cull.
         rox, roy, roz, rdx, rdy, rdz = fs[f], fs[f + 1], fs[f + 2], fs[f + 3], fs[f + 4], fs[f + 5]
-        R = (fs[f + 6], fs[f + 7], fs[f + 8], fs[f + 9], fs[f + 10], fs[f + 11],
-             fs[f + 12], fs[f + 13], fs[f + 14])
+        if e >= 0:
+            rox, roy, roz, rdx, rdy, rdz = xform_ray(f64, o_cinv + 12 * e, rox, roy, roz, rdx, rdy, rdz)
         p = i32[o_prim + node]
-        if p >= 0:
+        if p >= 0:                       # a terminal root (terminal children are tested below)
             lx, ly, lz, ex, ey, ez = xform_ray(f64, o_pinv + 12 * p, rox, roy, roz, rdx, rdy, rdz)
             pp = o_pp + 4 * p
             kind = i32[o_pk + p]
@@ -639,12 +747,12 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
                 best_p = p
                 best_s = stub
                 best_h = h
+                best_d = d
+                for q in range(1, d + 1):
+                    stack[bp + q] = stack[pb + q]
                 _fc, _u, _v, nx, ny, nz = prim_surface(kind, params, lx + t * ex, ly + t * ey,
                                                        lz + t * ez)
-                qx, qy, qz = normal_through(f64, o_pinv + 12 * p, nx, ny, nz)
-                bnx = R[0] * qx + R[1] * qy + R[2] * qz
-                bny = R[3] * qx + R[4] * qy + R[5] * qz
-                bnz = R[6] * qx + R[7] * qy + R[8] * qz
+                bnx, bny, bnz = normal_through(f64, o_pinv + 12 * p, nx, ny, nz)
                 if any_hit:
                     break
             continue
@@ -652,37 +760,63 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
         base = sp
         c0 = i32[o_ac0 + k]
         for c in range(c0, c0 + i32[o_anc + k]):
-            child = i32[o_chn + c]
-            cox, coy, coz, cdx, cdy, cdz = xform_ray(f64, o_cinv + 12 * c, rox, roy, roz,
-                                                     rdx, rdy, rdz)
-            te = _box_entry(f64, o_box + 6 * child, cox, coy, coz, cdx, cdy, cdz, tmin, tbest)
+            te = _box_entry(f64, o_cbox + 6 * c, rox, roy, roz, rdx, rdy, rdz, tmin, tbest)
             if te == math.inf:
                 continue
-            g = fb + 16 * sp
-            fs[g], fs[g + 1], fs[g + 2], fs[g + 3], fs[g + 4], fs[g + 5] = cox, coy, coz, cdx, cdy, cdz
-            r = o_crot + 9 * c
-            for i in range(3):          # object <- child: R_parent @ R_child
-                for jj in range(3):
-                    fs[g + 6 + 3 * i + jj] = (R[3 * i] * f64[r + jj] + R[3 * i + 1] * f64[r + 3 + jj]
-                                              + R[3 * i + 2] * f64[r + 6 + jj])
-            fs[g + 15] = te
-            stack[nb + sp] = child
+            child = i32[o_chn + c]
+            p = i32[o_prim + child]
+            if p >= 0:                   # a terminal: test it now, with no push
+                m = o_cinv + 12 * c
+                lx, ly, lz, ex, ey, ez = xform_ray(f64, m, rox, roy, roz, rdx, rdy, rdz)
+                pp = o_pp + 4 * p
+                kind = i32[o_pk + p]
+                params = (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3])
+                n, t0, t1, t2, t3 = prim_hits(kind, params, lx, ly, lz, ex, ey, ez)
+                for i in range(n):
+                    ti = (t0, t1, t2, t3)[i]
+                    if ti > tmin and ti < tbest:
+                        tbest = ti
+                        best_p = p
+                        best_s = stub
+                        best_h = _child_hash(h, i32[o_chj + c])
+                        best_d = d
+                        for q in range(1, d + 1):
+                            stack[bp + q] = stack[pb + q]
+                        _fc, _u, _v, nx, ny, nz = prim_surface(kind, params, lx + ti * ex,
+                                                               ly + ti * ey, lz + ti * ez)
+                        bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
+                        break
+                if any_hit and best_p >= 0:
+                    break
+                continue
+            g = fb + _E_F * sp
+            fs[g], fs[g + 1], fs[g + 2], fs[g + 3], fs[g + 4], fs[g + 5] = rox, roy, roz, rdx, rdy, rdz
+            fs[g + 6] = te
+            stack[nb + sp], stack[eb + sp], stack[db + sp] = child, c, d + 1
             us[hb + 2 * sp] = _child_hash(h, i32[o_chj + c])
             us[hb + 2 * sp + 1] = stub
             sp += 1
+        if any_hit and best_p >= 0:
+            break
         # nearest child on top: insertion sort of this level's entries, far first
         for i in range(base + 1, sp):
             j = i
-            while j > base and fs[fb + 16 * (j - 1) + 15] < fs[fb + 16 * j + 15]:
-                a_, b_ = fb + 16 * (j - 1), fb + 16 * j
-                for q in range(16):
+            while j > base and fs[fb + _E_F * (j - 1) + 6] < fs[fb + _E_F * j + 6]:
+                a_, b_ = fb + _E_F * (j - 1), fb + _E_F * j
+                for q in range(_E_F):
                     fs[a_ + q], fs[b_ + q] = fs[b_ + q], fs[a_ + q]
-                stack[nb + j - 1], stack[nb + j] = stack[nb + j], stack[nb + j - 1]
+                for q in (nb, eb):
+                    stack[q + j - 1], stack[q + j] = stack[q + j], stack[q + j - 1]
                 for q in range(2):
                     us[hb + 2 * (j - 1) + q], us[hb + 2 * j + q] = us[hb + 2 * j + q], us[hb + 2 * (j - 1) + q]
                 j -= 1
     if best_p < 0:
         return tmax, -1
+    for q in range(best_d, 0, -1):       # node -> object: R_c1 (R_c2 (... R_cd n))
+        r = o_crot + 9 * stack[bp + q]
+        bnx, bny, bnz = (f64[r] * bnx + f64[r + 1] * bny + f64[r + 2] * bnz,
+                         f64[r + 3] * bnx + f64[r + 4] * bny + f64[r + 5] * bnz,
+                         f64[r + 6] * bnx + f64[r + 7] * bny + f64[r + 8] * bnz)
     fs[rf], fs[rf + 1], fs[rf + 2] = unit(bnx, bny, bnz)
     us[rf + 4] = best_h
     stack[rb + 6] = _stub_index(i32, iw, i64[w + B_GRAPH_STUB], i64[w + B_STUB_ADDR], graph, best_s)
@@ -713,8 +847,7 @@ def _stub_index(i32, iw, o_rows, o_addr, graph, addr):
 def dcsg_hit_surface(stack, s0):
     """(stub index, nx, ny, nz, address) of the last DCSG hit `dcsg_closest_core` returned."""
     fs = stack.view(np.float64)
-    nb = s0 + 36 * STACK_ENTRIES
-    rb = nb + STACK_ENTRIES + (nb + STACK_ENTRIES) % 2
+    rb = _scratch(s0)[7]
     rf = rb // 2
     return stack[rb + 6], fs[rf], fs[rf + 1], fs[rf + 2], stack.view(np.uint64)[rf + 4]
 
@@ -810,7 +943,7 @@ def _area_samples(buf, node_area, start, start_hash, rot0, inst_inv, det_inst, e
     i64, f32, i32, f64 = buf
     w, iw = dcsg_base(buf)
     (o_alt0, o_nalt, o_prim, o_stub, o_ac0, o_anc, o_chn, o_chj, o_pk,
-     _o_box, o_cum, _o_cinv, o_crot, o_pp, o_pinv) = _tables(i64, w, iw)
+     _o_box, o_cum, _o_cinv, o_crot, _o_cbox, o_pp, o_pinv) = _tables(i64, w, iw)
     for k in prange(n_s):
         out_bin[k] = -1
         out_val[k] = 0.0

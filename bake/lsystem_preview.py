@@ -801,7 +801,7 @@ def update_preview(ob, force=True):
             plan, why = None, str(exc)
             flat = flat_preview(grammar, depth)
         try:
-            stats = L.statistics(grammar, settings.steps)
+            stats = L.statistics(grammar, settings.steps, settings.cache_mb)
         except (LS.LSystemError, SceneError) as exc:
             stats = {"error": messages.describe(exc)}
     except (LS.LSystemError, SceneError) as exc:

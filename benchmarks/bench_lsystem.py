@@ -362,6 +362,7 @@ def bench_rays_one(name, steps, n_rays, reps):
     out["t_max_rel_diff"] = float((np.abs(t_d[fin] - t_f[fin]) / t_f[fin]).max()) if fin.any() else 0.0
     out["address_agreement"] = round(float((h_s[both] == addr_f[both]).mean()), 6) if both.any() else None
     out["bytes_dcsg"] = graph.stats()["bytes"]
+    out["expansion_cache"] = {k: v for k, v in graph.stats().items() if k.startswith("cache_")}
     tb, xb = geometry_bytes(gf)
     out["bytes_flat_trace"], out["bytes_flat_other_arrays"] = tb, xb
     return out

@@ -42,6 +42,7 @@ exits cannot be a DCSG (a later sibling's frame would depend on the choice);
 like a context-sensitive grammar it is refused with `DCSGUnsupported`, and
 the caller derives the string and instances its primitives instead.
 """
+import heapq
 import math
 from collections import namedtuple
 
@@ -66,6 +67,12 @@ EXIT_TOLERANCE = 1e-9
 # whole pass evaluates at most EXACT_ROWS support directions (engine setup time).
 EXACT_PATHS = 1 << 16
 EXACT_ROWS = 1 << 23
+# The expansion cache (thesis 4.4): subtrees of at most CACHE_PATHS primitives
+# are kept expanded, each a small BVH over its primitives, within CACHE_MB.
+CACHE_PATHS = 512
+CACHE_MB = 64.0
+# bytes one cached primitive costs: its item (inverse, row, chain) and BVH share
+CACHE_ITEM_BYTES = 12 * 8 + 3 * 4 + 4 * 4 + 48
 _CORNERS = np.array([[x, y, z, 1.0] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
 
 
@@ -75,7 +82,7 @@ class DCSGUnsupported(SceneError):
 
 class _Node:
     __slots__ = ("key", "alts", "prim", "exit", "state", "lo", "hi", "n_prims", "depth", "stub",
-                 "paths", "edge_boxes")
+                 "paths", "edge_boxes", "fixed")
 
     def __init__(self, key):
         self.key = key
@@ -100,13 +107,18 @@ DCSGArrays = namedtuple("DCSGArrays", [
     "prim_inv",                      # float64[P, 3, 4]: node frame -> primitive
     "prim_material",                 # int64[P]
     "root", "root_hash", "stack_size", "depth",
+    # the expansion cache: per node its cache entry (-1: none); per entry its BVH root;
+    # BVH nodes (box, a, count as engine/bvh.py, a global); items (terminal row,
+    # chain start and length, node frame -> primitive); the chains of child indices
+    "node_cache", "cache_bvh", "cbvh_box", "cbvh_a", "cbvh_count",
+    "item_prim", "item_chain0", "item_nchain", "item_inv", "chain_j",
 ])
 
 
 class DCSG:
     """The graph of one context-free grammar at a derivation length (see the module docstring)."""
 
-    def __init__(self, grammar, steps=None, angle=None, width=None):
+    def __init__(self, grammar, steps=None, angle=None, width=None, cache_mb=CACHE_MB):
         if not grammar.is_context_free:
             raise DCSGUnsupported(f"{grammar.source_name}: a context-sensitive grammar cannot be a "
                                   "cyclic scene graph (its context crosses branches); it is derived "
@@ -127,6 +139,7 @@ class DCSG:
         self.root = self._rule(None, self.steps + 1, (self.width, None, 0), [list(grammar.axiom)])
         self.root_hash = LS.splitmix64(grammar.seed & LS.MASK)
         self._tighten_boxes()
+        self.cache_bytes = int(max(float(cache_mb), 0.0) * 2 ** 20)
 
     # ------------------------------------------------------------ building
 
@@ -290,6 +303,110 @@ class DCSG:
                     lo, hi = np.minimum(lo, b[:3]), np.maximum(hi, b[3:])
             n.lo, n.hi = lo, hi
 
+    # ------------------------------------------------------------ expansion cache
+
+    def _expansion_cache(self, ids, node_prim):
+        """The expanded subgraphs (thesis 4.4): a deterministic, stub-free subtree of at
+        most CACHE_PATHS primitives is kept unrolled in its root's frame, a small SAH
+        BVH over its primitives, so a ray entering it walks that BVH instead of the
+        graph's levels (no transforms per level, tight boxes per primitive). The graph
+        is memoised, so one expansion serves every place the subtree occurs. Which
+        subtrees: the topmost that qualify, most used first, within `cache_bytes`.
+        The cache is filled at setup and then only read: rays in parallel threads
+        share it with no locks, and the image does not depend on the order rays come
+        in (the thesis's LRU evicts during the render). Its hit rate is the share of
+        primitive visits that the cache serves, computed from the graph's counts."""
+        from .bvh import build_bvh
+        order = self._topological()
+        for n in reversed(order):
+            n.fixed = n.prim is not None or (len(n.alts) == 1 and all(
+                c.fixed and not c.stub for c, _, _ in n.alts[0][1]))
+        uses = {id(self.root): 1.0}
+        for n in order:                           # parents first: how often each node occurs
+            u = uses.get(id(n), 0.0)
+            prev = 0.0
+            for cum, ch in n.alts:
+                w = (cum - prev) if len(n.alts) > 1 else 1.0
+                prev = cum
+                for c, _, _ in ch:
+                    uses[id(c)] = uses.get(id(c), 0.0) + u * w
+
+        def cacheable(n):
+            return n.prim is None and n.fixed and 2 <= n.paths <= CACHE_PATHS
+
+        frontier = [self.root] if cacheable(self.root) else []
+        seen = {id(self.root)}
+        for n in order:
+            if cacheable(n):
+                continue
+            for _, ch in n.alts:
+                for c, _, _ in ch:
+                    if cacheable(c) and id(c) not in seen:
+                        seen.add(id(c))
+                        frontier.append(c)
+        # most served primitive visits first; a subtree that does not fit gives way to
+        # its children, so a small cache still holds the lower levels
+        heap = [(-uses[id(n)] * n.paths, k, n) for k, n in enumerate(frontier)]
+        heapq.heapify(heap)
+        tick = len(heap)
+        N = len(self.nodes)
+        node_cache = np.full(N, -1, np.int64)
+        cache_bvh, boxes, bva, bvc = [], [], [], []
+        it_prim, it_c0, it_nc, it_inv, chains = [], [], [], [], []
+        used, served, cached = 0, 0.0, set()
+        while heap:
+            _, _, n = heapq.heappop(heap)
+            if id(n) in cached:
+                continue
+            if used + n.paths * CACHE_ITEM_BYTES > self.cache_bytes:
+                for c, _, _ in n.alts[0][1]:
+                    if cacheable(c) and id(c) not in cached:
+                        tick += 1
+                        heapq.heappush(heap, (-uses[id(c)] * c.paths, tick, c))
+                continue
+            cached.add(id(n))
+            items = []
+
+            def walk(m, xf, js):
+                if m.prim is not None:
+                    full = np.eye(4)
+                    full[:3] = m.prim[2]
+                    items.append((m, xf @ full, js))
+                    return
+                for c, to_parent, j in m.alts[0][1]:
+                    walk(c, xf @ to_parent, js + (j,))
+
+            walk(n, np.eye(4), ())
+            lo = np.array([(_CORNERS @ x[:3].T).min(axis=0) for _, x, _ in items])
+            hi = np.array([(_CORNERS @ x[:3].T).max(axis=0) for _, x, _ in items])
+            bvh = build_bvh(lo, hi)
+            node_cache[ids[id(n)]] = len(cache_bvh)
+            b0, i0 = sum(x.shape[0] for x in bva), len(it_prim)
+            cache_bvh.append(b0)
+            boxes.append(np.hstack([bvh.node_min, bvh.node_max]).astype(np.float64))
+            leaf = bvh.node_count > 0
+            bva.append(np.where(leaf, bvh.node_a + i0, bvh.node_a + b0))
+            bvc.append(bvh.node_count)
+            for k in bvh.items:
+                m, xf, js = items[k]
+                it_prim.append(node_prim[ids[id(m)]])
+                it_c0.append(len(chains))
+                it_nc.append(len(js))
+                chains.extend(js)
+                it_inv.append(np.linalg.inv(xf)[:3])
+            used += n.paths * CACHE_ITEM_BYTES
+            served += uses[id(n)] * n.paths
+        self.cache_stats = {"cache_subgraphs": len(cache_bvh), "cache_primitives": len(it_prim),
+                            "cache_bytes": int(used), "cache_limit_bytes": self.cache_bytes,
+                            # (a subtree also reached beside a cached one counts twice: capped)
+                            "cache_hit_rate": round(min(served / max(self.root.n_prims, 1), 1.0), 6)}
+        cat = (lambda xs, shape, dt: np.concatenate(xs).astype(dt).reshape(shape) if xs
+               else np.zeros(shape if shape[0] != -1 else (0,) + shape[1:], dt))
+        return (node_cache, np.array(cache_bvh, np.int64), cat(boxes, (-1, 6), np.float64),
+                cat(bva, (-1,), np.int64), cat(bvc, (-1,), np.int64),
+                np.array(it_prim, np.int64), np.array(it_c0, np.int64), np.array(it_nc, np.int64),
+                np.array(it_inv, np.float64).reshape(-1, 3, 4), np.array(chains, np.int64))
+
     # ------------------------------------------------------------ reading
 
     @property
@@ -305,7 +422,7 @@ class DCSG:
                 "alternatives": int(a.alt_cum.shape[0]), "edges": int(a.child_node.shape[0]),
                 "terminal_primitives": int(a.prim_kind.shape[0]),
                 "primitives": self.implicit_primitives, "depth": int(self.root.depth),
-                "bytes": int(nbytes)}
+                "bytes": int(nbytes), **self.cache_stats}
 
     def bounds(self):
         """Object-space box of everything the graph draws (primitive extents included)."""
@@ -364,7 +481,8 @@ class DCSG:
             ids[id(self.root)], np.uint64(self.root_hash),
             # DFS pops one entry and pushes its children: along the deepest path each
             # interior level leaves (widest - 1) siblings, the last one `widest`
-            1 + (widest - 1) * self.root.depth + 1, int(self.root.depth))
+            1 + (widest - 1) * self.root.depth + 1, int(self.root.depth),
+            *self._expansion_cache(ids, node_prim))
         return self._arrays
 
     def flatten(self, limit=2_000_000):
@@ -422,21 +540,25 @@ def _box_through(lo, hi, m):
 # views: an int64 header, an int32 section, a float64 section. Node, edge and
 # primitive ids are global; a graph is its root node, root hash and stub table.
 
-BLOB_HEADER = 32
+BLOB_HEADER = 40
 (B_NGRAPH, B_VS0, B_NPRIM, B_STACK,
  B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC, B_CH_NODE, B_CH_J,
  B_PRIM_KIND, B_GRAPH_ROOT, B_GRAPH_HASH, B_GRAPH_STUB, B_STUB_ADDR,
- B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV) = range(24)
+ B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV,
+ B_NODE_CACHE, B_CACHE_BVH, B_CBVH_A, B_CBVH_COUNT, B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J,
+ B_CBVH_BOX, B_ITEM_INV) = range(34)
 
 # Ray scratch, in the caller's int32 stack from (even) word s0 (engine/geometry.py
 # STACK_WORDS): per entry 7 float64 (the ray in the entry's frame, entry t), 2
 # uint64 (hash, stub) and 3 int32 (node, edge it came by, depth); then the edge
 # path to the current node and to the closest hit (MAX_DEPTH int32 each, for the
-# hit normal), then the result: normal, stub and address.
+# hit normal), the stack of a cached subgraph's BVH (CACHE_STACK int32 nodes and
+# float64 entry t's), then the result: normal, stub and address.
 STACK_ENTRIES = 192
 MAX_DEPTH = 192
 _E_F, _E_U, _E_I = 7, 2, 3
-SCRATCH_WORDS = STACK_ENTRIES * (2 * _E_F + 2 * _E_U + _E_I) + 2 * MAX_DEPTH + 16
+CACHE_STACK = 64                 # a cached subgraph's BVH is at most bvh.MAX_DEPTH deep
+SCRATCH_WORDS = STACK_ENTRIES * (2 * _E_F + 2 * _E_U + _E_I) + 2 * MAX_DEPTH + 3 * CACHE_STACK + 16
 H_DCSG = 20       # trace header word: the blob's offset in the float64 section
 NO_VSHAPE = 2 ** 31 - 1
 # shape_ref of an L-system: DCSG_REF - graph (below every CSG ref, CSG_REF - root)
@@ -493,12 +615,14 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
     where stubs[k] are graph k's StubRecords (global node ids); the kernel's stub
     index counts over all graphs' records in this order."""
     i32_keys = (B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC,
-                B_CH_NODE, B_CH_J, B_PRIM_KIND)
-    f64_keys = (B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV)
+                B_CH_NODE, B_CH_J, B_PRIM_KIND, B_NODE_CACHE, B_CACHE_BVH, B_CBVH_A, B_CBVH_COUNT,
+                B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J)
+    f64_keys = (B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV,
+                B_CBVH_BOX, B_ITEM_INV)
     i32 = {k: [] for k in i32_keys}
     f64 = {k: [] for k in f64_keys}
     roots, hashes, stub_rows, stub_addr, prim_graph = [], [], [], [], []
-    n0 = a0 = c0 = p0 = s0 = 0
+    n0 = a0 = c0 = p0 = s0 = e0 = v0 = i0 = j0 = 0
     stack = 1
     stubs = []
     for gi, g in enumerate(graphs):
@@ -525,6 +649,20 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
         f64[B_CH_BOX].append(a.child_box.reshape(-1))
         f64[B_PRIM_PARAMS].append(a.prim_params)
         f64[B_PRIM_INV].append(a.prim_inv.reshape(-1, 12))
+        i32[B_NODE_CACHE].append(np.where(a.node_cache >= 0, a.node_cache + e0, -1))
+        i32[B_CACHE_BVH].append(a.cache_bvh + v0)
+        i32[B_CBVH_A].append(a.cbvh_a + np.where(a.cbvh_count > 0, i0, v0))
+        i32[B_CBVH_COUNT].append(a.cbvh_count)
+        i32[B_ITEM_PRIM].append(a.item_prim + p0)
+        i32[B_ITEM_C0].append(a.item_chain0 + j0)
+        i32[B_ITEM_NC].append(a.item_nchain)
+        i32[B_CHAIN_J].append(a.chain_j)
+        f64[B_CBVH_BOX].append(a.cbvh_box.reshape(-1))
+        f64[B_ITEM_INV].append(a.item_inv.reshape(-1))
+        e0 += a.cache_bvh.shape[0]
+        v0 += a.cbvh_a.shape[0]
+        i0 += a.item_prim.shape[0]
+        j0 += a.chain_j.shape[0]
         roots.append(a.root + n0)
         hashes.append(a.root_hash)
         recs = stub_records(g)
@@ -642,6 +780,42 @@ def _tables(i64, w, iw):
 
 
 @njit(**INLINE)
+def _cache_tables(i64, w, iw):
+    """Start of each expansion-cache table in its view."""
+    return (iw + i64[w + B_NODE_CACHE], iw + i64[w + B_CACHE_BVH], iw + i64[w + B_CBVH_A],
+            iw + i64[w + B_CBVH_COUNT], iw + i64[w + B_ITEM_PRIM], iw + i64[w + B_ITEM_C0],
+            iw + i64[w + B_ITEM_NC], iw + i64[w + B_CHAIN_J], w + i64[w + B_CBVH_BOX],
+            w + i64[w + B_ITEM_INV])
+
+
+@njit(**INLINE)
+def _inverse_dir(d):
+    """1/d, with 1e300 of the same sign for d = 0: the slab test needs no branch then
+    (a ray parallel to a slab outside it gets a huge finite entry: a false positive
+    that tbest culls, never a false negative)."""
+    if d != 0.0:
+        return 1.0 / d
+    return -1e300 if math.copysign(1.0, d) < 0.0 else 1e300
+
+
+@njit(**INLINE)
+def _slabs(f64, b, ox, oy, oz, ix, iy, iz, tmin, tmax):
+    """Entry distance into the box at f64[b:b+6] of the ray with inverse direction
+    (ix, iy, iz) within (tmin, tmax), or inf. The exit is widened by 1e-12 relative,
+    as in `_box_entry`."""
+    a0 = (f64[b] - ox) * ix
+    a1 = (f64[b + 3] - ox) * ix
+    b0 = (f64[b + 1] - oy) * iy
+    b1 = (f64[b + 4] - oy) * iy
+    c0 = (f64[b + 2] - oz) * iz
+    c1 = (f64[b + 5] - oz) * iz
+    t0 = max(tmin, min(a0, a1), min(b0, b1), min(c0, c1))
+    t1 = min(tmax, max(a0, a1), max(b0, b1), max(c0, c1))
+    t1 = t1 * (1.0 + 1e-12) if t1 > 0.0 else t1 * (1.0 - 1e-12)
+    return t0 if t0 <= t1 else math.inf
+
+
+@njit(**INLINE)
 def _box_entry(f64, b, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Entry distance of the ray into the box at f64[b:b+6] within (tmin, tmax), or inf."""
     t0, t1 = tmin, tmax
@@ -666,7 +840,8 @@ def _box_entry(f64, b, ox, oy, oz, dx, dy, dz, tmin, tmax):
 @njit(**INLINE)
 def _scratch(s0):
     """Offsets of the ray scratch: float64 entries, uint64 entries (float64 / uint64
-    index), then int32 indices of the nodes, edges, depths, path, best path, result."""
+    index), then int32 indices of the nodes, edges, depths, path, best path, the
+    cache-BVH stack, its float64 entry t's (float64 index), and the result."""
     fb = s0 // 2
     hb = fb + _E_F * STACK_ENTRIES
     nb = 2 * (hb + _E_U * STACK_ENTRIES)
@@ -674,8 +849,11 @@ def _scratch(s0):
     db = eb + STACK_ENTRIES
     pb = db + STACK_ENTRIES
     bp = pb + MAX_DEPTH
-    rb = bp + MAX_DEPTH
-    return fb, hb, nb, eb, db, pb, bp, rb + rb % 2
+    kb = bp + MAX_DEPTH
+    k2 = kb + CACHE_STACK
+    k2 += k2 % 2
+    rb = k2 + 2 * CACHE_STACK
+    return fb, hb, nb, eb, db, pb, bp, kb, k2 // 2, rb
 
 
 @njit(**CORE)
@@ -696,7 +874,9 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
     root = i32[iw + i64[w + B_GRAPH_ROOT] + graph]
     fs = stack.view(np.float64)
     us = stack.view(np.uint64)
-    fb, hb, nb, eb, db, pb, bp, rb = _scratch(s0)
+    fb, hb, nb, eb, db, pb, bp, kb, kf, rb = _scratch(s0)
+    (o_ncache, o_cbvh, o_ba, o_bc, o_ip, o_ic0, o_inc, o_chain, o_bbox,
+     o_iinv) = _cache_tables(i64, w, iw)
     rf = rb // 2                       # result: normal (3 float64), stub (int32 at rb + 6), address
     t_root = _box_entry(f64, o_box + 6 * root, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if t_root == math.inf:
@@ -729,6 +909,62 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
         rox, roy, roz, rdx, rdy, rdz = fs[f], fs[f + 1], fs[f + 2], fs[f + 3], fs[f + 4], fs[f + 5]
         if e >= 0:
             rox, roy, roz, rdx, rdy, rdz = xform_ray(f64, o_cinv + 12 * e, rox, roy, roz, rdx, rdy, rdz)
+        ix, iy, iz = _inverse_dir(rdx), _inverse_dir(rdy), _inverse_dir(rdz)
+        ci = i32[o_ncache + node]
+        if ci >= 0:                      # an expanded subgraph: its BVH, in this node's frame
+            stack[kb] = i32[o_cbvh + ci]
+            fs[kf] = fs[f + 6]
+            ks = 1
+            while ks > 0:
+                ks -= 1
+                if fs[kf + ks] >= tbest:
+                    continue
+                b = stack[kb + ks]
+                cnt = i32[o_bc + b]
+                a_ = i32[o_ba + b]
+                if cnt == 0:
+                    tl = _slabs(f64, o_bbox + 6 * (b + 1), rox, roy, roz, ix, iy, iz, tmin, tbest)
+                    tr = _slabs(f64, o_bbox + 6 * a_, rox, roy, roz, ix, iy, iz, tmin, tbest)
+                    near, far, tn, tf = b + 1, a_, tl, tr
+                    if tr < tl:
+                        near, far, tn, tf = a_, b + 1, tr, tl
+                    if tf < math.inf:
+                        stack[kb + ks], fs[kf + ks] = far, tf
+                        ks += 1
+                    if tn < math.inf:
+                        stack[kb + ks], fs[kf + ks] = near, tn
+                        ks += 1
+                    continue
+                for it in range(a_, a_ + cnt):
+                    p = i32[o_ip + it]
+                    m = o_iinv + 12 * it
+                    lx, ly, lz, ex, ey, ez = xform_ray(f64, m, rox, roy, roz, rdx, rdy, rdz)
+                    pp = o_pp + 4 * p
+                    kind = i32[o_pk + p]
+                    params = (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3])
+                    n, t0, t1, t2, t3 = prim_hits(kind, params, lx, ly, lz, ex, ey, ez)
+                    for i in range(n):
+                        ti = (t0, t1, t2, t3)[i]
+                        if ti > tmin and ti < tbest:
+                            tbest = ti
+                            best_p = p
+                            best_s = stub
+                            hh = h               # the address: the chain of child indices
+                            for q in range(i32[o_ic0 + it], i32[o_ic0 + it] + i32[o_inc + it]):
+                                hh = _child_hash(hh, i32[o_chain + q])
+                            best_h = hh
+                            best_d = d
+                            for q in range(1, d + 1):
+                                stack[bp + q] = stack[pb + q]
+                            _fc, _u, _v, nx, ny, nz = prim_surface(kind, params, lx + ti * ex,
+                                                                   ly + ti * ey, lz + ti * ez)
+                            bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
+                            break
+                if any_hit and best_p >= 0:
+                    break
+            if any_hit and best_p >= 0:
+                break
+            continue
         p = i32[o_prim + node]
         if p >= 0:                       # a terminal root (terminal children are tested below)
             lx, ly, lz, ex, ey, ez = xform_ray(f64, o_pinv + 12 * p, rox, roy, roz, rdx, rdy, rdz)
@@ -760,7 +996,7 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
         base = sp
         c0 = i32[o_ac0 + k]
         for c in range(c0, c0 + i32[o_anc + k]):
-            te = _box_entry(f64, o_cbox + 6 * c, rox, roy, roz, rdx, rdy, rdz, tmin, tbest)
+            te = _slabs(f64, o_cbox + 6 * c, rox, roy, roz, ix, iy, iz, tmin, tbest)
             if te == math.inf:
                 continue
             child = i32[o_chn + c]
@@ -847,7 +1083,7 @@ def _stub_index(i32, iw, o_rows, o_addr, graph, addr):
 def dcsg_hit_surface(stack, s0):
     """(stub index, nx, ny, nz, address) of the last DCSG hit `dcsg_closest_core` returned."""
     fs = stack.view(np.float64)
-    rb = _scratch(s0)[7]
+    rb = _scratch(s0)[-1]
     rf = rb // 2
     return stack[rb + 6], fs[rf], fs[rf + 1], fs[rf + 2], stack.view(np.uint64)[rf + 4]
 

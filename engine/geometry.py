@@ -688,7 +688,7 @@ def _lsystem_graphs(scene, n_materials, notes):
             if ls.seed is not None:
                 grammar = replace(grammar, seed=int(ls.seed))
             try:
-                graph = D.DCSG(grammar, ls.steps)
+                graph = D.DCSG(grammar, ls.steps, cache_mb=ls.cache_mb)
             except D.DCSGUnsupported as exc:
                 der = LS.derive(grammar, ls.steps)
                 prims = T.to_primitives(T.interpret(der.modules, grammar.angle, grammar.width),
@@ -718,7 +718,8 @@ def _check_graph(graph, what):
                     f"{MAX_COORDINATE:g}); use fewer steps or shorter segments")
     a = graph.arrays()
     # (node boxes may be empty, +-inf, for nodes that draw nothing: the rays skip them)
-    for name in ("child_inv", "child_rot", "prim_inv", "prim_params", "alt_cum"):
+    for name in ("child_inv", "child_rot", "child_box", "prim_inv", "prim_params", "alt_cum",
+                 "cbvh_box", "item_inv"):
         if not np.all(np.isfinite(getattr(a, name))):
             _fail(what, f"its scene graph has non-finite {name.replace('_', ' ')}; check its parameters")
 

@@ -66,7 +66,9 @@ def summary(grammar, steps=None, with_string=False):
         st = graph.stats()
         out["primitives"] = st["primitives"]
         out["dcsg_nodes"] = st["dcsg_nodes"]
-        out["dcsg"] = {k: st[k] for k in ("alternatives", "edges", "terminal_primitives", "depth")}
+        out["dcsg"] = {k: st[k] for k in ("alternatives", "edges", "terminal_primitives", "depth",
+                                          "cache_subgraphs", "cache_primitives", "cache_bytes",
+                                          "cache_limit_bytes", "cache_hit_rate")}
         out["memory"] = {"dcsg_bytes": st["bytes"]}
     n_prims = out.get("primitives", 0)
     out.setdefault("memory", {})["flattened_in_cycles_bytes"] = int(round(n_prims * CYCLES_BYTES_PER_INSTANCE))

@@ -133,6 +133,7 @@ class LSystem:
     steps: int | None = None        # None: the grammar's derivation length
     seed: int | None = None         # None: the grammar's seed
     materials: tuple = (0,)
+    cache_mb: float = 64.0          # the expansion cache's size (engine/dcsg.py CACHE_MB)
 
 
 CSG_OPS = ("union", "intersection", "difference")

@@ -95,6 +95,7 @@ class LSystemSettings:
     seed: int = 0
     use_angle: bool = False                 # off: the grammar's angle
     angle: float = 25.7                     # degrees
+    cache_mb: float = 64.0                  # the engine's expansion cache (engine/dcsg.py)
 
     @classmethod
     def read(cls, props, **overrides):
@@ -270,7 +271,7 @@ def ol_stub_lines(grammar):
 
 # ---------------------------------------------------------------- statistics
 
-def statistics(grammar, steps):
+def statistics(grammar, steps, cache_mb=LSystemSettings.cache_mb):
     """What the engine makes of the grammar at `steps` (None: its own derivation length):
     {"primitives", "exact", "dcsg_nodes", "graph_bytes", "depth", "steps", "flat_bytes",
     "graph"}. The figures are the engine's: `DCSG.stats()` for a scene graph; a grammar the
@@ -281,7 +282,7 @@ def statistics(grammar, steps):
     from ..engine import lsystem_stats
     from ..engine.dcsg import DCSG, DCSGUnsupported
     try:
-        d = DCSG(grammar, steps=steps)
+        d = DCSG(grammar, steps=steps, cache_mb=cache_mb)
     except DCSGUnsupported:
         d = None
     if d is not None:       # not summary(): it also derives the string for its bounds (slow)
@@ -289,7 +290,9 @@ def statistics(grammar, steps):
         prims = float(s["primitives"])
         return {"primitives": prims, "exact": not grammar.is_stochastic, "dcsg_nodes": int(s["dcsg_nodes"]),
                 "graph_bytes": float(s["bytes"]), "depth": int(s["depth"]), "steps": int(d.steps),
-                "flat_bytes": prims * lsystem_stats.CYCLES_BYTES_PER_INSTANCE, "graph": True}
+                "flat_bytes": prims * lsystem_stats.CYCLES_BYTES_PER_INSTANCE, "graph": True,
+                "cache_subgraphs": int(s["cache_subgraphs"]), "cache_bytes": float(s["cache_bytes"]),
+                "cache_hit_rate": float(s["cache_hit_rate"])}
     LS.count(grammar, steps, cap=STATS_MODULE_CAP)      # the panel's cap, before summary derives
     s = lsystem_stats.summary(grammar, steps)
     return {"primitives": float(s["primitives"]), "exact": True, "dcsg_nodes": 0, "graph_bytes": 0.0,
@@ -345,7 +348,7 @@ def lsystem_prototype(ctx, ob):
         ctx.report("WARNING", f"L-system object '{name}': organs (~) are shown in the preview only; "
                                "the engine does not trace them yet")
     lsys = LSystem(grammar=effective_text(src, settings), name=name, steps=settings.steps,
-                   seed=settings.seed_override, materials=mats)
+                   seed=settings.seed_override, materials=mats, cache_mb=float(settings.cache_mb))
     ctx.scene.prototypes.append(Prototype(name=name, lsystems=[lsys]))
     ctx.map.prototypes.append(PrototypeRecord(name, 0, "lsystem"))
     idx = ctx.prototype_index[key] = len(ctx.scene.prototypes) - 1

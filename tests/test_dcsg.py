@@ -115,6 +115,50 @@ def test_rays_agree_with_the_flattened_primitives(text):
     np.testing.assert_allclose(np.linalg.norm(normal[hit], axis=1), 1.0, rtol=1e-12)
 
 
+@pytest.mark.parametrize("text", [ABOP_124A.format(n=5), TAPERED, STOCHASTIC.format(seed=3)])
+def test_expansion_cache_changes_no_hit(text):
+    """Rays through cached expansions (4.4) hit what the lazily expanded graph hits:
+    the same t, stub and normal, and the same primitive up to ties (a cap where
+    tapered segments join is hit by both at the same t; the walk order decides)."""
+    cached, lazy = D.DCSG(LS.parse(text)), D.DCSG(LS.parse(text), cache_mb=0)
+    st = cached.stats()
+    if cached.grammar.is_stochastic:
+        # every choice depends on the path hash: no expansion is shared, none is cached
+        assert st["cache_subgraphs"] == 0
+    else:
+        assert st["cache_subgraphs"] > 0 and 0.0 < st["cache_hit_rate"] <= 1.0
+        assert 0 < st["cache_bytes"] <= st["cache_limit_bytes"]
+    assert lazy.stats()["cache_subgraphs"] == 0 and lazy.stats()["cache_hit_rate"] == 0.0
+    o, d = _rays(cached, 2000, seed=5)
+    a, b = D.trace_closest(cached, o, d), D.trace_closest(lazy, o, d)
+    hit = b[1] >= 0
+    assert hit.sum() > 300
+    np.testing.assert_array_equal(a[1] >= 0, hit)
+    np.testing.assert_array_equal(a[3], b[3])
+    np.testing.assert_allclose(a[0][hit], b[0][hit], rtol=1e-12)
+    flat = cached.flatten()
+    index = {h: i for i, h in enumerate(flat.address.tolist())}
+    tie = np.nonzero(hit & (a[2] != b[2]))[0]
+    for r in tie:
+        own = _brute_force(D.Flattened(*(x[[index[int(a[2][r])]]] for x in flat)),
+                           o[r:r + 1], d[r:r + 1])[0][0]
+        assert own == pytest.approx(b[0][r], rel=1e-9)
+    assert tie.size < 0.1 * hit.sum()
+    same = hit & (a[2] == b[2])
+    np.testing.assert_allclose(a[4][same], b[4][same], atol=1e-12)
+
+
+def test_expansion_cache_keeps_to_its_size():
+    g = LS.parse(ABOP_124A.format(n=6))            # 5^6 primitives; subtrees of 125 and 25
+    sizes = [D.DCSG(g, cache_mb=mb).stats() for mb in (0, 0.001, 0.01, 64)]
+    for st in sizes:
+        assert st["cache_bytes"] <= st["cache_limit_bytes"]
+    # a subtree too big for the cache gives way to its children: 1 kB holds one of
+    # 5 primitives, 10 kB two of 25, 64 MB the two distinct subtrees of 125
+    assert [st["cache_primitives"] for st in sizes] == [0, 5, 50, 250]
+    assert [st["cache_subgraphs"] for st in sizes] == [0, 1, 2, 2]
+
+
 def test_node_count_follows_the_steps_not_the_primitives():
     # 5^30 primitives: counted through the graph, never unrolled
     graph = D.DCSG(LS.parse(ABOP_124A.format(n=30)))

@@ -236,6 +236,10 @@ def lsystem_summary(ob):
         lines.append((f"Implicit primitives: {_count(st['primitives'])}{approx} at {st.get('steps')} steps", 'MOD_PARTICLES'))
         if st.get("graph"):
             lines.append((f"DCSG nodes: {st['dcsg_nodes']:,}, graph memory {_size(st['graph_bytes'])}", 'OUTLINER'))
+            if "cache_subgraphs" in st:
+                lines.append((f"Expansion cache: {st['cache_subgraphs']:,} subgraphs, "
+                              f"{_size(st['cache_bytes'])}, serves {100 * st['cache_hit_rate']:.1f} % "
+                              "of primitive visits", 'MEMORY'))
         else:
             lines.append(("Context-sensitive: derived and instanced (no scene graph)", 'OUTLINER'))
         lines.append((f"Flattened instances would cost ~{_size(st['flat_bytes'])} in Cycles "
@@ -305,6 +309,7 @@ class PHOTON_LIGHTMAPS_PT_lsystem(_EnginePanel, bpy.types.Panel):
         sub.active = s.use_seed
         sub.prop(s, "seed", text="")
         col.prop(s, "organs")
+        col.prop(s, "cache_mb")
         box = layout.box()
         for line, icon in lsystem_summary(ob):
             box.label(text=line, icon=icon)

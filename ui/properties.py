@@ -52,6 +52,11 @@ class PhotonLSystemSettings(bpy.types.PropertyGroup):
     angle: FloatProperty(
         name="Angle", default=_L.angle, min=-360.0, max=360.0, update=_lsystem_changed,
         description="Turtle turn of + - & ^ \\ / without a parameter, in degrees")
+    cache_mb: FloatProperty(
+        name="Expansion Cache (MB)", default=_L.cache_mb, min=0.0, soft_max=4096.0,
+        update=_lsystem_changed,
+        description="Memory for subgraphs kept expanded (thesis 4.4): rays walk a small BVH there "
+                    "instead of the graph's levels; 0 expands everything lazily per ray")
     organs: PointerProperty(
         name="Organs", type=bpy.types.Collection, update=_lsystem_changed,
         description="Where ~(name) finds its organ: the object of that name in this collection "

@@ -31,7 +31,8 @@ Sections (each a key of DIR/lsystem.json, lsystem_quick.json for --quick):
   child process it can be the parent's) against the RSS after imports, and what
   Cycles would need for its flattened instances (lsystem_stats.CYCLES_BYTES_PER_INSTANCE
   each; Cycles shows at most 6 nested instance levels).
-* ``memory`` - DCSG bytes (DCSG.stats()["bytes"]) against the flattened two-level
+* ``memory`` - DCSG bytes (DCSG.stats()["bytes"]: the graph plus its expansion cache,
+  which Expansion Cache (MB) bounds; "graph_bytes" alone) against the flattened two-level
   BVH (Geometry.trace, the buffer the ray kernels read, plus the Geometry arrays
   outside it) at ~10^5 and ~10^6 primitives; --full-memory flattens the 10^6 one
   too, otherwise it is extrapolated per primitive from the 10^5 one (marked).
@@ -405,7 +406,8 @@ def scale_once(name, steps, n_rays):
     t_build = time.perf_counter() - t
     st = graph.stats()
     out = {"preset": name, "steps": steps, "primitives": st["primitives"], "dcsg_nodes": st["dcsg_nodes"],
-           "depth": st["depth"], "dcsg_bytes": st["bytes"], "build_s": round(t_build, 3)}
+           "depth": st["depth"], "dcsg_bytes": st["bytes"], "dcsg_graph_bytes": st["graph_bytes"],
+           "build_s": round(t_build, 3)}
     pts = graph_points(graph, 2048)
     lo, hi = graph.bounds()
     rng = np.random.default_rng(5)
@@ -464,7 +466,8 @@ def memory_one(name, steps, flatten=True, per_prim=None):
     graph = D.DCSG(load_preset(name), steps)
     st = graph.stats()
     out = {"preset": name, "steps": steps, "primitives": st["primitives"], "dcsg_nodes": st["dcsg_nodes"],
-           "dcsg_bytes": st["bytes"]}
+           "dcsg_bytes": st["bytes"], "dcsg_graph_bytes": st["graph_bytes"],
+           "dcsg_cache_bytes": st["bytes"] - st["graph_bytes"]}
     if not flatten:
         out["measured"] = False
         out["flat_bytes"] = int(round(per_prim * st["primitives"]))
@@ -484,6 +487,7 @@ def memory_one(name, steps, flatten=True, per_prim=None):
         del g, flat
     out["flat_bytes_per_primitive"] = round(out["flat_bytes"] / st["primitives"], 1)
     out["flat_over_dcsg"] = round(out["flat_bytes"] / st["bytes"], 1)
+    out["flat_over_dcsg_graph"] = round(out["flat_bytes"] / st["graph_bytes"], 1)
     out["cycles_flattened_bytes"] = int(st["primitives"] * LST.CYCLES_BYTES_PER_INSTANCE)
     return out
 
@@ -536,9 +540,10 @@ def table(report):
         else:
             lines.append(f"scale {r.get('preset')} n={r.get('steps')}: {r.get('error')}")
     for r in report.get("memory", []):
-        lines.append(f"memory {r['preset']} n={r['steps']}: {r['primitives']:,} prims, DCSG {r['dcsg_bytes']:,} B, "
+        lines.append(f"memory {r['preset']} n={r['steps']}: {r['primitives']:,} prims, DCSG {r['dcsg_bytes']:,} B "
+                     f"(graph {r['dcsg_graph_bytes']:,} + expansion cache {r['dcsg_cache_bytes']:,}), "
                      f"flat BVH {r['flat_bytes']:,} B ({'measured' if r['measured'] else 'extrapolated'}): "
-                     f"x{r['flat_over_dcsg']:,}")
+                     f"x{r['flat_over_dcsg']:,} (graph alone x{r['flat_over_dcsg_graph']:,})")
     return "\n".join(lines)
 
 

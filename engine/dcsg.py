@@ -58,6 +58,7 @@ from .scene import SceneError
 # the trace buffer's header words for the float64 section (engine/geometry.py)
 H_F64 = 4
 from .turtle import TurtleState, to_primitives
+from .wide_bvh import _ctz, _descend, _drop_far, _pop, _ray_slabs, _slab4
 
 # The turtle's start frame: columns L = -X, U = -Y, H = +Z.
 M0 = np.diag([-1.0, -1.0, 1.0, 1.0])
@@ -69,7 +70,7 @@ EXACT_PATHS = 1 << 16
 EXACT_ROWS = 1 << 23
 # The expansion cache (thesis 4.4): subtrees of at most CACHE_PATHS primitives
 # are kept expanded, each a small BVH over its primitives, within CACHE_MB.
-CACHE_PATHS = 512
+CACHE_PATHS = 1 << 14
 CACHE_MB = 64.0
 # bytes one cached primitive costs: its item (inverse, row, chain) and BVH share
 CACHE_ITEM_BYTES = 12 * 8 + 3 * 4 + 4 * 4 + 48
@@ -107,12 +108,15 @@ DCSGArrays = namedtuple("DCSGArrays", [
     "prim_inv",                      # float64[P, 3, 4]: node frame -> primitive
     "prim_material",                 # int64[P]
     "root", "root_hash", "stack_size", "depth",
-    # the expansion cache: per node its cache entry (-1: none); per entry its BVH root;
-    # BVH nodes (box, a, count as engine/bvh.py, a global); items (terminal row,
-    # chain start and length, node frame -> primitive); the chains of child indices
-    "node_cache", "cache_bvh", "cbvh_box", "cbvh_a", "cbvh_count",
+    # the expansion cache: per node its cache entry (-1: none); per entry its root
+    # record; the 4-wide records (engine/bvh.py pack_bvh, int32 words, global ids);
+    # items (terminal row, chain start and length, node frame -> primitive); the
+    # chains of child indices
+    "node_cache", "cache_root", "cache_records",
     "item_prim", "item_chain0", "item_nchain", "item_inv", "chain_j",
 ])
+_CACHE_FIELDS = ("node_cache", "cache_root", "cache_records", "item_prim", "item_chain0",
+                 "item_nchain", "item_inv", "chain_j")
 
 
 class DCSG:
@@ -316,7 +320,7 @@ class DCSG:
         share it with no locks, and the image does not depend on the order rays come
         in (the thesis's LRU evicts during the render). Its hit rate is the share of
         primitive visits that the cache serves, computed from the graph's counts."""
-        from .bvh import build_bvh
+        from .bvh import build_bvh, pack_bvh
         order = self._topological()
         for n in reversed(order):
             n.fixed = n.prim is not None or (len(n.alts) == 1 and all(
@@ -351,9 +355,37 @@ class DCSG:
         tick = len(heap)
         N = len(self.nodes)
         node_cache = np.full(N, -1, np.int64)
-        cache_bvh, boxes, bva, bvc = [], [], [], []
+        cache_bvh, records = [], []
         it_prim, it_c0, it_nc, it_inv, chains = [], [], [], [], []
-        used, served, cached = 0, 0.0, set()
+        used, served, cached, n_chain = 0, 0.0, set(), 0
+        memo = {}
+
+        def expanded(m):
+            """m's primitives in m's frame: (terminal rows, 4x4 primitive -> m transforms,
+            their chains of child indices, flat, with offsets), built once per distinct
+            node with batched products."""
+            got = memo.get(id(m))
+            if got is not None:
+                return got
+            if m.prim is not None:
+                full = np.eye(4)
+                full[:3] = m.prim[2]
+                got = (np.array([node_prim[ids[id(m)]]]), full[None], np.zeros(0, np.int64),
+                       np.zeros(2, np.int64))
+            else:
+                parts = []
+                for c, to_parent, j in m.alts[0][1]:
+                    r, x, f, o = expanded(c)
+                    # prepend j to every chain of the child
+                    parts.append((r, to_parent @ x, np.insert(f, o[:-1], j), o + np.arange(o.shape[0])))
+                rows = np.concatenate([q[0] for q in parts])
+                xs = np.concatenate([q[1] for q in parts])
+                flat = np.concatenate([q[2] for q in parts])
+                base = np.cumsum([0] + [q[2].shape[0] for q in parts])
+                offs = np.concatenate([q[3][:-1] + b for q, b in zip(parts, base)] + [[base[-1]]])
+                got = (rows, xs, flat, offs.astype(np.int64))
+            memo[id(m)] = got
+            return got
         while heap:
             _, _, n = heapq.heappop(heap)
             if id(n) in cached:
@@ -365,47 +397,42 @@ class DCSG:
                         heapq.heappush(heap, (-uses[id(c)] * c.paths, tick, c))
                 continue
             cached.add(id(n))
-            items = []
-
-            def walk(m, xf, js):
-                if m.prim is not None:
-                    full = np.eye(4)
-                    full[:3] = m.prim[2]
-                    items.append((m, xf @ full, js))
-                    return
-                for c, to_parent, j in m.alts[0][1]:
-                    walk(c, xf @ to_parent, js + (j,))
-
-            walk(n, np.eye(4), ())
-            lo = np.array([(_CORNERS @ x[:3].T).min(axis=0) for _, x, _ in items])
-            hi = np.array([(_CORNERS @ x[:3].T).max(axis=0) for _, x, _ in items])
-            bvh = build_bvh(lo, hi)
+            rows, xf, cflat, coff = expanded(n)
+            corners = np.einsum("pij,kj->pki", xf[:, :3], _CORNERS)       # primitive boxes
+            bvh = build_bvh(corners.min(axis=1), corners.max(axis=1))
+            _pf, pi, nrec, _need = pack_bvh(bvh.node_min, bvh.node_max, bvh.node_a, bvh.node_count)
+            pi = pi.reshape(nrec, 32).copy()
+            r0, i0 = sum(x.shape[0] for x in records), sum(x.shape[0] for x in it_prim)
+            inner, leaf = pi[:, 28:] == 0, pi[:, 28:] > 0
+            pi[:, 24:28][inner] += r0                  # global record ids
+            pi[:, 24:28][leaf] += i0                   # global item ids
             node_cache[ids[id(n)]] = len(cache_bvh)
-            b0, i0 = sum(x.shape[0] for x in bva), len(it_prim)
-            cache_bvh.append(b0)
-            boxes.append(np.hstack([bvh.node_min, bvh.node_max]).astype(np.float64))
-            leaf = bvh.node_count > 0
-            bva.append(np.where(leaf, bvh.node_a + i0, bvh.node_a + b0))
-            bvc.append(bvh.node_count)
-            for k in bvh.items:
-                m, xf, js = items[k]
-                it_prim.append(node_prim[ids[id(m)]])
-                it_c0.append(len(chains))
-                it_nc.append(len(js))
-                chains.extend(js)
-                it_inv.append(np.linalg.inv(xf)[:3])
+            cache_bvh.append(r0)
+            records.append(pi)
+            order_ = bvh.items
+            it_prim.append(rows[order_])
+            lens = np.diff(coff)[order_]
+            it_nc.append(lens)
+            it_c0.append(n_chain + np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64))
+            chains.append(np.concatenate([cflat[coff[k]:coff[k + 1]] for k in order_])
+                          if lens.sum() else np.zeros(0, np.int64))
+            n_chain += int(lens.sum())
+            it_inv.append(np.linalg.inv(xf[order_])[:, :3])
             used += n.paths * CACHE_ITEM_BYTES
             served += uses[id(n)] * n.paths
-        self.cache_stats = {"cache_subgraphs": len(cache_bvh), "cache_primitives": len(it_prim),
+        self.cache_stats = {"cache_subgraphs": len(cache_bvh), "cache_primitives": int(sum(x.shape[0] for x in it_prim)),
                             "cache_bytes": int(used), "cache_limit_bytes": self.cache_bytes,
                             # (a subtree also reached beside a cached one counts twice: capped)
                             "cache_hit_rate": round(min(served / max(self.root.n_prims, 1), 1.0), 6)}
-        cat = (lambda xs, shape, dt: np.concatenate(xs).astype(dt).reshape(shape) if xs
-               else np.zeros(shape if shape[0] != -1 else (0,) + shape[1:], dt))
-        return (node_cache, np.array(cache_bvh, np.int64), cat(boxes, (-1, 6), np.float64),
-                cat(bva, (-1,), np.int64), cat(bvc, (-1,), np.int64),
-                np.array(it_prim, np.int64), np.array(it_c0, np.int64), np.array(it_nc, np.int64),
-                np.array(it_inv, np.float64).reshape(-1, 3, 4), np.array(chains, np.int64))
+        del memo
+        rec = np.concatenate(records) if records else np.zeros((0, 32), np.int32)
+
+        def cat(xs, dt, shape=(-1,)):
+            return (np.concatenate(xs) if xs else np.zeros(0)).astype(dt).reshape(shape)
+
+        return (node_cache, np.array(cache_bvh, np.int64), rec, cat(it_prim, np.int64),
+                cat(it_c0, np.int64), cat(it_nc, np.int64), cat(it_inv, np.float64, (-1, 3, 4)),
+                cat(chains, np.int64))
 
     # ------------------------------------------------------------ reading
 
@@ -418,11 +445,12 @@ class DCSG:
     def stats(self):
         a = self.arrays()
         nbytes = sum(x.nbytes for x in a if isinstance(x, np.ndarray))
+        cache = sum(getattr(a, k).nbytes for k in _CACHE_FIELDS)
         return {"dcsg_nodes": len(self.nodes),
                 "alternatives": int(a.alt_cum.shape[0]), "edges": int(a.child_node.shape[0]),
                 "terminal_primitives": int(a.prim_kind.shape[0]),
                 "primitives": self.implicit_primitives, "depth": int(self.root.depth),
-                "bytes": int(nbytes), **self.cache_stats}
+                "bytes": int(nbytes), "graph_bytes": int(nbytes - cache), **self.cache_stats}
 
     def bounds(self):
         """Object-space box of everything the graph draws (primitive extents included)."""
@@ -545,8 +573,8 @@ BLOB_HEADER = 40
  B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC, B_CH_NODE, B_CH_J,
  B_PRIM_KIND, B_GRAPH_ROOT, B_GRAPH_HASH, B_GRAPH_STUB, B_STUB_ADDR,
  B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV,
- B_NODE_CACHE, B_CACHE_BVH, B_CBVH_A, B_CBVH_COUNT, B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J,
- B_CBVH_BOX, B_ITEM_INV) = range(34)
+ B_NODE_CACHE, B_CACHE_ROOT, B_CACHE_REC, B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J,
+ B_ITEM_INV) = range(32)
 
 # Ray scratch, in the caller's int32 stack from (even) word s0 (engine/geometry.py
 # STACK_WORDS): per entry 7 float64 (the ray in the entry's frame, entry t), 2
@@ -614,11 +642,13 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
     virtual shapes vs0, vs0 + 1, ... (graph by graph). -> (blob, prim_graph, stubs)
     where stubs[k] are graph k's StubRecords (global node ids); the kernel's stub
     index counts over all graphs' records in this order."""
-    i32_keys = (B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC,
-                B_CH_NODE, B_CH_J, B_PRIM_KIND, B_NODE_CACHE, B_CACHE_BVH, B_CBVH_A, B_CBVH_COUNT,
+    # the records first: the blob starts 64-byte aligned (geometry._build_trace,
+    # dcsg_table) and so do they, as the vector loads need
+    i32_keys = (B_CACHE_REC, B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC,
+                B_CH_NODE, B_CH_J, B_PRIM_KIND, B_NODE_CACHE, B_CACHE_ROOT,
                 B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J)
     f64_keys = (B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV,
-                B_CBVH_BOX, B_ITEM_INV)
+                B_ITEM_INV)
     i32 = {k: [] for k in i32_keys}
     f64 = {k: [] for k in f64_keys}
     roots, hashes, stub_rows, stub_addr, prim_graph = [], [], [], [], []
@@ -650,17 +680,18 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
         f64[B_PRIM_PARAMS].append(a.prim_params)
         f64[B_PRIM_INV].append(a.prim_inv.reshape(-1, 12))
         i32[B_NODE_CACHE].append(np.where(a.node_cache >= 0, a.node_cache + e0, -1))
-        i32[B_CACHE_BVH].append(a.cache_bvh + v0)
-        i32[B_CBVH_A].append(a.cbvh_a + np.where(a.cbvh_count > 0, i0, v0))
-        i32[B_CBVH_COUNT].append(a.cbvh_count)
+        i32[B_CACHE_ROOT].append(a.cache_root + v0)
+        rec = a.cache_records.copy()
+        rec[:, 24:28][rec[:, 28:] == 0] += v0
+        rec[:, 24:28][rec[:, 28:] > 0] += i0
+        i32[B_CACHE_REC].append(rec.reshape(-1))
         i32[B_ITEM_PRIM].append(a.item_prim + p0)
         i32[B_ITEM_C0].append(a.item_chain0 + j0)
         i32[B_ITEM_NC].append(a.item_nchain)
         i32[B_CHAIN_J].append(a.chain_j)
-        f64[B_CBVH_BOX].append(a.cbvh_box.reshape(-1))
         f64[B_ITEM_INV].append(a.item_inv.reshape(-1))
-        e0 += a.cache_bvh.shape[0]
-        v0 += a.cbvh_a.shape[0]
+        e0 += a.cache_root.shape[0]
+        v0 += a.cache_records.shape[0]
         i0 += a.item_prim.shape[0]
         j0 += a.chain_j.shape[0]
         roots.append(a.root + n0)
@@ -698,6 +729,7 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
         hdr[key] = m
         floats.append(arr)
         m += arr.size
+    assert hdr[B_CACHE_REC] % 4 == 0          # 16-byte records within a 16-byte aligned blob
     blob = np.concatenate([hdr.view(np.float64), np.concatenate(words).view(np.float64)] + floats)
     pg = np.concatenate(prim_graph) if prim_graph else np.zeros(0, np.int64)
     return blob, pg, stubs
@@ -781,11 +813,10 @@ def _tables(i64, w, iw):
 
 @njit(**INLINE)
 def _cache_tables(i64, w, iw):
-    """Start of each expansion-cache table in its view."""
-    return (iw + i64[w + B_NODE_CACHE], iw + i64[w + B_CACHE_BVH], iw + i64[w + B_CBVH_A],
-            iw + i64[w + B_CBVH_COUNT], iw + i64[w + B_ITEM_PRIM], iw + i64[w + B_ITEM_C0],
-            iw + i64[w + B_ITEM_NC], iw + i64[w + B_CHAIN_J], w + i64[w + B_CBVH_BOX],
-            w + i64[w + B_ITEM_INV])
+    """Start of each expansion-cache table in its view (the records: int32 / float32)."""
+    return (iw + i64[w + B_NODE_CACHE], iw + i64[w + B_CACHE_ROOT], iw + i64[w + B_CACHE_REC],
+            iw + i64[w + B_ITEM_PRIM], iw + i64[w + B_ITEM_C0], iw + i64[w + B_ITEM_NC],
+            iw + i64[w + B_CHAIN_J], w + i64[w + B_ITEM_INV])
 
 
 @njit(**INLINE)
@@ -875,8 +906,8 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
     fs = stack.view(np.float64)
     us = stack.view(np.uint64)
     fb, hb, nb, eb, db, pb, bp, kb, kf, rb = _scratch(s0)
-    (o_ncache, o_cbvh, o_ba, o_bc, o_ip, o_ic0, o_inc, o_chain, o_bbox,
-     o_iinv) = _cache_tables(i64, w, iw)
+    o_ncache, o_croot, o_crec, o_ip, o_ic0, o_inc, o_chain, o_iinv = _cache_tables(i64, w, iw)
+    f32s = stack.view(np.float32)
     rf = rb // 2                       # result: normal (3 float64), stub (int32 at rb + 6), address
     t_root = _box_entry(f64, o_box + 6 * root, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if t_root == math.inf:
@@ -912,56 +943,54 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
         ix, iy, iz = _inverse_dir(rdx), _inverse_dir(rdy), _inverse_dir(rdz)
         ci = i32[o_ncache + node]
         if ci >= 0:                      # an expanded subgraph: its BVH, in this node's frame
-            stack[kb] = i32[o_cbvh + ci]
-            fs[kf] = fs[f + 6]
-            ks = 1
-            while ks > 0:
-                ks -= 1
-                if fs[kf + ks] >= tbest:
-                    continue
-                b = stack[kb + ks]
-                cnt = i32[o_bc + b]
-                a_ = i32[o_ba + b]
-                if cnt == 0:
-                    tl = _slabs(f64, o_bbox + 6 * (b + 1), rox, roy, roz, ix, iy, iz, tmin, tbest)
-                    tr = _slabs(f64, o_bbox + 6 * a_, rox, roy, roz, ix, iy, iz, tmin, tbest)
-                    near, far, tn, tf = b + 1, a_, tl, tr
-                    if tr < tl:
-                        near, far, tn, tf = a_, b + 1, tr, tl
-                    if tf < math.inf:
-                        stack[kb + ks], fs[kf + ks] = far, tf
-                        ks += 1
-                    if tn < math.inf:
-                        stack[kb + ks], fs[kf + ks] = near, tn
-                        ks += 1
-                    continue
-                for it in range(a_, a_ + cnt):
-                    p = i32[o_ip + it]
-                    m = o_iinv + 12 * it
-                    lx, ly, lz, ex, ey, ez = xform_ray(f64, m, rox, roy, roz, rdx, rdy, rdz)
-                    pp = o_pp + 4 * p
-                    kind = i32[o_pk + p]
-                    params = (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3])
-                    n, t0, t1, t2, t3 = prim_hits(kind, params, lx, ly, lz, ex, ey, ez)
-                    for i in range(n):
-                        ti = (t0, t1, t2, t3)[i]
-                        if ti > tmin and ti < tbest:
-                            tbest = ti
-                            best_p = p
-                            best_s = stub
-                            hh = h               # the address: the chain of child indices
-                            for q in range(i32[o_ic0 + it], i32[o_ic0 + it] + i32[o_inc + it]):
-                                hh = _child_hash(hh, i32[o_chain + q])
-                            best_h = hh
-                            best_d = d
-                            for q in range(1, d + 1):
-                                stack[bp + q] = stack[pb + q]
-                            _fc, _u, _v, nx, ny, nz = prim_surface(kind, params, lx + ti * ex,
-                                                                   ly + ti * ey, lz + ti * ez)
-                            bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
-                            break
+            sx, sy, sz, nxo, nyo, nzo = _ray_slabs(rdx, rdy, rdz)
+            rec = i32[o_croot + ci]
+            ks = kb
+            while True:
+                b = o_crec + 32 * rec
+                mk, lm, n0, n1, n2, n3 = _slab4(f32, b, rox, roy, roz, sx, sy, sz, nxo, nyo, nzo,
+                                                tmin, tbest)
+                ml = mk & lm
+                mi = mk & ~lm
+                t_in = tbest
+                while ml != 0:
+                    k = _ctz(ml)
+                    ml &= ml - 1
+                    a_ = i32[b + 24 + k]
+                    for it in range(a_, a_ + i32[b + 28 + k]):
+                        p = i32[o_ip + it]
+                        m = o_iinv + 12 * it
+                        lx, ly, lz, ex, ey, ez = xform_ray(f64, m, rox, roy, roz, rdx, rdy, rdz)
+                        pp = o_pp + 4 * p
+                        kind = i32[o_pk + p]
+                        params = (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3])
+                        n, t0, t1, t2, t3 = prim_hits(kind, params, lx, ly, lz, ex, ey, ez)
+                        for i in range(n):
+                            ti = (t0, t1, t2, t3)[i]
+                            if ti > tmin and ti < tbest:
+                                tbest = ti
+                                best_p = p
+                                best_s = stub
+                                hh = h           # the address: the chain of child indices
+                                for q in range(i32[o_ic0 + it], i32[o_ic0 + it] + i32[o_inc + it]):
+                                    hh = _child_hash(hh, i32[o_chain + q])
+                                best_h = hh
+                                best_d = d
+                                for q in range(1, d + 1):
+                                    stack[bp + q] = stack[pb + q]
+                                _fc, _u, _v, nx, ny, nz = prim_surface(kind, params, lx + ti * ex,
+                                                                       ly + ti * ey, lz + ti * ez)
+                                bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
+                                break
                 if any_hit and best_p >= 0:
                     break
+                if tbest < t_in:
+                    mi = _drop_far(mi, n0, n1, n2, n3, tbest)
+                rec, ks = _descend(stack, f32s, ks, i32, b, mi, n0, n1, n2, n3, tbest)
+                if rec < 0:
+                    rec, ks = _pop(stack, f32s, ks, kb, tbest)
+                    if rec < 0:
+                        break
             if any_hit and best_p >= 0:
                 break
             continue
@@ -1097,7 +1126,10 @@ def dcsg_table(graphs):
     hdr = np.zeros(32, np.int64)
     hdr[H_F64] = 32 * 8
     hdr[H_DCSG] = 0
-    raw = np.concatenate([hdr.view(np.uint8), blob.view(np.uint8)])
+    from .bvh import aligned_empty
+    raw = aligned_empty(hdr.nbytes + blob.nbytes, np.uint8)      # the records' vector loads
+    raw[:hdr.nbytes] = hdr.view(np.uint8)
+    raw[hdr.nbytes:] = blob.view(np.uint8)
     views = (raw.view(np.int64), raw.view(np.float32), raw.view(np.int32), raw.view(np.float64))
     return views, prim_graph, stubs
 

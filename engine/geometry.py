@@ -153,6 +153,9 @@ def _build_trace(records, rec_tlas, i32_parts, f64_parts, extra=()):
     f64 = []
     n = 0
     for key, a in f64_parts:
+        if n % 8:                 # every part 64-byte aligned (the DCSG blob's records need 16)
+            f64.append(np.zeros(8 - n % 8))
+            n += f64[-1].size
         off[key] = n
         f64.append(np.asarray(a, np.float64).reshape(-1))
         n += f64[-1].size
@@ -719,7 +722,7 @@ def _check_graph(graph, what):
     a = graph.arrays()
     # (node boxes may be empty, +-inf, for nodes that draw nothing: the rays skip them)
     for name in ("child_inv", "child_rot", "child_box", "prim_inv", "prim_params", "alt_cum",
-                 "cbvh_box", "item_inv"):
+                 "item_inv"):
         if not np.all(np.isfinite(getattr(a, name))):
             _fail(what, f"its scene graph has non-finite {name.replace('_', ' ')}; check its parameters")
 
@@ -895,6 +898,8 @@ def compile_geometry(scene):
                                         sa.blas_min, sa.blas_max))
     tlas = _build_tlas(inst)
     g = _geometry_tuple(sa, blas, inst, tlas, _pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob))
+    if (g.trace.ctypes.data + int(g.trace_i64[H_F64]) + 8 * int(g.trace_i64[D.H_DCSG])) % 16:
+        raise SceneError("internal: the L-system blob is not 16-byte aligned")   # the vector loads
     return g, _geometry_info(scene, parts, csg, blas, inst, tlas, g, t0, dcsg, notes)
 
 

@@ -45,89 +45,14 @@ from .csg import csg_closest_core, csg_surface_core, csg_vs0
 from .dcsg import DCSG_REF, dcsg_closest_core, dcsg_hit_surface, dcsg_vs0
 from .primitives import prim_hits, prim_surface
 from .triangle import pick, triangle_normal, woop_setup, woop_test
+from .wide_bvh import (_V4D, _ctz, _descend, _drop_far, _load4, _mask4, _nearest_lane, _pop,  # noqa: F401
+                       _ray_slabs, _slab4, _splat)
 
-# Slab exits are scaled by this to absorb the rounding of (b - o) * (1/d).
-_ROBUST = 1.0 + 1e-15
-# Stored entry distances are lowered by this relative amount so the float32
-# copy never exceeds the true value (culling stays conservative).
-_LOWER = 2.0 ** -22
 _CHUNK = 256
 
-_V4F = ir.VectorType(ir.FloatType(), 4)
-_V4D = ir.VectorType(ir.DoubleType(), 4)
 
 
 # ------------------------------------------------------------- vector kernels
-
-def _splat(builder, x):
-    i32 = ir.IntType(32)
-    v = builder.insert_element(ir.Constant(_V4D, ir.Undefined), x, ir.Constant(i32, 0))
-    return builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(i32, 4), [0, 0, 0, 0]))
-
-
-def _load4(builder, data, index, vec):
-    ptr = builder.gep(data, [index], inbounds=True)
-    return builder.load(builder.bitcast(ptr, vec.as_pointer()), align=16)
-
-
-def _mask4(builder, cond):
-    return builder.zext(builder.bitcast(cond, ir.IntType(4)), ir.IntType(64))
-
-
-@intrinsic
-def _slab4(typingctx, rec, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo, tmin, tmax):
-    """Slab test of the four child boxes of the record at word b of `rec`
-    (float32), as one 4-wide vector computation.
-
-    Returns (mask, leaves, near0..near3): bit k of mask is set if the ray
-    enters child k within [tmin, tmax]; bit k of leaves if child k is a leaf
-    (count word > 0), so the traversal can sort children without branching
-    on each of them. nxo, nyo, nzo are the word offsets of the
-    near planes (chosen by the direction signs); the far plane of an axis is
-    the other offset of its pair (x: 0/4, y: 8/12, z: 16/20). The float32
-    bounds widen exactly to float64 and the exit is scaled by _ROBUST.
-    """
-    f64 = types.float64
-    sig = types.Tuple((types.int64, types.int64, f64, f64, f64, f64))(
-        rec, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo, tmin, tmax)
-
-    def codegen(context, builder, signature, args):
-        rec_, b_, ox_, oy_, oz_, ix_, iy_, iz_, nxo_, nyo_, nzo_, tmin_, tmax_ = args
-        data = context.make_array(signature.args[0])(context, builder, rec_).data
-        i64 = ir.IntType(64)
-
-        def plane(off, o, inv):
-            v = builder.fpext(_load4(builder, data, builder.add(b_, off), _V4F), _V4D)
-            return builder.fmul(builder.fsub(v, _splat(builder, o)), _splat(builder, inv))
-
-        # max/min that keep the accumulator `a` when c is NaN (one vmaxpd /
-        # vminpd). 0 * inf = NaN means the ray runs in that plane, which must
-        # not limit the slab (inside, boundary included): accumulating from
-        # tmin / +inf makes every NaN drop out.
-        def vmax(a, c):
-            return builder.select(builder.fcmp_ordered(">", c, a), c, a)
-
-        def vmin(a, c):
-            return builder.select(builder.fcmp_ordered("<", c, a), c, a)
-
-        near = vmax(vmax(vmax(_splat(builder, tmin_), plane(nxo_, ox_, ix_)),
-                         plane(nyo_, oy_, iy_)), plane(nzo_, oz_, iz_))
-        far = vmin(vmin(vmin(ir.Constant(_V4D, [math.inf] * 4),
-                             plane(builder.sub(ir.Constant(i64, 4), nxo_), ox_, ix_)),
-                        plane(builder.sub(ir.Constant(i64, 20), nyo_), oy_, iy_)),
-                   plane(builder.sub(ir.Constant(i64, 36), nzo_), oz_, iz_))
-        far = builder.fmul(far, _splat(builder, ir.Constant(ir.DoubleType(), _ROBUST)))
-        far = vmin(far, _splat(builder, tmax_))
-        mask = _mask4(builder, builder.fcmp_ordered("<=", near, far))
-        v4i = ir.VectorType(ir.IntType(32), 4)
-        counts = builder.bitcast(_load4(builder, data, builder.add(b_, ir.Constant(i64, 28)), _V4F), v4i)
-        leaves = _mask4(builder, builder.icmp_signed(">", counts, ir.Constant(v4i, [0] * 4)))
-        out = [mask, leaves] + [builder.extract_element(near, ir.Constant(ir.IntType(32), k))
-                                for k in range(4)]
-        return context.make_tuple(builder, signature.return_type, out)
-
-    return sig, codegen
-
 
 @intrinsic
 def _woop4(typingctx, f64a, base, kx, ky, kz, sx, sy, sz, okx, oky, okz, tmin, tmax):
@@ -185,91 +110,11 @@ def _woop4(typingctx, f64a, base, kx, ky, kz, sx, sy, sz, okx, oky, okz, tmin, t
 # ------------------------------------------------------------- scalar helpers
 
 @njit(**INLINE)
-def _inv(d):
-    # d = +-0 gives +-inf; _slab4 reads the 0 * inf of a ray lying in a
-    # box plane as "no limit"
-    return 1.0 / d
-
-
-@njit(**INLINE)
-def _ray_slabs(dx, dy, dz):
-    """Reciprocal direction and, per axis, the offset of the near slab plane in
-    a 4-wide record (the far plane is the other one): one setup per ray."""
-    ix = _inv(dx)
-    iy = _inv(dy)
-    iz = _inv(dz)
-    return ix, iy, iz, (4 if ix < 0.0 else 0), (12 if iy < 0.0 else 8), (20 if iz < 0.0 else 16)
-
-
-@njit(**INLINE)
 def _valid_ray(ox, oy, oz, dx, dy, dz):
     """Finite origin, finite non-zero direction. (A NaN ray would enter every
     box, since NaN slab distances read as "no limit".)"""
     s = ox + oy + oz + dx + dy + dz
     return (s - s == 0.0) and (dx != 0.0 or dy != 0.0 or dz != 0.0)
-
-
-@intrinsic
-def _ctz(typingctx, x):
-    """Index of the lowest set bit (x != 0)."""
-    sig = types.int64(types.int64)
-
-    def codegen(context, builder, signature, args):
-        i64 = ir.IntType(64)
-        fnty = ir.FunctionType(i64, [i64, ir.IntType(1)])
-        fn = builder.module.declare_intrinsic("llvm.cttz", [i64], fnty)
-        return builder.call(fn, [args[0], ir.Constant(ir.IntType(1), 1)])
-
-    return sig, codegen
-
-
-@njit(**INLINE)
-def _pick4(k, a0, a1, a2, a3):
-    # a select chain (no memory, no branches)
-    return a0 if k == 0 else (a1 if k == 1 else (a2 if k == 2 else a3))
-
-
-@njit(**INLINE)
-def _nearest_lane(m, t0, t1, t2, t3):
-    """Lane and t of the smallest t among the set bits of m (m != 0)."""
-    lane = -1
-    t = math.inf
-    if m & 1:
-        lane = 0
-        t = t0
-    if m & 2 and (lane < 0 or t1 < t):
-        lane = 1
-        t = t1
-    if m & 4 and (lane < 0 or t2 < t):
-        lane = 2
-        t = t2
-    if m & 8 and (lane < 0 or t3 < t):
-        lane = 3
-        t = t3
-    return lane, t
-
-
-@njit(**INLINE)
-def _push(stack, fstack, sp, node, near):
-    stack[sp] = node
-    fstack[sp + 1] = np.float32(near - abs(near) * _LOWER)
-    return sp + 2
-
-
-@njit(**INLINE)
-def _sort_top(stack, fstack, lo, sp):
-    """One bubble pass over the entries pushed by this step (at most three),
-    leaving the nearest on top so it is popped first."""
-    j = sp - 2
-    while j > lo:
-        if fstack[j + 1] > fstack[j - 1]:
-            n = stack[j]
-            f = fstack[j + 1]
-            stack[j] = stack[j - 2]
-            fstack[j + 1] = fstack[j - 1]
-            stack[j - 2] = n
-            fstack[j - 1] = f
-        j -= 2
 
 
 @njit(**INLINE)
@@ -320,60 +165,6 @@ def _woop(ox, oy, oz, dx, dy, dz):
     kx, ky, kz, sx, sy, sz = woop_setup(dx, dy, dz)
     return (kx, ky, kz, sx, sy, sz,
             pick(kx, ox, oy, oz), pick(ky, ox, oy, oz), pick(kz, ox, oy, oz))
-
-
-@njit(**INLINE)
-def _descend(stack, fstack, sp, rec_i, b, mi, n0, n1, n2, n3, tbest):
-    """Next record among the hit interior children `mi` of the record at b:
-    the nearest; the others are pushed, nearest on top. Returns (node, sp),
-    node -1 if there is none (the caller pops)."""
-    if mi == 0:
-        return -1, sp
-    k = _ctz(mi)
-    mi &= mi - 1
-    node = rec_i[b + 24 + k]
-    if mi == 0:                                   # the common case: one child
-        return node, sp
-    near = _pick4(k, n0, n1, n2, n3)
-    lo = sp
-    while mi != 0:
-        k = _ctz(mi)
-        mi &= mi - 1
-        other = rec_i[b + 24 + k]
-        d = _pick4(k, n0, n1, n2, n3)
-        if d < near:
-            sp = _push(stack, fstack, sp, node, near)
-            node = other
-            near = d
-        else:
-            sp = _push(stack, fstack, sp, other, d)
-    if sp - lo > 2:
-        _sort_top(stack, fstack, lo, sp)
-    return node, sp
-
-
-@njit(**INLINE)
-def _pop(stack, fstack, sp, sp0, tbest):
-    """Top entry not beyond tbest, or -1 when the stack (above sp0) runs out."""
-    while sp > sp0:
-        sp -= 2
-        if fstack[sp + 1] <= tbest:
-            return stack[sp], sp
-    return -1, sp
-
-
-@njit(**INLINE)
-def _drop_far(mi, n0, n1, n2, n3, tbest):
-    """Clears children of mask mi whose entry lies beyond tbest."""
-    if n0 > tbest:
-        mi &= 14
-    if n1 > tbest:
-        mi &= 13
-    if n2 > tbest:
-        mi &= 11
-    if n3 > tbest:
-        mi &= 7
-    return mi
 
 
 @njit(**INLINE)

@@ -93,9 +93,10 @@ def test_graph_stands_for_the_derived_string(text):
     assert np.unique(flat.address).size == flat.address.size       # addresses are unique
 
 
+@pytest.mark.parametrize("cache_mb", [D.CACHE_MB, 0.0], ids=["cached", "lazy"])
 @pytest.mark.parametrize("text", [ABOP_124A.format(n=4), TAPERED, STOCHASTIC.format(seed=3)])
-def test_rays_agree_with_the_flattened_primitives(text):
-    graph = D.DCSG(LS.parse(text))
+def test_rays_agree_with_the_flattened_primitives(text, cache_mb):
+    graph = D.DCSG(LS.parse(text), cache_mb=cache_mb)
     o, d = _rays(graph, 1500)
     t, row, address, _stub, normal = D.trace_closest(graph, o, d)
     tb, hb = _brute_force(graph.flatten(), o, d)
@@ -154,9 +155,9 @@ def test_expansion_cache_keeps_to_its_size():
     for st in sizes:
         assert st["cache_bytes"] <= st["cache_limit_bytes"]
     # a subtree too big for the cache gives way to its children: 1 kB holds one of
-    # 5 primitives, 10 kB two of 25, 64 MB the two distinct subtrees of 125
-    assert [st["cache_primitives"] for st in sizes] == [0, 5, 50, 250]
-    assert [st["cache_subgraphs"] for st in sizes] == [0, 1, 2, 2]
+    # 5 primitives, 10 kB two of 25, 64 MB the whole graph
+    assert [st["cache_primitives"] for st in sizes] == [0, 5, 50, 5 ** 6]
+    assert [st["cache_subgraphs"] for st in sizes] == [0, 1, 2, 1]
 
 
 def test_node_count_follows_the_steps_not_the_primitives():

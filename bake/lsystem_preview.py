@@ -730,31 +730,6 @@ def fill_mesh(me, flat):
 
 # ---------------------------------------------------------------- preview update
 
-def organ_resolver(ob):
-    """`~(name)` -> the object of that name in the organ collection (or anywhere), else the
-    child collection (or any collection) of that name."""
-    import bpy
-    props = ob.photon_lightmaps.lsystem
-    coll = props.organs
-
-    def resolve(name):
-        if coll is not None:
-            o = coll.all_objects.get(name)
-            if o is not None:
-                return o
-            if coll.name == name:
-                return coll
-            c = coll.children_recursive
-            c = next((x for x in c if x.name == name), None)
-            if c is not None:
-                return c
-        o = bpy.data.objects.get(name)
-        if o is not None and o != ob:
-            return o
-        return bpy.data.collections.get(name)
-    return resolve
-
-
 def _status(ob, text):
     try:
         ob.photon_lightmaps.lsystem.status = text
@@ -818,7 +793,7 @@ def update_preview(ob, force=True):
     ng = mod.node_group
     approx = []             # where the preview differs from what a render traces
     if plan is not None:
-        build_symbol_tree(ng, plan, organ_resolver(ob))
+        build_symbol_tree(ng, plan, L.organ_resolver(ob))
         ob.data.clear_geometry()
         path, labels, note = "symbols", [s.label for s in plan.symbols], ""
     else:

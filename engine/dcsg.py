@@ -71,6 +71,9 @@ EXACT_ROWS = 1 << 23
 # The expansion cache (thesis 4.4): subtrees of at most CACHE_PATHS primitives
 # are kept expanded, each a small BVH over its primitives, within CACHE_MB.
 CACHE_PATHS = 1 << 14
+# Terminal kind of an organ (`~(name)` with a mesh, scene.LSystem.organs): its row's
+# params[0] is the organ's index; never an analytic primitive kind.
+ORGAN = 63
 CACHE_MB = 64.0
 # bytes one cached primitive costs: its item (inverse, row, chain) and BVH share
 CACHE_ITEM_BYTES = 12 * 8 + 3 * 4 + 4 * 4 + 48
@@ -119,10 +122,43 @@ _CACHE_FIELDS = ("node_cache", "cache_root", "cache_records", "item_prim", "item
                  "item_nchain", "item_inv", "chain_j")
 
 
+OrganTable = namedtuple("OrganTable", "index names tri cdf area box material")
+
+
+def _organ_table(organs):
+    """The organs' meshes for the kernels: each normalised into the box [-1, 1]^3 (so
+    a terminal's box is its transform's, as for the analytic primitives; the box
+    frame `box` (4x4) goes into the terminal's transform), as triangles (T, 9) with
+    their cumulative area (for area samples), local area and material. `organs`:
+    name -> object with vertices (V, 3), triangles (T, 3), material (scene index),
+    already validated (engine/geometry.py)."""
+    names = list(organs)
+    tri, cdf, area, box, mat = [], [], [], [], []
+    for name in names:
+        m = organs[name]
+        v = np.asarray(m.vertices, np.float64).reshape(-1, 3)
+        t = np.asarray(m.triangles, np.int64).reshape(-1, 3)
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        c, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        # a flat leaf has no thickness: a thin box keeps the frame invertible
+        half = np.maximum(half, max(1e-3 * half.max(), 1e-9))
+        b = np.eye(4)
+        b[:3, :3] = np.diag(half)
+        b[:3, 3] = c
+        q = ((v - c) / half)[t]                                   # (T, 3, 3)
+        a = 0.5 * np.linalg.norm(np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]), axis=1)
+        tri.append(q.reshape(-1, 9))
+        cdf.append(np.cumsum(a) / a.sum())
+        area.append(float(a.sum()))
+        box.append(b)
+        mat.append(int(m.material))
+    return OrganTable({n: i for i, n in enumerate(names)}, names, tri, cdf, area, box, mat)
+
+
 class DCSG:
     """The graph of one context-free grammar at a derivation length (see the module docstring)."""
 
-    def __init__(self, grammar, steps=None, angle=None, width=None, cache_mb=CACHE_MB):
+    def __init__(self, grammar, steps=None, angle=None, width=None, cache_mb=CACHE_MB, organs=None):
         if not grammar.is_context_free:
             raise DCSGUnsupported(f"{grammar.source_name}: a context-sensitive grammar cannot be a "
                                   "cyclic scene graph (its context crosses branches); it is derived "
@@ -136,6 +172,7 @@ class DCSG:
         self.angle = grammar.angle if angle is None else float(angle)
         self.width = grammar.width if width is None else float(width)
         self._stubs = {s.symbol: s.levels for s in grammar.ol_stubs}
+        self.organs = _organ_table(organs or {})
         self.nodes = []
         self._memo = {}
         # the axiom is the successor of a virtual root of hash splitmix64(seed), so
@@ -173,8 +210,17 @@ class DCSG:
     def _terminal(self, key, module, state):
         n = self._new(key)
         ts = self._turtle(state).apply(module)
-        prims = to_primitives(ts.geometry())
-        if prims:
+        geom = ts.geometry()
+        prims = to_primitives(geom)
+        placed = [o for o in geom.organs if o.name in self.organs.index]
+        if placed:           # an organ with a mesh: its normalised box frame in the turtle's
+            k = self.organs.index[placed[0].name]
+            xf = (np.asarray(placed[0].matrix, np.float64) @ self.organs.box[k])[:3]
+            n.prim = (ORGAN, np.array([k, 0.0, 0.0, 0.0]), xf, -1 - k)
+            w = _CORNERS @ xf.T
+            n.lo, n.hi = w.min(axis=0), w.max(axis=0)
+            n.n_prims = 1
+        elif prims:
             p = prims[0]
             xf = np.asarray(p.transform, np.float64)[:3]
             params = np.zeros(4)
@@ -386,6 +432,7 @@ class DCSG:
                 got = (rows, xs, flat, offs.astype(np.int64))
             memo[id(m)] = got
             return got
+
         while heap:
             _, _, n = heapq.heappop(heap)
             if id(n) in cached:
@@ -424,7 +471,7 @@ class DCSG:
                             "cache_bytes": int(used), "cache_limit_bytes": self.cache_bytes,
                             # (a subtree also reached beside a cached one counts twice: capped)
                             "cache_hit_rate": round(min(served / max(self.root.n_prims, 1), 1.0), 6)}
-        del memo
+        memo.clear()
         rec = np.concatenate(records) if records else np.zeros((0, 32), np.int32)
 
         def cat(xs, dt, shape=(-1,)):
@@ -574,7 +621,7 @@ BLOB_HEADER = 40
  B_PRIM_KIND, B_GRAPH_ROOT, B_GRAPH_HASH, B_GRAPH_STUB, B_STUB_ADDR,
  B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV,
  B_NODE_CACHE, B_CACHE_ROOT, B_CACHE_REC, B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J,
- B_ITEM_INV) = range(32)
+ B_ITEM_INV, B_ORG_T0, B_ORG_NT, B_ORG_TRI, B_ORG_CDF) = range(36)
 
 # Ray scratch, in the caller's int32 stack from (even) word s0 (engine/geometry.py
 # STACK_WORDS): per entry 7 float64 (the ray in the entry's frame, entry t), 2
@@ -646,13 +693,13 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
     # dcsg_table) and so do they, as the vector loads need
     i32_keys = (B_CACHE_REC, B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC,
                 B_CH_NODE, B_CH_J, B_PRIM_KIND, B_NODE_CACHE, B_CACHE_ROOT,
-                B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J)
+                B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J, B_ORG_T0, B_ORG_NT)
     f64_keys = (B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV,
-                B_ITEM_INV)
+                B_ITEM_INV, B_ORG_TRI, B_ORG_CDF)
     i32 = {k: [] for k in i32_keys}
     f64 = {k: [] for k in f64_keys}
     roots, hashes, stub_rows, stub_addr, prim_graph = [], [], [], [], []
-    n0 = a0 = c0 = p0 = s0 = e0 = v0 = i0 = j0 = 0
+    n0 = a0 = c0 = p0 = s0 = e0 = v0 = i0 = j0 = o0 = t0 = 0
     stack = 1
     stubs = []
     for gi, g in enumerate(graphs):
@@ -677,7 +724,17 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
         f64[B_CH_INV].append(a.child_inv.reshape(-1, 12))
         f64[B_CH_ROT].append(a.child_rot.reshape(-1, 9))
         f64[B_CH_BOX].append(a.child_box.reshape(-1))
-        f64[B_PRIM_PARAMS].append(a.prim_params)
+        params = a.prim_params.copy()
+        params[a.prim_kind == ORGAN, 0] += o0          # global organ ids
+        f64[B_PRIM_PARAMS].append(params)
+        org = g.organs
+        nt = np.array([x.shape[0] for x in org.tri], np.int64)
+        i32[B_ORG_T0].append(t0 + np.cumsum(nt) - nt)
+        i32[B_ORG_NT].append(nt)
+        f64[B_ORG_TRI].append(np.concatenate(org.tri).reshape(-1) if org.tri else np.zeros(0))
+        f64[B_ORG_CDF].append(np.concatenate(org.cdf) if org.cdf else np.zeros(0))
+        o0 += len(org.tri)
+        t0 += int(nt.sum())
         f64[B_PRIM_INV].append(a.prim_inv.reshape(-1, 12))
         i32[B_NODE_CACHE].append(np.where(a.node_cache >= 0, a.node_cache + e0, -1))
         i32[B_CACHE_ROOT].append(a.cache_root + v0)
@@ -887,6 +944,71 @@ def _scratch(s0):
     return fb, hb, nb, eb, db, pb, bp, kb, k2 // 2, rb
 
 
+@njit(**INLINE)
+def _organ_tables(i64, w, iw):
+    """(first triangle, triangle count: int32 per organ; triangles: 9 float64 each)."""
+    return iw + i64[w + B_ORG_T0], iw + i64[w + B_ORG_NT], w + i64[w + B_ORG_TRI]
+
+
+@njit(**INLINE)
+def _terminal_hit(i32, f64, o_pk, o_pp, o_org, p, m, ox, oy, oz, dx, dy, dz, tmin, tbest):
+    """Nearest crossing in (tmin, tbest) of terminal primitive row p, the ray mapped
+    into its frame by the 3x4 at f64[m:]: (t, local normal, not unit); t = inf if
+    none. An organ is a triangle mesh (both sides; normal e1 x e2), any other kind
+    an analytic primitive."""
+    lx, ly, lz, ex, ey, ez = xform_ray(f64, m, ox, oy, oz, dx, dy, dz)
+    pp = o_pp + 4 * p
+    kind = i32[o_pk + p]
+    if kind == ORGAN:
+        o_t0, o_nt, o_tri = o_org
+        g = np.int64(f64[pp])
+        t = math.inf
+        nx, ny, nz = 0.0, 0.0, 1.0
+        t0 = i32[o_t0 + g]
+        for k in range(t0, t0 + i32[o_nt + g]):
+            q = o_tri + 9 * k
+            ti, cx, cy, cz = _triangle(f64, q, lx, ly, lz, ex, ey, ez, tmin, min(t, tbest))
+            if ti < t:
+                t, nx, ny, nz = ti, cx, cy, cz
+        return t, nx, ny, nz
+    params = (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3])
+    n, t0_, t1, t2, t3 = prim_hits(kind, params, lx, ly, lz, ex, ey, ez)
+    for i in range(n):
+        ti = (t0_, t1, t2, t3)[i]
+        if ti > tmin and ti < tbest:
+            _fc, _u, _v, nx, ny, nz = prim_surface(kind, params, lx + ti * ex, ly + ti * ey,
+                                                   lz + ti * ez)
+            return ti, nx, ny, nz
+    return math.inf, 0.0, 0.0, 1.0
+
+
+@njit(**INLINE)
+def _triangle(f64, q, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Moller-Trumbore against the triangle at f64[q:q+9] (v0, v1, v2): (t, e1 x e2),
+    t = inf outside (tmin, tmax) or on a miss."""
+    ax, ay, az = f64[q], f64[q + 1], f64[q + 2]
+    e1x, e1y, e1z = f64[q + 3] - ax, f64[q + 4] - ay, f64[q + 5] - az
+    e2x, e2y, e2z = f64[q + 6] - ax, f64[q + 7] - ay, f64[q + 8] - az
+    px, py, pz = cross(dx, dy, dz, e2x, e2y, e2z)
+    det = e1x * px + e1y * py + e1z * pz
+    if det == 0.0:
+        return math.inf, 0.0, 0.0, 1.0
+    inv = 1.0 / det
+    sx, sy, sz = ox - ax, oy - ay, oz - az
+    u = (sx * px + sy * py + sz * pz) * inv
+    if u < 0.0 or u > 1.0:
+        return math.inf, 0.0, 0.0, 1.0
+    qx, qy, qz = cross(sx, sy, sz, e1x, e1y, e1z)
+    v = (dx * qx + dy * qy + dz * qz) * inv
+    if v < 0.0 or u + v > 1.0:
+        return math.inf, 0.0, 0.0, 1.0
+    t = (e2x * qx + e2y * qy + e2z * qz) * inv
+    if not (t > tmin and t < tmax):
+        return math.inf, 0.0, 0.0, 1.0
+    nx, ny, nz = cross(e1x, e1y, e1z, e2x, e2y, e2z)
+    return t, nx, ny, nz
+
+
 @njit(**CORE)
 def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
     """Closest hit of a prototype-space ray with DCSG `graph`, expanded lazily:
@@ -907,6 +1029,7 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
     us = stack.view(np.uint64)
     fb, hb, nb, eb, db, pb, bp, kb, kf, rb = _scratch(s0)
     o_ncache, o_croot, o_crec, o_ip, o_ic0, o_inc, o_chain, o_iinv = _cache_tables(i64, w, iw)
+    o_org = _organ_tables(i64, w, iw)
     f32s = stack.view(np.float32)
     rf = rb // 2                       # result: normal (3 float64), stub (int32 at rb + 6), address
     t_root = _box_entry(f64, o_box + 6 * root, ox, oy, oz, dx, dy, dz, tmin, tmax)
@@ -960,28 +1083,20 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
                     for it in range(a_, a_ + i32[b + 28 + k]):
                         p = i32[o_ip + it]
                         m = o_iinv + 12 * it
-                        lx, ly, lz, ex, ey, ez = xform_ray(f64, m, rox, roy, roz, rdx, rdy, rdz)
-                        pp = o_pp + 4 * p
-                        kind = i32[o_pk + p]
-                        params = (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3])
-                        n, t0, t1, t2, t3 = prim_hits(kind, params, lx, ly, lz, ex, ey, ez)
-                        for i in range(n):
-                            ti = (t0, t1, t2, t3)[i]
-                            if ti > tmin and ti < tbest:
-                                tbest = ti
-                                best_p = p
-                                best_s = stub
-                                hh = h           # the address: the chain of child indices
-                                for q in range(i32[o_ic0 + it], i32[o_ic0 + it] + i32[o_inc + it]):
-                                    hh = _child_hash(hh, i32[o_chain + q])
-                                best_h = hh
-                                best_d = d
-                                for q in range(1, d + 1):
-                                    stack[bp + q] = stack[pb + q]
-                                _fc, _u, _v, nx, ny, nz = prim_surface(kind, params, lx + ti * ex,
-                                                                       ly + ti * ey, lz + ti * ez)
-                                bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
-                                break
+                        ti, nx, ny, nz = _terminal_hit(i32, f64, o_pk, o_pp, o_org, p, m, rox, roy, roz,
+                                                       rdx, rdy, rdz, tmin, tbest)
+                        if ti < tbest:
+                            tbest = ti
+                            best_p = p
+                            best_s = stub
+                            hh = h               # the address: the chain of child indices
+                            for q in range(i32[o_ic0 + it], i32[o_ic0 + it] + i32[o_inc + it]):
+                                hh = _child_hash(hh, i32[o_chain + q])
+                            best_h = hh
+                            best_d = d
+                            for q in range(1, d + 1):
+                                stack[bp + q] = stack[pb + q]
+                            bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
                 if any_hit and best_p >= 0:
                     break
                 if tbest < t_in:
@@ -996,17 +1111,8 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
             continue
         p = i32[o_prim + node]
         if p >= 0:                       # a terminal root (terminal children are tested below)
-            lx, ly, lz, ex, ey, ez = xform_ray(f64, o_pinv + 12 * p, rox, roy, roz, rdx, rdy, rdz)
-            pp = o_pp + 4 * p
-            kind = i32[o_pk + p]
-            params = (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3])
-            n, t0, t1, t2, t3 = prim_hits(kind, params, lx, ly, lz, ex, ey, ez)
-            t = math.inf
-            for i in range(n):
-                ti = (t0, t1, t2, t3)[i]
-                if ti > tmin and ti < tbest:
-                    t = ti
-                    break
+            t, nx, ny, nz = _terminal_hit(i32, f64, o_pk, o_pp, o_org, p, o_pinv + 12 * p,
+                                          rox, roy, roz, rdx, rdy, rdz, tmin, tbest)
             if t < tbest:
                 tbest = t
                 best_p = p
@@ -1015,8 +1121,6 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
                 best_d = d
                 for q in range(1, d + 1):
                     stack[bp + q] = stack[pb + q]
-                _fc, _u, _v, nx, ny, nz = prim_surface(kind, params, lx + t * ex, ly + t * ey,
-                                                       lz + t * ez)
                 bnx, bny, bnz = normal_through(f64, o_pinv + 12 * p, nx, ny, nz)
                 if any_hit:
                     break
@@ -1032,25 +1136,17 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
             p = i32[o_prim + child]
             if p >= 0:                   # a terminal: test it now, with no push
                 m = o_cinv + 12 * c
-                lx, ly, lz, ex, ey, ez = xform_ray(f64, m, rox, roy, roz, rdx, rdy, rdz)
-                pp = o_pp + 4 * p
-                kind = i32[o_pk + p]
-                params = (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3])
-                n, t0, t1, t2, t3 = prim_hits(kind, params, lx, ly, lz, ex, ey, ez)
-                for i in range(n):
-                    ti = (t0, t1, t2, t3)[i]
-                    if ti > tmin and ti < tbest:
-                        tbest = ti
-                        best_p = p
-                        best_s = stub
-                        best_h = _child_hash(h, i32[o_chj + c])
-                        best_d = d
-                        for q in range(1, d + 1):
-                            stack[bp + q] = stack[pb + q]
-                        _fc, _u, _v, nx, ny, nz = prim_surface(kind, params, lx + ti * ex,
-                                                               ly + ti * ey, lz + ti * ez)
-                        bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
-                        break
+                ti, nx, ny, nz = _terminal_hit(i32, f64, o_pk, o_pp, o_org, p, m, rox, roy, roz,
+                                               rdx, rdy, rdz, tmin, tbest)
+                if ti < tbest:
+                    tbest = ti
+                    best_p = p
+                    best_s = stub
+                    best_h = _child_hash(h, i32[o_chj + c])
+                    best_d = d
+                    for q in range(1, d + 1):
+                        stack[bp + q] = stack[pb + q]
+                    bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
                 if any_hit and best_p >= 0:
                     break
                 continue
@@ -1186,7 +1282,8 @@ def node_areas(graph):
             return out[i]
         if n.prim is not None:
             kind, params, xf, _ = n.prim
-            v = prim_area(kind, params) * abs(np.linalg.det(xf[:, :3])) ** (2.0 / 3.0)
+            local = graph.organs.area[int(params[0])] if kind == ORGAN else prim_area(kind, params)
+            v = local * abs(np.linalg.det(xf[:, :3])) ** (2.0 / 3.0)
         else:
             v, prev = 0.0, 0.0
             for cum, children in n.alts:
@@ -1212,6 +1309,8 @@ def _area_samples(buf, node_area, start, start_hash, rot0, inst_inv, det_inst, e
     w, iw = dcsg_base(buf)
     (o_alt0, o_nalt, o_prim, o_stub, o_ac0, o_anc, o_chn, o_chj, o_pk,
      _o_box, o_cum, _o_cinv, o_crot, _o_cbox, o_pp, o_pinv) = _tables(i64, w, iw)
+    o_org_t0, o_org_nt, o_org_tri = _organ_tables(i64, w, iw)
+    o_org_cdf = w + i64[w + B_ORG_CDF]
     for k in prange(n_s):
         out_bin[k] = -1
         out_val[k] = 0.0
@@ -1266,13 +1365,31 @@ def _area_samples(buf, node_area, start, start_hash, rot0, inst_inv, det_inst, e
         kind = i32[o_pk + p]
         pp = o_pp + 4 * p
         params = (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3])
-        nf = prim_nfaces(kind)
         state, u1 = next_float(state)
         state, u2 = next_float(state)
         state, u3 = next_float(state)
-        face = min(np.int64(u1 * nf), nf - 1)
-        q = prim_point(kind, params, face, u2, u3)
-        cx, cy, cz = cross(q[3], q[4], q[5], q[6], q[7], q[8])
+        if kind == ORGAN:
+            # a triangle by its share of the organ's area, then e1 x e2 (twice its area)
+            g = np.int64(params[0])
+            t0 = i32[o_org_t0 + g]
+            nt = i32[o_org_nt + g]
+            j = t0 + nt - 1
+            for tk in range(t0, t0 + nt):
+                if u1 < f64[o_org_cdf + tk]:
+                    j = tk
+                    break
+            pk = f64[o_org_cdf + j] - (f64[o_org_cdf + j - 1] if j > t0 else 0.0)
+            if not pk > 0.0:
+                continue
+            qq = o_org_tri + 9 * j
+            cx, cy, cz = cross(f64[qq + 3] - f64[qq], f64[qq + 4] - f64[qq + 1], f64[qq + 5] - f64[qq + 2],
+                               f64[qq + 6] - f64[qq], f64[qq + 7] - f64[qq + 1], f64[qq + 8] - f64[qq + 2])
+            nf = 0.5 / pk
+        else:
+            nf = prim_nfaces(kind)
+            face = min(np.int64(u1 * nf), nf - 1)
+            q = prim_point(kind, params, face, u2, u3)
+            cx, cy, cz = cross(q[3], q[4], q[5], q[6], q[7], q[8])
         # local -> node: cof(P) c = det(P) P^-T c, P^-1 being the stored inverse
         m = o_pinv + 12 * p
         det_inv = (f64[m] * (f64[m + 5] * f64[m + 10] - f64[m + 6] * f64[m + 9])

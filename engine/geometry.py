@@ -690,8 +690,9 @@ def _lsystem_graphs(scene, n_materials, notes):
             grammar = LS.parse(ls.grammar, name=ls.name)
             if ls.seed is not None:
                 grammar = replace(grammar, seed=int(ls.seed))
+            organs = _check_organs(ls, what, n_materials)
             try:
-                graph = D.DCSG(grammar, ls.steps, cache_mb=ls.cache_mb)
+                graph = D.DCSG(grammar, ls.steps, cache_mb=ls.cache_mb, organs=organs)
             except D.DCSGUnsupported as exc:
                 der = LS.derive(grammar, ls.steps)
                 prims = T.to_primitives(T.interpret(der.modules, grammar.angle, grammar.width),
@@ -708,6 +709,26 @@ def _lsystem_graphs(scene, n_materials, notes):
     if any(p is not q for p, q in zip(prototypes, scene.prototypes)):
         scene = replace(scene, prototypes=prototypes)
     return per_proto, graphs, scene
+
+
+def _check_organs(ls, what, n_materials):
+    """The L-system's organ meshes, validated: name -> mesh with finite vertices,
+    triangles in range and some area (a mesh without any is left out, with the
+    organ drawn as nothing, as for a name without a mesh)."""
+    from types import SimpleNamespace
+    out = {}
+    for name, mesh in dict(ls.organs or {}).items():
+        w = f"{what}, organ '{name}'"
+        v, tri, mats = check_mesh_arrays(mesh, w, n_materials)
+        if tri.shape[0] == 0:
+            continue
+        q = v[tri]
+        area = 0.5 * np.linalg.norm(np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]), axis=1)
+        keep = area > 0.0
+        if not keep.any():
+            _fail(w, "has no triangle with area; give the organ a surface")
+        out[str(name)] = SimpleNamespace(vertices=v, triangles=tri[keep], material=int(mats[0]))
+    return out
 
 
 def _check_graph(graph, what):
@@ -736,7 +757,12 @@ def _add_dcsg_virtual_shapes(per_proto, graphs, parts):
             a = graph.arrays()
             n = a.prim_kind.shape[0]
             first = parts.dcsg_prims
-            mats = np.asarray(ls.materials, np.int32)[np.minimum(a.prim_material, len(ls.materials) - 1)]
+            # ;(i) slots, or (negative: -1 - organ) the organ's own material
+            slot = np.clip(a.prim_material, 0, len(ls.materials) - 1)
+            organ_mats = np.asarray(graph.organs.material + [0], np.int32)
+            organ = np.clip(-1 - a.prim_material, 0, organ_mats.shape[0] - 1)
+            mats = np.where(a.prim_material >= 0, np.asarray(ls.materials, np.int32)[slot],
+                            organ_mats[organ])
             parts.add_shapes(np.full(n, DCSG, np.int32), first + np.arange(n, dtype=np.int32),
                              mats, np.full(n, -1, np.int32), np.full(n, pi_, np.int32))
             parts.dcsg_prims += n

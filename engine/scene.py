@@ -134,6 +134,9 @@ class LSystem:
     seed: int | None = None         # None: the grammar's seed
     materials: tuple = (0,)
     cache_mb: float = 64.0          # the expansion cache's size (engine/dcsg.py CACHE_MB)
+    # `~(name)` organs: name -> TriangleMesh in the organ's own frame (x -> L, y -> U,
+    # z -> H of the turtle, scaled by ~'s scale), its `material` a scene material
+    organs: dict = field(default_factory=dict)
 
 
 CSG_OPS = ("union", "intersection", "difference")

@@ -29,6 +29,8 @@ import hashlib
 import re
 from dataclasses import dataclass, fields, replace
 
+import numpy as np
+
 from ..engine import lsystem as LS
 from ..engine.scene import LSystem, Prototype, SceneError
 from .context import PrototypeRecord
@@ -311,6 +313,67 @@ def __getattr__(name):
 
 # ---------------------------------------------------------------- export
 
+def organ_resolver(ob):
+    """`~(name)` -> the object of that name in the organ collection (or anywhere), else the
+    child collection (or any collection) of that name."""
+    import bpy
+    props = ob.photon_lightmaps.lsystem
+    coll = props.organs
+
+    def resolve(name):
+        if coll is not None:
+            o = coll.all_objects.get(name)
+            if o is not None:
+                return o
+            if coll.name == name:
+                return coll
+            c = coll.children_recursive
+            c = next((x for x in c if x.name == name), None)
+            if c is not None:
+                return c
+        o = bpy.data.objects.get(name)
+        if o is not None and o != ob:
+            return o
+        return bpy.data.collections.get(name)
+    return resolve
+
+
+def organ_meshes(ctx, ob, text):
+    """name -> TriangleMesh (the organ's evaluated geometry in its own frame, as the
+    preview instances it: an object's local mesh, or a collection's objects' local
+    meshes together) for every organ the grammar names; a name that resolves to no
+    mesh is reported and drawn as nothing."""
+    import bpy
+    from ..engine.scene import TriangleMesh
+    from .meshes import leaf_mesh
+    resolve = organ_resolver(ob)
+    out = {}
+    for name in dict.fromkeys(organ_names(text)):
+        target = resolve(name)
+        objs = ([o for o in target.all_objects] if isinstance(target, bpy.types.Collection)
+                else [target] if target is not None else [])
+        parts = []
+        for o in objs:
+            ev = o.evaluated_get(ctx.dg) if ctx.dg is not None else o
+            try:
+                me = ev.to_mesh()
+            except RuntimeError:
+                me = None
+            if me is not None:
+                tm = leaf_mesh(ctx, me, o)
+                if tm is not None:
+                    parts.append(tm)
+                ev.to_mesh_clear()
+        if not parts:
+            ctx.report("WARNING", f"L-system object '{ob.name}': organ '{name}' has no mesh (set the "
+                                   "Organs collection or add an object of that name); it is not drawn")
+            continue
+        v0 = np.cumsum([0] + [p.vertices.shape[0] for p in parts])
+        out[name] = TriangleMesh(np.concatenate([p.vertices for p in parts]),
+                                 np.concatenate([p.triangles + v for p, v in zip(parts, v0)]),
+                                 material=parts[0].material, name=name)
+    return out
+
 def is_preview(original, parent):
     """True for depsgraph entries an L-system object's modifier generates (its preview
     geometry, their instances, organ instances): the engine traces the grammar instead."""
@@ -344,11 +407,9 @@ def lsystem_prototype(ctx, ob):
     except LS.LSystemError as exc:
         ctx.report("WARNING", f"L-system object '{name}': {' '.join(str(exc).split())}; it is not exported")
         return -1
-    if organ_names(src):
-        ctx.report("WARNING", f"L-system object '{name}': organs (~) are shown in the preview only; "
-                               "the engine does not trace them yet")
     lsys = LSystem(grammar=effective_text(src, settings), name=name, steps=settings.steps,
-                   seed=settings.seed_override, materials=mats, cache_mb=float(settings.cache_mb))
+                   seed=settings.seed_override, materials=mats, cache_mb=float(settings.cache_mb),
+                   organs=organ_meshes(ctx, original, src))
     ctx.scene.prototypes.append(Prototype(name=name, lsystems=[lsys]))
     ctx.map.prototypes.append(PrototypeRecord(name, 0, "lsystem"))
     idx = ctx.prototype_index[key] = len(ctx.scene.prototypes) - 1

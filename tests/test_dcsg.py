@@ -5,6 +5,8 @@ interpreted by the turtle (engine/turtle.py): the graph must stand for exactly
 those primitives, with the same addresses, and rays through the graph must hit
 what rays through those primitives hit.
 """
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -230,5 +232,87 @@ def test_area_estimate_is_unbiased_under_an_instance_transform():
     area, var = D.estimate_graph_areas(views, graph, D.node_areas(graph), graph.arrays().root,
                                        graph.root_hash, np.eye(3), inv, 8, 40000, seed=3)
     exact = 4.0 * quadrature_area(graph.flatten())           # scale 2: area x 4
+    assert abs(area.sum() - exact) < 4 * np.sqrt(var.sum())
+    assert np.sqrt(var.sum()) < 0.02 * exact
+
+
+# a kite-shaped leaf in the organ's frame (x -> L, z -> H: it grows along the heading)
+LEAF = SimpleNamespace(vertices=np.array([[0.0, 0, 0], [0.5, 0, 0.5], [0, 0, 1.0], [-0.5, 0, 0.5]]),
+                       triangles=np.array([[0, 1, 2], [0, 2, 3]]), material=0)
+LEAVES = """axiom: A
+derivation length: 4
+angle: 30
+production:
+A --> F [ +(40) A ] [ -(25) /(90) A ] ~(leaf, 0.5)
+"""
+
+
+def _organ_triangles(graph):
+    """World triangles (n, 3, 3) of every organ the flattened graph places, and their addresses."""
+    flat = graph.flatten()
+    out, addr = [], []
+    for kind, params, xf, a in zip(flat.kind, flat.params, flat.transform, flat.address):
+        if kind == D.ORGAN:
+            q = graph.organs.tri[int(params[0])].reshape(-1, 3, 3)
+            out.append(q @ xf[:, :3].T + xf[:, 3])
+            addr += [a] * q.shape[0]
+    return np.concatenate(out), np.array(addr, np.uint64)
+
+
+def _brute_triangles(tris, o, d):
+    """Closest t over triangles (Moller-Trumbore in numpy), inf on a miss."""
+    e1, e2 = tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
+    best = np.full(o.shape[0], np.inf)
+    for i in range(tris.shape[0]):
+        p = np.cross(d, e2[i])
+        det = p @ e1[i]
+        s = o - tris[i, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.einsum("ij,ij->i", s, p) / det
+            q = np.cross(s, e1[i])
+            v = np.einsum("ij,ij->i", d, q) / det
+            t = (q @ e2[i]) / det
+        ok = (det != 0) & (u >= 0) & (u <= 1) & (v >= 0) & (u + v <= 1) & (t > 0)
+        best = np.where(ok & (t < best), t, best)
+    return best
+
+
+@pytest.mark.parametrize("cache_mb", [D.CACHE_MB, 0.0], ids=["cached", "lazy"])
+def test_organs_are_hit_where_their_meshes_are(cache_mb):
+    """`~(leaf, s)` with a mesh: rays hit the leaves the flattened graph places (world
+    triangles from the organ's mesh in the turtle frame) at the same t, and the
+    segments as before; every organ hit reports an organ row."""
+    graph = D.DCSG(LS.parse(LEAVES), organs={"leaf": LEAF}, cache_mb=cache_mb)
+    assert graph.implicit_primitives == 2 * 15                  # 15 F and 15 leaves
+    tris, _ = _organ_triangles(graph)
+    rng = np.random.default_rng(4)
+    lo, hi = graph.bounds()
+    target = tris[rng.integers(0, tris.shape[0], 1500)].mean(axis=1) + rng.normal(size=(1500, 3)) * 0.05
+    o = 0.5 * (lo + hi) + rng.normal(size=(1500, 3)) * 4.0
+    d = target - o
+    t, row, _, _, normal = D.trace_closest(graph, o, d)
+    flat = graph.flatten()
+    seg = D.Flattened(*(a[flat.kind != D.ORGAN] for a in flat))
+    t_ref = np.minimum(_brute_triangles(tris, o, d), _brute_force(seg, o, d)[0])
+    hit = np.isfinite(t_ref)
+    assert 300 < hit.sum() < 1500
+    np.testing.assert_array_equal(row >= 0, hit)
+    np.testing.assert_allclose(t[hit], t_ref[hit], rtol=1e-9)
+    organ_rows = np.flatnonzero(graph.arrays().prim_kind == D.ORGAN)
+    on_leaf = np.isin(row, organ_rows)
+    assert on_leaf.sum() > 200
+    np.testing.assert_allclose(np.linalg.norm(normal[hit], axis=1), 1.0, rtol=1e-12)
+
+
+def test_organ_area_is_estimated_through_the_graph():
+    graph = D.DCSG(LS.parse(LEAVES), organs={"leaf": LEAF})
+    views = D.dcsg_table([graph])[0]
+    area, var = D.estimate_graph_areas(views, graph, D.node_areas(graph), graph.arrays().root,
+                                       graph.root_hash, np.eye(3), np.eye(4)[:3], 8, 40000, seed=5)
+    tris, _ = _organ_triangles(graph)
+    leaves = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1).sum()
+    flat = graph.flatten()
+    exact = leaves + quadrature_area(D.Flattened(*(a[flat.kind != D.ORGAN] for a in flat)))
+    assert leaves == pytest.approx(15 * 0.5 * 0.25)           # kite area 0.5, scaled by 0.5^2
     assert abs(area.sum() - exact) < 4 * np.sqrt(var.sum())
     assert np.sqrt(var.sum()) < 0.02 * exact

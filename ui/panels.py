@@ -252,7 +252,7 @@ def lsystem_summary(ob):
 
 
 def _organ_lookup(ob):
-    from ..bake.lsystem_preview import organ_resolver
+    from ..export.lsystems import organ_resolver
     resolve = organ_resolver(ob)
 
     def name(n):

@@ -199,11 +199,14 @@ def _orientation_areas(ols, maps, geom, lm, dcsg=None):
     area = [e.area.copy() for e in own]
     var = [(e.area * np.where(np.isfinite(e.rel_error), e.rel_error, 0.0)) ** 2 for e in own]
     if dcsg is not None:
-        for k, (a, v) in _lsystem_areas(ols, maps, geom, dcsg).items():
+        for k, (a, v, n_samples, seconds) in _lsystem_areas(ols, maps, geom, dcsg).items():
             area[k] += a
             var[k] += v
+            # an OL over L-systems only spent no samples on instances
+            mesh_samples = own[k].samples if own[k].total > 0 else 0
             own[k] = own[k]._replace(total=own[k].total + float(a.sum()),
-                                     samples=own[k].samples + int(ols[k].samples))
+                                     samples=mesh_samples + n_samples,
+                                     seconds=own[k].seconds + seconds)
     weight = [e.total * e.openness for e in own]
     total = [e.total for e in own]
     secs = [e.seconds for e in own]
@@ -386,21 +389,21 @@ def _lsystem_stubs(scene, geom, dcsg, ol_maps):
 
 
 def _lsystem_areas(ols, maps, geom, dcsg):
-    """{OL: (area per bin, variance)} of the L-system geometry each OL owns: a
-    stub its subtree, an instance's OL the rest, nested stubs left to their own OLs."""
+    """{OL: (area per bin, variance, samples, seconds)} of the L-system geometry each
+    OL owns: a stub its subtree, an instance's OL the rest, nested stubs left to
+    their own OLs."""
     from . import dcsg as D
     views = (geom.trace_i64, geom.trace_f32, geom.trace_i32, geom.trace_f64)
     out = {}
 
     def add(k, start, h, rot, i, graph):
         ol = ols[k]
+        t = time.perf_counter()
         a, v = D.estimate_graph_areas(views, graph, dcsg["node_area"], start, h, rot,
                                       geom.inst_inv[i], int(ol.resolution), int(ol.samples),
                                       int(ol.seed) + 7919 * (start + 1))
-        if k in out:
-            out[k] = (out[k][0] + a, out[k][1] + v)
-        else:
-            out[k] = (a, v)
+        row = (a, v, int(ol.samples), time.perf_counter() - t)
+        out[k] = row if k not in out else tuple(x + y for x, y in zip(out[k], row))
 
     for i in range(maps.inst_ol.shape[0]):
         k = int(maps.inst_ol[i])

@@ -71,6 +71,9 @@ def test_an_lsystem_gets_one_orientation_lightmap_of_its_own():
     # its area estimate is the flattened primitives' area (scale 1.3: x 1.69)
     flat = D.DCSG(LS.parse(TREE)).flatten()
     assert rows[0]["area"] == pytest.approx(1.69 * quadrature_area(flat, 16), rel=4 * rows[0]["area_rel_error"])
+    # the row counts the graph's samples once (no meshes under it) and their time
+    assert rows[0]["samples"] == OrientationLightmap("x", []).samples
+    assert rows[0]["area_seconds"] > 0.0
 
 
 def test_photons_on_the_graph_are_the_photons_on_its_flattening():

@@ -153,7 +153,7 @@ def _build_trace(records, rec_tlas, i32_parts, f64_parts, extra=()):
     f64 = []
     n = 0
     for key, a in f64_parts:
-        if n % 8:                 # every part 64-byte aligned (the DCSG blob's records need 16)
+        if key == D.H_DCSG and n % 8:     # 64-byte aligned: the blob's records need 16
             f64.append(np.zeros(8 - n % 8))
             n += f64[-1].size
         off[key] = n

@@ -452,8 +452,12 @@ _CONE_SHIFT = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, -1.0], [0, 0, 0, 1
 
 
 class _Shapes:
-    def __init__(self, tree, organ):
-        self.t, self.organ, self.cache = tree, organ, {}
+    def __init__(self, tree, organ, materials=()):
+        # materials: per slot, the material of a mesh-linked slot (None otherwise). The
+        # instances' own geometry has no material list, so an index alone leaves such
+        # slots empty in the viewport and in Cycles: those shapes carry the material
+        # (Set Material). Object-linked slots apply to the instances by index.
+        self.t, self.organ, self.cache, self.materials = tree, organ, {}, tuple(materials)
 
     def unit(self, d):
         """(geometry socket of the unit shape, extra 4x4 into the canonical frame) or None."""
@@ -496,7 +500,14 @@ class _Shapes:
         if u is not None:
             geo, pre = u
             out = self.t.transform(geo, self.t.matrix(d.matrix @ pre, x), x)
-            if d.kind != "organ" and d.material:
+            mat = (self.materials[min(int(d.material), len(self.materials) - 1)]
+                   if self.materials and d.kind != "organ" else None)
+            if mat is not None:
+                sm = self.t.node("GeometryNodeSetMaterial", x)
+                sm.inputs["Material"].default_value = mat
+                self.t.link(out, sm.inputs["Geometry"])
+                out = sm.outputs[0]
+            elif d.kind != "organ" and d.material:
                 sm = self.t.node("GeometryNodeSetMaterialIndex", x)
                 sm.inputs["Material Index"].default_value = int(d.material)
                 self.t.link(out, sm.inputs["Geometry"])
@@ -524,14 +535,15 @@ def _join(tree, sockets, x):
     return j.outputs[0]
 
 
-def build_symbol_tree(ng, plan, organ=lambda name: None):
+def build_symbol_tree(ng, plan, organ=lambda name: None, materials=()):
     """Fills `ng` with the per-symbol Repeat Zone of `plan` (a SymbolPlan).
-    organ(name) -> (geometry socket maker) is asked for `~(name)` drawings."""
+    organ(name) -> (geometry socket maker) is asked for `~(name)` drawings;
+    materials: the object's slot materials, which `;(i)` selects."""
     _clear(ng)
     tree = _Tree(ng)
     gin = tree.node("NodeGroupInput", -1)
     gout = tree.node("NodeGroupOutput", 8)
-    shapes = _Shapes(tree, lambda name: _organ_socket(tree, organ(name)))
+    shapes = _Shapes(tree, lambda name: _organ_socket(tree, organ(name)), materials)
     rin = tree.node("GeometryNodeRepeatInput", 2)
     rout = tree.node("GeometryNodeRepeatOutput", 6)
     rin.pair_with_output(rout)
@@ -741,6 +753,12 @@ def _editable(ob):
     return ob.library is None and (ob.override_library is None or not ob.override_library.is_system_override)
 
 
+def _preview_key(ob, src):
+    """What the preview follows: the grammar text and the slot materials it carries."""
+    mats = "|".join(f"{s.link}:{s.material.name if s.material else ''}" for s in ob.material_slots)
+    return L.text_hash(src + "\0" + mats)
+
+
 def update_preview(ob, force=True):
     """Regenerates the preview of L-system object `ob` from its grammar.
     Returns the status text ("" when fine). A grammar the engine refuses sets the status
@@ -754,7 +772,7 @@ def update_preview(ob, force=True):
         _status(ob, msg)
         return msg
     src = text.as_string()
-    h = L.text_hash(src)
+    h = _preview_key(ob, src)
     meta = L.info(ob)
     if not force and meta.get("checked") == h:
         return ob.photon_lightmaps.lsystem.status
@@ -793,7 +811,8 @@ def update_preview(ob, force=True):
     ng = mod.node_group
     approx = []             # where the preview differs from what a render traces
     if plan is not None:
-        build_symbol_tree(ng, plan, L.organ_resolver(ob))
+        build_symbol_tree(ng, plan, L.organ_resolver(ob),
+                          [s.material if s.link == "DATA" else None for s in ob.material_slots])
         ob.data.clear_geometry()
         path, labels, note = "symbols", [s.label for s in plan.symbols], ""
     else:
@@ -812,8 +831,8 @@ def update_preview(ob, force=True):
     steps = L.render_steps(grammar, settings)
     if steps is not None and steps > depth:
         approx.append(f"shows depth {depth} of {steps}; renders with this engine trace all {steps}")
-    meta.update({"version": L.FORMAT_VERSION, "hash": h, "path": path, "depth": int(depth),
-                 "symbols": labels, "note": note, "approximate": approx, "stats": stats,
+    meta.update({"version": L.FORMAT_VERSION, "hash": L.text_hash(src), "path": path,
+                 "depth": int(depth), "symbols": labels, "note": note, "approximate": approx, "stats": stats,
                  "ol_stubs": L.ol_stub_lines(user), "organs": L.organ_names(src)})
     ob[L.INFO_PROP] = meta
     ng[L.INFO_PROP] = {k: meta[k] for k in ("version", "hash", "path", "depth")}
@@ -875,7 +894,7 @@ def check_texts(settle=False):
         text = L.grammar_text(ob)
         if text is None:
             continue
-        h = L.text_hash(text.as_string())
+        h = _preview_key(ob, text.as_string())
         previous, _SEEN[ob.name] = _SEEN.get(ob.name), h
         if L.info(ob).get("checked") != h and (not settle or previous == h):
             update_preview(ob, force=False)

@@ -117,9 +117,10 @@ DCSGArrays = namedtuple("DCSGArrays", [
     # chains of child indices
     "node_cache", "cache_root", "cache_records",
     "item_prim", "item_chain0", "item_nchain", "item_inv", "chain_j",
+    "item_stub",                     # int64[I]: chain steps to the innermost stub, -1: none
 ])
 _CACHE_FIELDS = ("node_cache", "cache_root", "cache_records", "item_prim", "item_chain0",
-                 "item_nchain", "item_inv", "chain_j")
+                 "item_nchain", "item_inv", "chain_j", "item_stub")
 
 
 OrganTable = namedtuple("OrganTable", "index names tri cdf area box material")
@@ -370,7 +371,7 @@ class DCSG:
         order = self._topological()
         for n in reversed(order):
             n.fixed = n.prim is not None or (len(n.alts) == 1 and all(
-                c.fixed and not c.stub for c, _, _ in n.alts[0][1]))
+                c.fixed for c, _, _ in n.alts[0][1]))
         uses = {id(self.root): 1.0}
         for n in order:                           # parents first: how often each node occurs
             u = uses.get(id(n), 0.0)
@@ -402,14 +403,15 @@ class DCSG:
         N = len(self.nodes)
         node_cache = np.full(N, -1, np.int64)
         cache_bvh, records = [], []
-        it_prim, it_c0, it_nc, it_inv, chains = [], [], [], [], []
+        it_prim, it_c0, it_nc, it_inv, chains, it_stub = [], [], [], [], [], []
         used, served, cached, n_chain = 0, 0.0, set(), 0
         memo = {}
 
         def expanded(m):
             """m's primitives in m's frame: (terminal rows, 4x4 primitive -> m transforms,
-            their chains of child indices, flat, with offsets), built once per distinct
-            node with batched products."""
+            their chains of child indices, flat, with offsets, and where along its chain
+            each meets its innermost OL stub (-1: none below m)), built once per
+            distinct node with batched products."""
             got = memo.get(id(m))
             if got is not None:
                 return got
@@ -417,19 +419,21 @@ class DCSG:
                 full = np.eye(4)
                 full[:3] = m.prim[2]
                 got = (np.array([node_prim[ids[id(m)]]]), full[None], np.zeros(0, np.int64),
-                       np.zeros(2, np.int64))
+                       np.zeros(2, np.int64), np.full(1, -1, np.int64))
             else:
                 parts = []
                 for c, to_parent, j in m.alts[0][1]:
-                    r, x, f, o = expanded(c)
-                    # prepend j to every chain of the child
-                    parts.append((r, to_parent @ x, np.insert(f, o[:-1], j), o + np.arange(o.shape[0])))
+                    r, x, f, o, st = expanded(c)
+                    # prepend j to every chain of the child; a deeper stub stays innermost
+                    st = np.where(st >= 0, st + 1, 1 if c.stub else -1)
+                    parts.append((r, to_parent @ x, np.insert(f, o[:-1], j), o + np.arange(o.shape[0]),
+                                  st))
                 rows = np.concatenate([q[0] for q in parts])
                 xs = np.concatenate([q[1] for q in parts])
                 flat = np.concatenate([q[2] for q in parts])
                 base = np.cumsum([0] + [q[2].shape[0] for q in parts])
                 offs = np.concatenate([q[3][:-1] + b for q, b in zip(parts, base)] + [[base[-1]]])
-                got = (rows, xs, flat, offs.astype(np.int64))
+                got = (rows, xs, flat, offs.astype(np.int64), np.concatenate([q[4] for q in parts]))
             memo[id(m)] = got
             return got
 
@@ -444,7 +448,7 @@ class DCSG:
                         heapq.heappush(heap, (-uses[id(c)] * c.paths, tick, c))
                 continue
             cached.add(id(n))
-            rows, xf, cflat, coff = expanded(n)
+            rows, xf, cflat, coff, stub_at = expanded(n)
             corners = np.einsum("pij,kj->pki", xf[:, :3], _CORNERS)       # primitive boxes
             bvh = build_bvh(corners.min(axis=1), corners.max(axis=1))
             _pf, pi, nrec, _need = pack_bvh(bvh.node_min, bvh.node_max, bvh.node_a, bvh.node_count)
@@ -465,6 +469,7 @@ class DCSG:
                           if lens.sum() else np.zeros(0, np.int64))
             n_chain += int(lens.sum())
             it_inv.append(np.linalg.inv(xf[order_])[:, :3])
+            it_stub.append(stub_at[order_])
             used += n.paths * CACHE_ITEM_BYTES
             served += uses[id(n)] * n.paths
         self.cache_stats = {"cache_subgraphs": len(cache_bvh), "cache_primitives": int(sum(x.shape[0] for x in it_prim)),
@@ -479,7 +484,7 @@ class DCSG:
 
         return (node_cache, np.array(cache_bvh, np.int64), rec, cat(it_prim, np.int64),
                 cat(it_c0, np.int64), cat(it_nc, np.int64), cat(it_inv, np.float64, (-1, 3, 4)),
-                cat(chains, np.int64))
+                cat(chains, np.int64), cat(it_stub, np.int64))
 
     # ------------------------------------------------------------ reading
 
@@ -621,7 +626,7 @@ BLOB_HEADER = 40
  B_PRIM_KIND, B_GRAPH_ROOT, B_GRAPH_HASH, B_GRAPH_STUB, B_STUB_ADDR,
  B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV,
  B_NODE_CACHE, B_CACHE_ROOT, B_CACHE_REC, B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J,
- B_ITEM_INV, B_ORG_T0, B_ORG_NT, B_ORG_TRI, B_ORG_CDF) = range(36)
+ B_ITEM_INV, B_ORG_T0, B_ORG_NT, B_ORG_TRI, B_ORG_CDF, B_ITEM_STUB) = range(37)
 
 # Ray scratch, in the caller's int32 stack from (even) word s0 (engine/geometry.py
 # STACK_WORDS): per entry 7 float64 (the ray in the entry's frame, entry t), 2
@@ -693,7 +698,7 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
     # dcsg_table) and so do they, as the vector loads need
     i32_keys = (B_CACHE_REC, B_NODE_ALT0, B_NODE_NALT, B_NODE_PRIM, B_NODE_STUB, B_ALT_C0, B_ALT_NC,
                 B_CH_NODE, B_CH_J, B_PRIM_KIND, B_NODE_CACHE, B_CACHE_ROOT,
-                B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J, B_ORG_T0, B_ORG_NT)
+                B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J, B_ORG_T0, B_ORG_NT, B_ITEM_STUB)
     f64_keys = (B_NODE_BOX, B_ALT_CUM, B_CH_INV, B_CH_ROT, B_CH_BOX, B_PRIM_PARAMS, B_PRIM_INV,
                 B_ITEM_INV, B_ORG_TRI, B_ORG_CDF)
     i32 = {k: [] for k in i32_keys}
@@ -746,6 +751,7 @@ def pack_blob(graphs, vs0=NO_VSHAPE, names=None):
         i32[B_ITEM_C0].append(a.item_chain0 + j0)
         i32[B_ITEM_NC].append(a.item_nchain)
         i32[B_CHAIN_J].append(a.chain_j)
+        i32[B_ITEM_STUB].append(a.item_stub)
         f64[B_ITEM_INV].append(a.item_inv.reshape(-1))
         e0 += a.cache_root.shape[0]
         v0 += a.cache_records.shape[0]
@@ -1029,6 +1035,7 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
     us = stack.view(np.uint64)
     fb, hb, nb, eb, db, pb, bp, kb, kf, rb = _scratch(s0)
     o_ncache, o_croot, o_crec, o_ip, o_ic0, o_inc, o_chain, o_iinv = _cache_tables(i64, w, iw)
+    o_istub = iw + i64[w + B_ITEM_STUB]
     o_org = _organ_tables(i64, w, iw)
     f32s = stack.view(np.float32)
     rf = rb // 2                       # result: normal (3 float64), stub (int32 at rb + 6), address
@@ -1090,8 +1097,12 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
                             best_p = p
                             best_s = stub
                             hh = h               # the address: the chain of child indices
-                            for q in range(i32[o_ic0 + it], i32[o_ic0 + it] + i32[o_inc + it]):
+                            at = i32[o_istub + it]       # and the innermost stub along it
+                            c0_ = i32[o_ic0 + it]
+                            for q in range(c0_, c0_ + i32[o_inc + it]):
                                 hh = _child_hash(hh, i32[o_chain + q])
+                                if q - c0_ + 1 == at:
+                                    best_s = hh
                             best_h = hh
                             best_d = d
                             for q in range(1, d + 1):

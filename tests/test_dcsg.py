@@ -183,7 +183,8 @@ def test_stochastic_count_is_the_expectation():
         sum(m.symbol == "F" for m in LS.derive(g).modules)
 
 
-def test_ol_stubs_get_exactly_their_subtrees_hits():
+@pytest.mark.parametrize("cache_mb", [D.CACHE_MB, 0.0], ids=["cached", "lazy"])
+def test_ol_stubs_get_exactly_their_subtrees_hits(cache_mb):
     text = """axiom: A
 derivation length: 4
 angle: 40
@@ -192,7 +193,9 @@ production:
 A --> F [ + A ] [ - A ] A
 """
     g = LS.parse(text)
-    graph = D.DCSG(g)
+    graph = D.DCSG(g, cache_mb=cache_mb)
+    # cached: the whole graph is one expansion, its stubs found along each chain
+    assert graph.stats()["cache_subgraphs"] == (1 if cache_mb else 0)
     flat = graph.flatten()
     # 3^2 modules A at level 2 -> 9 stubs, each owning the primitives below it
     der2 = LS.derive(g, steps=2)

@@ -69,7 +69,7 @@ EXIT_TOLERANCE = 1e-9
 EXACT_PATHS = 1 << 16
 EXACT_ROWS = 1 << 23
 # The expansion cache (thesis 4.4): subtrees of at most CACHE_PATHS primitives
-# are kept expanded, each a small BVH over its primitives, within CACHE_MB.
+# are kept expanded, each a 4-wide BVH over its primitives, within CACHE_MB.
 CACHE_PATHS = 1 << 14
 # Terminal kind of an organ (`~(name)` with a mesh, scene.LSystem.organs): its row's
 # params[0] is the organ's index; never an analytic primitive kind.
@@ -357,9 +357,9 @@ class DCSG:
     # ------------------------------------------------------------ expansion cache
 
     def _expansion_cache(self, ids, node_prim):
-        """The expanded subgraphs (thesis 4.4): a deterministic, stub-free subtree of at
-        most CACHE_PATHS primitives is kept unrolled in its root's frame, a small SAH
-        BVH over its primitives, so a ray entering it walks that BVH instead of the
+        """The expanded subgraphs (thesis 4.4): a deterministic subtree of at most
+        CACHE_PATHS primitives is kept unrolled in its root's frame, a 4-wide SAH BVH
+        over its primitives, so a ray entering it walks that BVH instead of the
         graph's levels (no transforms per level, tight boxes per primitive). The graph
         is memoised, so one expansion serves every place the subtree occurs. Which
         subtrees: the topmost that qualify, most used first, within `cache_bytes`.

@@ -51,7 +51,7 @@ from numba import njit, prange
 
 from . import lsystem as LS
 from .affine import apply_transposed, cross, normal_through, unit, xform_ray
-from .jit import CORE, INLINE
+from .jit import CORE, INLINE, as_float32, as_float64, as_uint64
 from .primitives import KIND_IDS, _octa_encode, prim_hits, prim_nfaces, prim_point, prim_surface
 from .sampling import next_float, stream_state
 from .scene import SceneError
@@ -1031,13 +1031,13 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
     (o_alt0, o_nalt, o_prim, o_stub, o_ac0, o_anc, o_chn, o_chj, o_pk,
      o_box, o_cum, o_cinv, o_crot, o_cbox, o_pp, o_pinv) = _tables(i64, w, iw)
     root = i32[iw + i64[w + B_GRAPH_ROOT] + graph]
-    fs = stack.view(np.float64)
-    us = stack.view(np.uint64)
+    fs = as_float64(stack)
+    us = as_uint64(stack)
     fb, hb, nb, eb, db, pb, bp, kb, kf, rb = _scratch(s0)
     o_ncache, o_croot, o_crec, o_ip, o_ic0, o_inc, o_chain, o_iinv = _cache_tables(i64, w, iw)
     o_istub = iw + i64[w + B_ITEM_STUB]
     o_org = _organ_tables(i64, w, iw)
-    f32s = stack.view(np.float32)
+    f32s = as_float32(stack)
     rf = rb // 2                       # result: normal (3 float64), stub (int32 at rb + 6), address
     t_root = _box_entry(f64, o_box + 6 * root, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if t_root == math.inf:
@@ -1218,10 +1218,10 @@ def _stub_index(i32, iw, o_rows, o_addr, graph, addr):
 @njit(**INLINE)
 def dcsg_hit_surface(stack, s0):
     """(stub index, nx, ny, nz, address) of the last DCSG hit `dcsg_closest_core` returned."""
-    fs = stack.view(np.float64)
+    fs = as_float64(stack)
     rb = _scratch(s0)[-1]
     rf = rb // 2
-    return stack[rb + 6], fs[rf], fs[rf + 1], fs[rf + 2], stack.view(np.uint64)[rf + 4]
+    return stack[rb + 6], fs[rf], fs[rf + 1], fs[rf + 2], as_uint64(stack)[rf + 4]
 
 
 # ---------------------------------------------------------------- stand-alone tracing

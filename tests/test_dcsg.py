@@ -319,3 +319,21 @@ def test_organ_area_is_estimated_through_the_graph():
     assert leaves == pytest.approx(15 * 0.5 * 0.25)           # kite area 0.5, scaled by 0.5^2
     assert abs(area.sum() - exact) < 4 * np.sqrt(var.sum())
     assert np.sqrt(var.sum()) < 0.02 * exact
+
+
+def test_unchecked_scratch_views_read_and_write_what_numpy_views_do():
+    from numba import njit
+    from photon_lightmaps.engine.jit import as_float32, as_float64, as_uint64
+
+    @njit
+    def poke(stack):
+        f, u, s = as_float64(stack), as_uint64(stack), as_float32(stack)
+        f[3] = 2.5
+        u[5] = np.uint64(7)
+        s[1] = np.float32(-1.5)
+        return f.shape[0], u.shape[0], s.shape[0], f[3] + s[1]
+
+    st = np.zeros(64, np.int32)
+    assert poke(st) == (32, 32, 64, 1.0)
+    assert st.view(np.float64)[3] == 2.5 and st.view(np.uint64)[5] == 7
+    assert st.view(np.float32)[1] == -1.5

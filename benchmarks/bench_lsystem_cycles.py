@@ -27,7 +27,6 @@ import math
 import os
 import pathlib
 import sys
-import tempfile
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -45,7 +44,7 @@ from photon_lightmaps.bake import render as render_engine  # noqa: E402
 from photon_lightmaps.engine.dcsg import DCSG  # noqa: E402
 from photon_lightmaps.engine.lsystem_presets import load_preset  # noqa: E402
 
-from benchmarks.methods import MAX_BOUNCES, setup_cycles  # noqa: E402
+from benchmarks.methods import MAX_BOUNCES, render_still, setup_cycles  # noqa: E402
 
 HERE = pathlib.Path(__file__).resolve().parent
 PRESET, STEPS = "ternary_tree", 5
@@ -96,20 +95,8 @@ def build_scene():
 def render(scene, engine):
     """F12 render -> ((H, W, 3) linear, rows top-down; wall seconds)."""
     scene.render.engine = engine
-    r = scene.render
-    r.image_settings.file_format, r.image_settings.color_depth = "OPEN_EXR", "32"
-    with tempfile.TemporaryDirectory() as tmp:
-        r.filepath = os.path.join(tmp, "img.exr")
-        r.use_file_extension = False
-        t0 = time.perf_counter()
-        bpy.ops.render.render(write_still=True)
-        seconds = time.perf_counter() - t0
-        img = bpy.data.images.load(r.filepath)
-        w, h = img.size
-        px = np.empty(w * h * img.channels, np.float32)
-        img.pixels.foreach_get(px)
-        bpy.data.images.remove(img)
-    return px.reshape(h, w, -1)[::-1, :, :3].astype(np.float64), seconds
+    img, seconds = render_still(scene)
+    return img.astype(np.float64), seconds
 
 
 def cycles(scene, spp, seed):

@@ -87,17 +87,24 @@ def cycles_bake(objs, res, samples, seed):
 
 
 def cycles_render(samples, seed):
-    """Cycles camera render -> ((H, W, 3) rows top-down, seconds). Written to EXR and read
-    back, because a background process cannot read the Render Result's pixels."""
+    """Cycles camera render -> ((H, W, 3) rows top-down, seconds)."""
     scene = bpy.context.scene
     setup_cycles(scene, samples, seed)
+    return render_still(scene)
+
+
+def render_still(scene):
+    """F12 render with the scene's engine -> ((H, W, 3) linear, rows top-down; wall
+    seconds). Written to EXR and read back, because a background process cannot read
+    the Render Result's pixels."""
     r = scene.render
     r.image_settings.file_format = "OPEN_EXR"
     r.image_settings.color_depth = "32"
     r.image_settings.color_management = "OVERRIDE"
     scene.view_settings.view_transform = "Standard"
+    r.use_file_extension = False
     with tempfile.TemporaryDirectory() as tmp:
-        r.filepath = os.path.join(tmp, "cycles.exr")
+        r.filepath = os.path.join(tmp, "render.exr")
         t0 = time.perf_counter()
         bpy.ops.render.render(write_still=True)
         seconds = time.perf_counter() - t0

@@ -895,8 +895,8 @@ def _inverse_dir(d):
 @njit(**INLINE)
 def _slabs(f64, b, ox, oy, oz, ix, iy, iz, tmin, tmax):
     """Entry distance into the box at f64[b:b+6] of the ray with inverse direction
-    (ix, iy, iz) within (tmin, tmax), or inf. The exit is widened by 1e-12 relative,
-    as in `_box_entry`."""
+    (ix, iy, iz) within (tmin, tmax), or inf. The exit is widened by 1e-12 relative
+    (the rounding of (b - o) / d)."""
     a0 = (f64[b] - ox) * ix
     a1 = (f64[b + 3] - ox) * ix
     b0 = (f64[b + 1] - oy) * iy
@@ -906,28 +906,6 @@ def _slabs(f64, b, ox, oy, oz, ix, iy, iz, tmin, tmax):
     t0 = max(tmin, min(a0, a1), min(b0, b1), min(c0, c1))
     t1 = min(tmax, max(a0, a1), max(b0, b1), max(c0, c1))
     t1 = t1 * (1.0 + 1e-12) if t1 > 0.0 else t1 * (1.0 - 1e-12)
-    return t0 if t0 <= t1 else math.inf
-
-
-@njit(**INLINE)
-def _box_entry(f64, b, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Entry distance of the ray into the box at f64[b:b+6] within (tmin, tmax), or inf."""
-    t0, t1 = tmin, tmax
-    o = (ox, oy, oz)
-    d = (dx, dy, dz)
-    for k in range(3):
-        lo = f64[b + k]
-        hi = f64[b + 3 + k]
-        if d[k] != 0.0:
-            inv = 1.0 / d[k]
-            a = (lo - o[k]) * inv
-            c = (hi - o[k]) * inv
-            if a > c:
-                a, c = c, a
-            t0 = max(t0, a)
-            t1 = min(t1, c * (1.0 + 1e-12) if c > 0.0 else c * (1.0 - 1e-12))
-        elif o[k] < lo or o[k] > hi:
-            return math.inf
     return t0 if t0 <= t1 else math.inf
 
 
@@ -948,6 +926,13 @@ def _scratch(s0):
     k2 += k2 % 2
     rb = k2 + 2 * CACHE_STACK
     return fb, hb, nb, eb, db, pb, bp, kb, k2 // 2, rb
+
+
+@njit(**INLINE)
+def _keep_path(stack, pb, bp, d):
+    """The edge path to the current node (depth d) becomes the closest hit's."""
+    for q in range(1, d + 1):
+        stack[bp + q] = stack[pb + q]
 
 
 @njit(**INLINE)
@@ -1039,7 +1024,8 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
     o_org = _organ_tables(i64, w, iw)
     f32s = as_float32(stack)
     rf = rb // 2                       # result: normal (3 float64), stub (int32 at rb + 6), address
-    t_root = _box_entry(f64, o_box + 6 * root, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    t_root = _slabs(f64, o_box + 6 * root, ox, oy, oz, _inverse_dir(dx), _inverse_dir(dy),
+                    _inverse_dir(dz), tmin, tmax)
     if t_root == math.inf:
         return tmax, -1
     fs[fb], fs[fb + 1], fs[fb + 2], fs[fb + 3], fs[fb + 4], fs[fb + 5] = ox, oy, oz, dx, dy, dz
@@ -1105,8 +1091,7 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
                                     best_s = hh
                             best_h = hh
                             best_d = d
-                            for q in range(1, d + 1):
-                                stack[bp + q] = stack[pb + q]
+                            _keep_path(stack, pb, bp, d)
                             bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
                 if any_hit and best_p >= 0:
                     break
@@ -1130,8 +1115,7 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
                 best_s = stub
                 best_h = h
                 best_d = d
-                for q in range(1, d + 1):
-                    stack[bp + q] = stack[pb + q]
+                _keep_path(stack, pb, bp, d)
                 bnx, bny, bnz = normal_through(f64, o_pinv + 12 * p, nx, ny, nz)
                 if any_hit:
                     break
@@ -1155,8 +1139,7 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
                     best_s = stub
                     best_h = _child_hash(h, i32[o_chj + c])
                     best_d = d
-                    for q in range(1, d + 1):
-                        stack[bp + q] = stack[pb + q]
+                    _keep_path(stack, pb, bp, d)
                     bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
                 if any_hit and best_p >= 0:
                     break

@@ -36,6 +36,7 @@ Geometry = namedtuple("Geometry", [
     "shape_kind", "shape_index", "shape_material", "shape_surface",
     "shape_proto",                   # owning prototype of each shape
     "tri_p", "tri_uv",
+    "tri_tex_uv",                    # material (texture) UVs per corner, any range; 0 without
     "prim_kind", "prim_params", "prim_xf", "prim_inv",
     # bottom level: all prototypes' nodes in one array set
     "blas_min", "blas_max", "blas_a", "blas_count", "blas_items",
@@ -310,8 +311,9 @@ def check_mesh_arrays(mesh, what, n_materials):
 
 
 def _check_mesh(mesh, what, n_materials, notes=None):
-    """(triangles (T',3,3), uvs (T',3,2), materials (T',), dropped) of a mesh's
-    non-degenerate triangles. A mesh without UVs gets zero UVs here: compile.py
+    """(triangles (T',3,3), uvs (T',3,2), materials (T',), dropped, texture uvs
+    (T',3,2)) of a mesh's non-degenerate triangles (texture UVs unclamped, zeros
+    when the mesh has none). A mesh without UVs gets zero UVs here: compile.py
     unwraps the meshes whose lightmaps are used before geometry is built.
     notes[what] counts triangles whose given UVs left [0,1]² (clamped)."""
     v, tri, mats = check_mesh_arrays(mesh, what, n_materials)
@@ -331,9 +333,18 @@ def _check_mesh(mesh, what, n_materials, notes=None):
             uvs = np.clip(uvs, 0.0, 1.0)
             if notes is not None:
                 notes[what] = int(out.sum())
+    tex_uvs = getattr(mesh, "tex_uvs", None)
+    if tex_uvs is None:
+        tex_uvs = np.zeros((T, 3, 2))
+    else:
+        tex_uvs = np.asarray(tex_uvs, dtype=np.float64)
+        if tex_uvs.shape != (T, 3, 2):
+            _fail(what, f"tex_uvs must have shape ({T}, 3, 2), got {tex_uvs.shape}")
+        if not np.all(np.isfinite(tex_uvs)):
+            _fail(what, "tex_uvs contain NaN or infinity")
     p = v[tri]                                   # (T, 3, 3)
     keep = nondegenerate(p)
-    return p[keep], uvs[keep], mats[keep], int(T - keep.sum())
+    return p[keep], uvs[keep], mats[keep], int(T - keep.sum()), tex_uvs[keep]
 
 
 def _pack_blas(proto_root, n_nodes, blas_min, blas_max, blas_a, blas_count, shape_kind,
@@ -432,15 +443,16 @@ def _prototype_shapes(proto, pi_, csg, n_csg, n_materials, degenerate, uv_clampe
     """A prototype's shapes in input order: mesh triangles, primitives, then one
     shape per CSG solid (its roots start at csg.roots[n_csg]), with their surface
     slots; records dropped and clamped triangles, and each CSG leaf's slot.
-    -> (kinds, materials, slots, lo, hi, triangles, uvs, primitive rows, CSG roots, surfaces)."""
+    -> (kinds, materials, slots, lo, hi, triangles, uvs, texture uvs, primitive rows, CSG
+    roots, surfaces)."""
     pname = f"prototype '{proto.name}'"
     # collect the prototype's shapes in input order
     k_kind, k_mat, k_surf, k_lo, k_hi = [], [], [], [], []
-    k_tri, k_uv, k_prim = [], [], []
+    k_tri, k_uv, k_tex, k_prim = [], [], [], []
     surf = []
     for mi, mesh in enumerate(proto.meshes):
         what = f"mesh '{mesh.name}' in {pname}"
-        p, uv, mats, dropped = _check_mesh(mesh, what, n_materials, uv_clamped)
+        p, uv, mats, dropped, tex_uv = _check_mesh(mesh, what, n_materials, uv_clamped)
         if dropped:
             degenerate[what] = dropped
         T = p.shape[0]
@@ -457,6 +469,7 @@ def _prototype_shapes(proto, pi_, csg, n_csg, n_materials, degenerate, uv_clampe
         k_hi.append(p.max(axis=1))
         k_tri.append(p)
         k_uv.append(uv)
+        k_tex.append(tex_uv)
     for prim in proto.primitives:
         what = f"primitive '{prim.name}' in {pname}"
         kid, params, xf, inv, mat = check_primitive(prim, what, n_materials)
@@ -511,7 +524,8 @@ def _prototype_shapes(proto, pi_, csg, n_csg, n_materials, degenerate, uv_clampe
     hi = np.concatenate(k_hi) if k_hi else np.zeros((0, 3))
     tris = np.concatenate(k_tri) if k_tri else np.zeros((0, 3, 3))
     uvs = np.concatenate(k_uv) if k_uv else np.zeros((0, 3, 2))
-    return kinds, mats, surfs, lo, hi, tris, uvs, k_prim, csg_roots, surf
+    tex = np.concatenate(k_tex) if k_tex else np.zeros((0, 3, 2))
+    return kinds, mats, surfs, lo, hi, tris, uvs, tex, k_prim, csg_roots, surf
 
 
 class _Parts:
@@ -520,7 +534,7 @@ class _Parts:
 
     def __init__(self, n_leaves):
         self.sh_kind, self.sh_index, self.sh_mat, self.sh_surf, self.sh_proto = [], [], [], [], []
-        self.tri_p, self.tri_uv = [], []
+        self.tri_p, self.tri_uv, self.tri_tex_uv = [], [], []
         self.pr_kind, self.pr_params, self.pr_xf, self.pr_inv = [], [], [], []
         self.b_min, self.b_max, self.b_a, self.b_cnt = [], [], [], []
         self.proto_root, self.proto_n_surf, self.proto_depth = [], [], []
@@ -545,9 +559,11 @@ class _Parts:
         self.sh_surf.append(surface)
         self.sh_proto.append(proto)
 
-    def add_triangles(self, p, uv):
+    def add_triangles(self, p, uv, tex_uv=None):
         self.tri_p.append(p)
         self.tri_uv.append(uv)
+        # CSG-generated triangles have no material UVs (textures read their mean there)
+        self.tri_tex_uv.append(np.zeros_like(uv) if tex_uv is None else tex_uv)
         self.n_tris += p.shape[0]
 
     def add_primitive(self, kid, params, xf, inv):
@@ -561,7 +577,7 @@ class _Parts:
 # Phase results of compile_geometry (the tuples _pack_blas and _place_instances return)
 _ShapeArrays = namedtuple("_ShapeArrays", [
     "shape_kind", "shape_index", "shape_material", "shape_surface", "shape_proto",
-    "tri_p", "tri_uv", "prim_kind", "prim_params", "prim_xf", "prim_inv",
+    "tri_p", "tri_uv", "tri_tex_uv", "prim_kind", "prim_params", "prim_xf", "prim_inv",
     "blas_min", "blas_max", "blas_a", "blas_count", "blas_items",
     "proto_root", "proto_n_surfaces", "proto_shape_start", "proto_shape_count"])
 _BlasPack = namedtuple("_BlasPack", ["rec_parts", "proto_slot", "need", "tri4", "lane_shape",
@@ -625,7 +641,7 @@ def _add_blas(parts, bvh, n_shapes, n_surfaces):
 
 def _add_prototype(parts, pi_, proto, csg, n_materials, graphs=()):
     """Prototype pi_'s shapes, triangles and primitives in BVH leaf order, and its BLAS."""
-    kinds, mats, surfs, lo, hi, tris, uvs, k_prim, csg_roots, surf = _prototype_shapes(
+    kinds, mats, surfs, lo, hi, tris, uvs, tex_uvs, k_prim, csg_roots, surf = _prototype_shapes(
         proto, pi_, csg, parts.n_csg, n_materials, parts.degenerate, parts.uv_clamped,
         parts.leaf_slot, parts.leaf_proto, parts.leaf_root, graphs)
     parts.n_csg += len(proto.csg)
@@ -637,7 +653,7 @@ def _add_prototype(parts, pi_, proto, csg, n_materials, graphs=()):
                                                       parts.n_tris, parts.n_prims)
     parts.add_shapes(kinds[order], new_index, mats[order], surfs[order],
                      np.full(S, pi_, np.int32))
-    parts.add_triangles(tris[tri_rows], uvs[tri_rows])
+    parts.add_triangles(tris[tri_rows], uvs[tri_rows], tex_uvs[tri_rows])
     for r in prim_rows:
         parts.add_primitive(*k_prim[r])
     _add_blas(parts, bvh, S, len(surf))
@@ -798,6 +814,7 @@ def _shape_arrays(parts):
         shape_proto=_cat(parts.sh_proto, 0, np.int32),
         tri_p=_cat(parts.tri_p, (0, 3, 3), np.float64),
         tri_uv=_cat(parts.tri_uv, (0, 3, 2), np.float64),
+        tri_tex_uv=_cat(parts.tri_tex_uv, (0, 3, 2), np.float64),
         prim_kind=np.array(parts.pr_kind, np.int32).reshape(-1),
         prim_params=np.array(parts.pr_params, np.float64).reshape(-1, 4),
         prim_xf=np.array(parts.pr_xf, np.float64).reshape(-1, 3, 4),

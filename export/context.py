@@ -42,6 +42,8 @@ class ExportMap:
     csg_solids: dict = field(default_factory=dict)    # object name -> "csg" | "primitive" | "fallback"
     # per engine OrientationLightmap: {"empty", "collection", "parent" (empty name or None), "instances"}
     orientation_lightmaps: list = field(default_factory=list)
+    # material textures (export/textures.py): textures, bytes, baked, cached, seconds
+    texture_stats: dict = field(default_factory=dict)
 
     def object_instances(self, name):
         """Engine instance ids holding object `name`'s own (non-instanced) geometry."""
@@ -100,6 +102,14 @@ class ExportContext:
         self.image_average = {}      # image pointer -> linear RGBA mean
         self.csg_index = {}          # original object pointer -> engine prototype (None: plain mesh)
         self.csg = None              # csg.CSGBuilder, set by scene.export_scene
+        # node-driven inputs (export/textures.py): engine material -> ({input: socket}, shader
+        # node name); the meshes queued for their bakes; (material, textures) -> variant
+        self.textured = {}
+        self.texture_jobs = []
+        self.texture_variants = {}
+        self.texture_seconds = {}    # cache key -> seconds its bake took in this export
+        self.texture_stats = self.map.texture_stats
+        self.texture_stats.update(textures=0, bytes=0, baked=0, cached=0, seconds=0.0)
 
     def bands(self, rgb):
         rgb = np.asarray(rgb, dtype=np.float64)[:3]

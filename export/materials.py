@@ -2,11 +2,15 @@
 
 The Principled BSDF (plus Diffuse, Glossy, Glass and Emission shaders) maps to
 diffuse/specular/transmission/emission weights; a linked input is followed
-through reroutes to an RGB/Value node or an image (averaged, with a warning).
+through reroutes to an RGB/Value node. Base colour, roughness, metallic,
+transmission and normal inputs driven by anything else are baked per mesh by
+Cycles (textures.py) and sampled per hit; other driven inputs (emission) read
+an image averaged, with a warning.
 """
 import numpy as np
 
 from ..engine.scene import Material
+from . import textures
 from .context import DEFAULT_DIFFUSE, output_priority, srgb_to_linear
 
 
@@ -38,10 +42,12 @@ def image_mean(ctx, image):
     return mean
 
 
-def node_input(ctx, socket, what, owner):
+def node_input(ctx, socket, what, owner, baked=False):
     """Value of a shader input: its own value, or what a simple linked node provides.
 
     Returns a float for scalar sockets and an RGB(A) tuple for colour sockets.
+    baked=True: an input textures.py bakes; anything but a constant node gives
+    the unlinked value quietly (the bake, or its warning, covers the rest).
     """
     node_socket = socket
     seen = 0
@@ -56,6 +62,8 @@ def node_input(ctx, socket, what, owner):
         if node.bl_idname in ("ShaderNodeRGB", "ShaderNodeValue"):
             val = out.default_value
             return _shape_like(socket, val)
+        if baked:
+            break
         if node.bl_idname in ("ShaderNodeTexImage", "ShaderNodeTexEnvironment") and node.image is not None:
             mean = image_mean(ctx, node.image)
             if mean is not None:
@@ -82,11 +90,14 @@ def material(ctx, mat):
     key = 0 if mat is None else mat.original.as_pointer()
     idx = ctx.material_index.get(key)
     if idx is None:
+        driven = {}
         m = Material(name="default", diffuse=ctx.bands(DEFAULT_DIFFUSE)) if mat is None else \
-            _convert(ctx, mat)
+            _convert(ctx, mat, driven)
         idx = ctx.scene.add_material(m)
         ctx.map.materials.append(None if mat is None else mat.original.name)
         ctx.material_index[key] = idx
+        if driven.get("inputs"):
+            ctx.textured[idx] = (driven["inputs"], driven["node"])
     return idx
 
 
@@ -134,12 +145,18 @@ def _principled(inp, name, ctx, owner):
     specular = base * metallic
     trans = base * (1.0 - metallic) * transmission
     return Material(name, diffuse=diffuse, specular=specular, transmission=trans,
-                    roughness=inp("Roughness"), ior=max(inp("IOR"), 1e-3), emission=emission)
+                    roughness=inp("Roughness"), ior=max(inp("IOR"), 1e-3), emission=emission,
+                    base_color=base, metallic=metallic, transmission_weight=transmission,
+                    specular_level=max(inp("Specular IOR Level"), 0.0), metal_fresnel=True)
 
+
+# The converters below set base_color/metallic/transmission_weight so that the
+# engine's textured mix B(1-M)(1-T), B M, B(1-M)T gives their own lobe.
 
 @converter("ShaderNodeBsdfDiffuse")
 def _diffuse(inp, name, ctx, owner):
-    return Material(name, diffuse=np.asarray(inp("Color")[:3]))
+    c = np.asarray(inp("Color")[:3])
+    return Material(name, diffuse=c, base_color=c)
 
 
 @converter("ShaderNodeEmission")
@@ -149,22 +166,29 @@ def _emission(inp, name, ctx, owner):
 
 @converter("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic")
 def _glossy(inp, name, ctx, owner):
-    return Material(name, diffuse=0.0, specular=np.asarray(inp("Color")[:3]), roughness=inp("Roughness"))
+    c = np.asarray(inp("Color")[:3])
+    return Material(name, diffuse=0.0, specular=c, roughness=inp("Roughness"), base_color=c, metallic=1.0)
 
 
 @converter("ShaderNodeBsdfGlass")
 def _glass(inp, name, ctx, owner):
-    return Material(name, diffuse=0.0, transmission=np.asarray(inp("Color")[:3]),
-                    roughness=inp("Roughness"), ior=max(inp("IOR"), 1e-3))
+    c = np.asarray(inp("Color")[:3])
+    return Material(name, diffuse=0.0, transmission=c, roughness=inp("Roughness"),
+                    ior=max(inp("IOR"), 1e-3), base_color=c, transmission_weight=1.0)
 
 
-def _convert(ctx, mat):
+def _convert(ctx, mat, driven):
+    """The engine Material; driven["inputs"], driven["node"]: what textures.py bakes."""
     owner = f"material '{mat.original.name}'"
     node = surface_node(mat)
     name = mat.original.name
     convert = CONVERTERS.get(node.bl_idname) if node is not None else None
     if convert is not None:
-        m = convert(lambda key, what=None: node_input(ctx, node.inputs[key], what or key, owner), name, ctx, owner)
+        baked = set(textures.TEXTURE_SOCKETS.get(node.bl_idname, {}).values())
+        driven["inputs"] = textures.driven_inputs(ctx, node, owner)
+        driven["node"] = node.name
+        m = convert(lambda key, what=None: node_input(ctx, node.inputs[key], what or key, owner,
+                                                      baked=key in baked), name, ctx, owner)
     else:
         why = "has no shader nodes" if mat.node_tree is None else \
             "has no surface shader" if node is None else f"uses an unsupported shader ({node.bl_idname})"
@@ -188,6 +212,9 @@ def _physical(ctx, m, owner):
         setattr(m, key, val)
     le = ctx.bands(np.broadcast_to(np.asarray(m.emission, float), (3,)))
     m.emission = np.clip(np.nan_to_num(le), 0.0, None)
+    m.base_color = np.clip(ctx.bands(np.broadcast_to(np.asarray(m.base_color, float), (3,))), 0.0, 1.0)
+    m.metallic = float(min(max(m.metallic, 0.0), 1.0))
+    m.transmission_weight = float(min(max(m.transmission_weight, 0.0), 1.0))
     m.roughness = float(min(max(m.roughness, 0.0), 1.0))
     return m
 

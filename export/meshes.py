@@ -2,20 +2,24 @@
 
 Lightmap UVs: the mesh UV layer named "Lightmap" when present and inside [0,1]²,
 otherwise none (the core unwraps with xatlas); uv_layers.py makes that layer
-for bakes.
+for bakes. Texture UVs (`tex_uvs`): the active render UV map, which Image
+Texture nodes read by default, unclamped.
 """
 import numpy as np
 
 from ..engine.scene import Prototype, TriangleMesh
+from . import textures
 from .context import LIGHTMAP_UV, PrototypeRecord
 from .materials import material
 
 
-def _slot_materials(ctx, ob, mesh):
+def _slots(ob, mesh):
     slots = [s.material for s in ob.material_slots]
-    if not slots:
-        slots = list(mesh.materials)
-    return tuple(material(ctx, m) for m in slots) or (material(ctx, None),)
+    return slots or list(mesh.materials) or [None]
+
+
+def _slot_materials(ctx, ob, mesh):
+    return tuple(material(ctx, m) for m in _slots(ob, mesh))
 
 
 def prototype(ctx, ob, mesh):
@@ -24,7 +28,7 @@ def prototype(ctx, ob, mesh):
     idx = ctx.prototype_index.get(key)
     if idx is not None:
         return idx
-    tm = triangle_mesh(ctx, mesh, slot_ids, ob)
+    tm = triangle_mesh(ctx, mesh, slot_ids, ob, slot_mats=_slots(ob, mesh))
     if tm is None:
         ctx.prototype_index[key] = -1
         return -1
@@ -36,7 +40,9 @@ def prototype(ctx, ob, mesh):
     return idx
 
 
-def triangle_mesh(ctx, mesh, slot_ids, ob):
+def triangle_mesh(ctx, mesh, slot_ids, ob, slot_mats=None):
+    """The mesh as a TriangleMesh; slot_mats (Blender material per slot) queues the
+    bakes of its node-driven material inputs (textures.py)."""
     mesh.calc_loop_triangles()
     tris = mesh.loop_triangles
     nt = len(tris)
@@ -53,19 +59,25 @@ def triangle_mesh(ctx, mesh, slot_ids, ob):
     lut = np.asarray(slot_ids, dtype=np.int64)
     mat_ids = lut[np.clip(mi, 0, len(lut) - 1)]
     uvs = None
+    loops = np.empty(nt * 3, np.int32)
+    tris.foreach_get("loops", loops)
     layer = mesh.uv_layers.get(LIGHTMAP_UV)
     if layer is not None:
-        loops = np.empty(nt * 3, np.int32)
-        tris.foreach_get("loops", loops)
-        uv = np.empty(len(mesh.loops) * 2, np.float32)
-        layer.uv.foreach_get("vector", uv)
-        uvs = uv.reshape(-1, 2)[loops].reshape(nt, 3, 2).astype(np.float64)
+        uvs = textures.corner_uvs(layer, loops, nt)
         if not np.all(np.isfinite(uvs)) or uvs.min() < 0.0 or uvs.max() > 1.0:
             ctx.report("WARNING", f"mesh '{mesh.name}' (object '{ob.name}'): UV layer "
                                    f"'{LIGHTMAP_UV}' leaves [0,1]²; it is unwrapped automatically instead")
             uvs = None
-    return TriangleMesh(pos.reshape(nv, 3).astype(np.float64), vi.reshape(nt, 3).astype(np.int64),
-                        material=int(mat_ids[0]), material_ids=mat_ids, uvs=uvs, name=mesh.name)
+    tex_name = textures.render_uv_name(mesh)
+    tex_uvs = textures.corner_uvs(mesh.uv_layers[tex_name], loops, nt) if tex_name else None
+    if tex_uvs is not None and not np.all(np.isfinite(tex_uvs)):
+        tex_uvs = np.nan_to_num(tex_uvs, nan=0.0, posinf=0.0, neginf=0.0)
+    tm = TriangleMesh(pos.reshape(nv, 3).astype(np.float64), vi.reshape(nt, 3).astype(np.int64),
+                      material=int(mat_ids[0]), material_ids=mat_ids, uvs=uvs, name=mesh.name,
+                      tex_uvs=tex_uvs)
+    if slot_mats is not None:
+        textures.capture(ctx, ob, mesh, tm, loops, list(zip(slot_ids, slot_mats)))
+    return tm
 
 
 def first_material(ctx, ob):

@@ -52,6 +52,7 @@ class BakeResult:
     # CSG solid name -> {"leaves": baked leaf names, "skipped": {leaf: why}, "split_texels",
     # "boundary_texels", "atlas": (w, h)}
     csg: dict = field(default_factory=dict)
+    environment: dict = None    # the world's map (compiled info["environment"]), None: constant
 
 
 @dataclass
@@ -303,6 +304,7 @@ def compute_bake(job, progress=None):
     cs, stats = session.compile_and_trace(job.scene, job.settings, progress=progress)
     result.stats = stats
     result.lightmap_bytes = cs.lightmap_bytes()
+    result.environment = cs.info.get("environment")
     result.seconds["photon_pass"] = time.perf_counter() - t0
     solids = {name: csg_atlas.solid_leaves(cs, job, name) for name in job.csg}
     if job.direct:

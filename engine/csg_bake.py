@@ -31,7 +31,7 @@ from . import lightmap as LM
 from . import texel_areas as TA
 from . import primitives as P
 from .raycast import STACK_WORDS
-from .renderer import direct_irradiance
+from .texel_gather import direct_irradiance
 from .sampling import next_float, stream_state
 from .texel_gather import _grid_side
 

@@ -12,7 +12,8 @@ Units follow Cycles so that a Blender scene means the same here:
 * sun of strength S: irradiance S [W/m^2] on a surface facing it.
 * emissive surfaces: radiance L = emission colour x strength; open surfaces
   (triangles, disks, quads) emit from both sides as in Cycles, solids outward.
-* constant environment of radiance L.
+* environment: a constant radiance L, or an equirectangular map of L (engine/environment.py),
+  importance-sampled for direct light and photon emission.
 Every light reports its exact emitted flux, so the photon pass can be audited.
 """
 import math
@@ -21,6 +22,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from . import environment as E
 from . import primitives as P
 from .affine import apply_linear, apply_point, apply_transposed
 from .sampling import (concentric_disk, cosine_hemisphere, first_above, next_float,
@@ -34,7 +36,9 @@ LightSet = namedtuple("LightSet", [
     "kind", "pos", "axis_u", "axis_v", "normal", "shape", "radius", "soft", "cos_half", "smooth",
     "radiance", "flux", "area", "two_sided", "inst", "shape_id",
     "cell_start", "cell_count", "cell_face", "cell_u0", "cell_v0", "cell_du", "cell_dv",
-    "cell_cdf", "power_cdf", "center", "bound_radius", "total_power"])
+    "cell_cdf", "power_cdf", "center", "bound_radius", "total_power"]
+    # the world (environment.EnvMap) field by field: parallel kernels take no nested tuples
+    + ["env_" + f for f in E.FIELDS])
 
 EMISSIVE_GRID = 16  # (u,v) cells per primitive face used to sample emissive primitives
 
@@ -125,13 +129,18 @@ def compile_lights(scene, geom, materials, bounds):
 
     _emissive_rows(scene, geom, materials, row, cells)
 
-    env = _bands(scene.environment, nb, "environment")
-    if np.any(env < 0):
-        raise SceneError("environment radiance must be non-negative")
-    if np.any(env > 0):
+    ev = E.compile_environment(scene.environment, nb)
+    if ev.constant and np.any(ev.pixels[0, 0] > 0):
+        env = ev.pixels[0, 0].copy()
         # Radiance L from every direction crosses a sphere of radius R with flux L pi 4 pi R^2.
         row(kind=ENVIRONMENT, pos=center.copy(), radius=bound_radius, radiance=env,
             flux=env * math.pi * 4.0 * math.pi * bound_radius ** 2)
+    elif not ev.constant and ev.total > 0.0:
+        # Each direction's radiance L(w) crosses the bounding disk of radius R facing it:
+        # flux pi R^2 int L dw, exact for the piecewise-constant map. `radiance` is the
+        # solid-angle mean, what callers of sample_light (one radiance per light) get.
+        row(kind=ENVIRONMENT, pos=center.copy(), radius=bound_radius, radiance=ev.power / (4.0 * math.pi),
+            flux=ev.power * math.pi * bound_radius ** 2)
 
     n = len(rows)
     arr = lambda key, dtype: np.array([r[key] for r in rows], dtype=dtype) if n else None
@@ -153,7 +162,19 @@ def compile_lights(scene, geom, materials, bounds):
         cell_count=i32("cell_count"), cell_face=c["face"], cell_u0=c["u0"], cell_v0=c["v0"],
         cell_du=c["du"], cell_dv=c["dv"], cell_cdf=c["cdf"],
         power_cdf=cdf.astype(np.float64), center=center, bound_radius=float(bound_radius),
-        total_power=float(cdf[-1]) if n else 0.0)
+        total_power=float(cdf[-1]) if n else 0.0, **{"env_" + f: v for f, v in zip(E.FIELDS, ev)})
+
+
+def environment_map(ls):
+    """The world of a LightSet as an environment.EnvMap (Python side)."""
+    return E.EnvMap(*(getattr(ls, "env_" + f) for f in E.FIELDS))
+
+
+@njit(cache=True)
+def _env(ls):
+    """The same inside kernels."""
+    return E.EnvMap(ls.env_pixels, ls.env_constant, ls.env_lum, ls.env_row_cdf, ls.env_col_cdf,
+                    ls.env_sin_edges, ls.env_total, ls.env_power)
 
 
 def _emissive_rows(scene, geom, materials, row, cells):
@@ -365,6 +386,21 @@ def emit_photon(ls, g, state):
         oy = ls.center[1] + R * (a * ty + b * by) - 2.0 * R * dy
         oz = ls.center[2] + R * (a * tz + b * bz) - 2.0 * R * dz
         return state, li, ox, oy, oz, dx, dy, dz, weight
+    if k == ENVIRONMENT and not ls.env_constant:
+        # Direction towards the world by the map's CDF, then a point on the disk of the
+        # scene's bounding radius facing it, outside the scene (as for the sun). The
+        # weight L/pdf * pi R^2 / flux is 1 in the mean band by construction of the pdf;
+        # photon_tint gives the per-band colour of the direction.
+        wx, wy, wz, pdf = E.sample(_env(ls), u1, u2)
+        if not pdf > 0.0:
+            weight = 0.0
+        a, b = concentric_disk(u3, u4)
+        R = ls.radius[li]
+        tx, ty, tz, bx, by, bz = orthonormal_basis(wx, wy, wz)
+        ox = ls.center[0] + R * (a * tx + b * bx) + 2.0 * R * wx
+        oy = ls.center[1] + R * (a * ty + b * by) + 2.0 * R * wy
+        oz = ls.center[2] + R * (a * tz + b * bz) + 2.0 * R * wz
+        return state, li, ox, oy, oz, -wx, -wy, -wz, weight
     if k == ENVIRONMENT:
         nx, ny, nz = uniform_sphere(u1, u2)
         R = ls.radius[li]
@@ -445,7 +481,8 @@ def sample_light(ls, g, li, px, py, pz, u1, u2, u3):
         wx, wy, wz = to_world(lx, ly, lz, -ls.normal[li, 0], -ls.normal[li, 1], -ls.normal[li, 2])
         return wx, wy, wz, math.inf, 1.0, True
     if k == ENVIRONMENT:
-        # Uniform sphere; the caller's receiver cosine completes E = int L cos.
+        # Uniform sphere; the caller's receiver cosine completes E = int L cos. With a map,
+        # radiance[li] is its mean (the averaged world): sample_light_radiance samples the map.
         wx, wy, wz = uniform_sphere(u1, u2)
         return wx, wy, wz, math.inf, 4.0 * math.pi, True
     qx, qy, qz, nx, ny, nz, w, pdf_area = emissive_point(ls, g, li, u1, u2, u3)
@@ -456,3 +493,59 @@ def sample_light(ls, g, li, px, py, pz, u1, u2, u3):
     if cos_l <= 0.0 or not d * d > 0.0 or not pdf_area > 0.0:
         return wx, wy, wz, d, 0.0, False
     return wx, wy, wz, d, cos_l / (d * d) / pdf_area, True
+
+
+@njit(cache=True)
+def sample_light_radiance(ls, g, li, px, py, pz, u1, u2, u3, rad):
+    """sample_light with the sample's radiance per band written into rad[bands].
+
+    Returns (wx, wy, wz, dist, contrib_scale, ok) as sample_light, with irradiance from
+    this sample = rad * contrib_scale (times the receiver cosine). rad is ls.radiance[li]
+    for every light but an environment map, which is importance-sampled: rad = L(w),
+    contrib_scale = 1 / pdf(w). A constant world keeps sample_light's uniform sampling."""
+    if ls.kind[li] == ENVIRONMENT and not ls.env_constant:
+        wx, wy, wz, pdf = E.sample_radiance(_env(ls), u1, u2, rad)
+        if not pdf > 0.0:
+            return wx, wy, wz, math.inf, 0.0, False
+        return wx, wy, wz, math.inf, 1.0 / pdf, True
+    wx, wy, wz, dist, scale, ok = sample_light(ls, g, li, px, py, pz, u1, u2, u3)
+    for b in range(rad.shape[0]):
+        rad[b] = ls.radiance[li, b]
+    return wx, wy, wz, dist, scale, ok
+
+
+@njit(cache=True)
+def photon_tint(ls, li, dx, dy, dz, out):
+    """Per-band factor for a photon of light li leaving along d: the environment map's
+    colour in that direction relative to its flux colour (expectation 1 per band, see
+    environment.photon_tint); 1 for every other light."""
+    if ls.kind[li] == ENVIRONMENT:
+        E.photon_tint(_env(ls), dx, dy, dz, out)
+        return
+    for b in range(out.shape[0]):
+        out[b] = 1.0
+
+
+@njit(cache=True)
+def sample_environment_diffuse(ls, li, nx, ny, nz, u1, u2, rad):
+    """Direct light of environment-map light li for a diffuse receiver of normal n:
+    one-sample MIS (balance heuristic) of the map's importance sampling and cosine
+    sampling around n. Returns (wx, wy, wz, contrib_scale, ok)
+    with irradiance = rad * contrib_scale * cos (as sample_light_radiance); the cosine
+    half keeps dim parts of the sky that face the receiver from being starved by a
+    bright patch behind it."""
+    ev = _env(ls)
+    # u1 < 1/2 picks the map, the rest cosine sampling: the halves of a stratified
+    # (u1, u2) square stay stratified for each strategy
+    if u1 < 0.5:
+        wx, wy, wz, p_env = E.sample(ev, 2.0 * u1, u2)
+    else:
+        lx, ly, lz = cosine_hemisphere(2.0 * u1 - 1.0, u2)
+        wx, wy, wz = to_world(lx, ly, lz, nx, ny, nz)
+        p_env = E.pdf(ev, wx, wy, wz)
+    cos_r = wx * nx + wy * ny + wz * nz
+    pdf = 0.5 * p_env + 0.5 * max(cos_r, 0.0) / math.pi
+    if not pdf > 0.0 or cos_r <= 0.0:
+        return wx, wy, wz, 0.0, False
+    E.radiance(ev, wx, wy, wz, rad)
+    return wx, wy, wz, 1.0 / pdf, True

@@ -2,7 +2,7 @@
 
 A bake stores E = E_direct + E_indirect per texel. Photons carry only the
 indirect part (trace_photons(record_direct=False)); the direct part is
-gathered here by sampling the lights with shadow rays (renderer.direct_irradiance),
+gathered here by sampling the lights with shadow rays (direct_irradiance below),
 which removes the photon noise of the brightest component.
 
 Per texel the gathered value is the direct irradiance *averaged over the
@@ -43,9 +43,10 @@ from .affine import apply_linear, apply_point, cross
 from . import lightmap as LM
 from . import texel_areas as TA
 from . import primitives as P
-from .lights import AREA, EMISSIVE, POINT, SPOT
-from .raycast import STACK_WORDS
-from .renderer import direct_irradiance
+from .lights import (AREA, EMISSIVE, ENVIRONMENT, POINT, SPOT, sample_environment_diffuse,
+                     sample_light_radiance)
+from .photon_tracer import ray_epsilon
+from .raycast import STACK_WORDS, occluded
 from .sampling import next_float, stream_state
 
 DEFAULT_SAMPLES = 16
@@ -54,6 +55,76 @@ DEFAULT_SAMPLES = 16
 # --------------------------------------------------------------------------------------
 # Kernels
 # --------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, out):
+    """Adds the direct irradiance at p (normal n facing the viewer) into out[bands]
+    (direct_irradiance_stratum with no stratum)."""
+    return direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, -1, 0)
+
+
+# Sample s of a texel takes light stratum (37 s) mod k²: a fixed shuffle, so the
+# light strata are not tied to the position strata of the same k x k grid.
+_STRATUM_SHUFFLE = 37
+
+
+@njit(cache=True)
+def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, s, k):
+    """Adds the direct irradiance at p (normal n facing the viewer) into out[bands].
+
+    With few lights every light gets one sample; with many, four are drawn in
+    proportion to power (unbiased either way). The sample's radiance comes per
+    band: an environment map's depends on the direction, and it is sampled by MIS of
+    the map and the receiver's cosine (lights.sample_environment_diffuse); every
+    other light, and a constant world, gives exactly the numbers of sample_light.
+    With s >= 0 (sample s of a texel's k x k grid), the map's two random numbers are
+    jittered in a stratum of their own, so a texel's samples cover the map's CDF evenly
+    (a sun or a bright window is hit a near-fixed number of times, not a binomial one).
+    """
+    n_lights = ls.kind.shape[0]
+    if n_lights == 0:
+        return state
+    rad = np.empty(out.shape[0])
+    eps = ray_epsilon(px, py, pz)
+    ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
+    all_lights = n_lights <= 8
+    n_samples = n_lights if all_lights else 4
+    total = ls.power_cdf[n_lights - 1]
+    for j in range(n_samples):
+        if all_lights:
+            li = j
+            w_sel = 1.0
+        else:
+            state, us = next_float(state)
+            target = us * total
+            li = 0
+            while li < n_lights - 1 and ls.power_cdf[li] <= target:
+                li += 1
+            p_li = (ls.power_cdf[li] - (ls.power_cdf[li - 1] if li > 0 else 0.0)) / total
+            w_sel = 1.0 / (n_samples * p_li)
+        state, u1 = next_float(state)
+        state, u2 = next_float(state)
+        state, u3 = next_float(state)
+        if ls.kind[li] == ENVIRONMENT and not ls.env_constant:
+            if 0 <= s < k * k:
+                u1, u2 = _jitter((s * _STRATUM_SHUFFLE) % (k * k), k, u1, u2)
+            wx, wy, wz, scale, ok = sample_environment_diffuse(ls, li, nx, ny, nz, u1, u2, rad)
+            dist = math.inf
+        else:
+            wx, wy, wz, dist, scale, ok = sample_light_radiance(ls, g, li, px, py, pz, u1, u2, u3, rad)
+        if not ok:
+            continue
+        cos_r = wx * nx + wy * ny + wz * nz
+        if cos_r <= 0.0:
+            continue
+        tmax = dist * (1.0 - 1e-6) - eps if dist < math.inf else math.inf
+        if tmax <= 0.0 or occluded(g, stack, ox, oy, oz, wx, wy, wz, 0.0, tmax):
+            continue
+        c = cos_r * scale * w_sel
+        for b in range(out.shape[0]):
+            out[b] += rad[b] * c
+    return state
+
 
 @njit(cache=True, inline="always")
 def _grid_side(n):
@@ -155,8 +226,8 @@ def _gather_mesh(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pn
             nx /= ln
             ny /= ln
             nz /= ln
-            state = direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, e)
-            state = direct_irradiance(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e)
+            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k)
+            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e, s, k)
         inv = 1.0 / n_samples
         for b in range(nb):
             out[it, b] = e[b] * inv
@@ -201,9 +272,9 @@ def _gather_prim(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local
             px, py, pz = apply_point(xf, lx, ly, lz)
             for b in range(nb):
                 e[b] = 0.0
-            state = direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, e)
+            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k)
             if sides == 2:
-                state = direct_irradiance(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e)
+                state = direct_irradiance_stratum(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e, s, k)
             for b in range(nb):
                 ew[b] += jac * e[b]
             wsum += jac

@@ -373,7 +373,7 @@ def _render_lsystem(grammar, args, report):
     t0 = time.perf_counter()
     cs = session.compile(scene)
     t1 = time.perf_counter()
-    stats = session.photon_pass(cs, settings)
+    stats = session.photon_pass(cs, settings, caustics=True)
     t2 = time.perf_counter()
     image = session.render(cs, settings)
     t3 = time.perf_counter()

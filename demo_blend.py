@@ -310,3 +310,80 @@ def build_light_test_blend(light_type, path=None, *, width=32, height=32, albedo
     add_camera(scene, (0.0, 0.0, 3.0), (0.0, 0.0, 0.0), lens=18.0, sensor=24.0)
     set_world(scene)
     return _finish(scene, path, width, height, engine, photons, samples)
+
+
+# The material scene of issue 13: rough gold, glossy blue plastic and clear glass
+# over a floor and a back wall, under one area light, in a dim grey world.
+SPHERES = (("gold_ball", (-0.75, 0.0, 0.3), 0.3), ("plastic_ball", (0.0, 0.0, 0.3), 0.3),
+           ("glass_ball", (0.75, 0.0, 0.3), 0.3))
+
+
+def checker_image(name, size=64, squares=8, colours=((0.8, 0.8, 0.8), (0.2, 0.25, 0.6))):
+    """A generated float checker image (linear values), packed into the file."""
+    img = bpy.data.images.new(name, size, size, alpha=False, float_buffer=True)
+    y, x = np.mgrid[0:size, 0:size] * squares // size
+    odd = ((x + y) % 2).astype(bool)
+    px = np.ones((size, size, 4), np.float32)
+    px[~odd, :3] = colours[0]
+    px[odd, :3] = colours[1]
+    img.pixels.foreach_set(px.ravel())
+    img.pack()
+    return img
+
+
+def textured(mat, image=None, procedural=False, scale=4.0):
+    """Drives the Principled Base Color by an Image Texture or a Checker Texture."""
+    tree = mat.node_tree
+    p = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    if procedural:
+        tex = tree.nodes.new("ShaderNodeTexChecker")
+        tex.inputs["Scale"].default_value = scale
+        tex.inputs["Color1"].default_value = (0.8, 0.8, 0.8, 1.0)
+        tex.inputs["Color2"].default_value = (0.6, 0.2, 0.1, 1.0)
+        uv = tree.nodes.new("ShaderNodeTexCoord")
+        tree.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+    else:
+        tex = tree.nodes.new("ShaderNodeTexImage")
+        tex.image = image
+    tree.links.new(tex.outputs["Color"], p.inputs["Base Color"])
+    return tex
+
+
+def build_spheres_blend(path=None, *, width=96, height=48, textures=False, world=0.05, light_power=80.0,
+                        engine=ENGINE_ID, photons=None, samples=None):
+    """Gold (metallic 1, roughness 0.3), blue plastic (roughness 0.2, Specular IOR
+    Level 0.5) and glass (transmission 1, roughness 0, IOR 1.5) spheres of radius
+    0.3 m, exact analytic spheres here (tagged CSG primitives) and their 96-segment
+    display meshes in Cycles, on a 0.8 grey floor before a back wall, lit by a 1 m
+    area light and a constant world of `world` radiance. `textures` puts an image
+    checker on the floor and a procedural Checker on the wall."""
+    from .operators.csg_primitives import new_primitive_object
+    scene = _reset()
+    floor = principled("floor", (0.8, 0.8, 0.8), roughness=0.5)
+    wall = principled("wall", (0.7, 0.7, 0.7), roughness=0.5)
+    if textures:
+        textured(floor, checker_image("floor_checker"))
+        textured(wall, procedural=True)
+    s = 3.0
+    mesh_object("floor", [(-s, -1.0, 0), (s, -1.0, 0), (s, 2.0, 0), (-s, 2.0, 0)], [(0, 1, 2, 3)], floor,
+                uvs=quad_uvs())
+    mesh_object("wall", [(-s, 1.0, 0), (s, 1.0, 0), (s, 1.0, 2.0), (-s, 1.0, 2.0)], [(0, 1, 2, 3)], wall,
+                uvs=quad_uvs())
+    for me in (bpy.data.meshes["floor"], bpy.data.meshes["wall"]):
+        # the materials' UV map (textures) besides the lightmap layer
+        uv = me.uv_layers.new(name="UVMap")
+        uv.uv.foreach_set("vector", np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32).ravel())
+        me.uv_layers.active = uv
+        uv.active_render = True
+    mats = {"gold_ball": principled("gold", (1.0, 0.766, 0.336), metallic=1.0, roughness=0.3),
+            "plastic_ball": principled("plastic", (0.05, 0.12, 0.6), roughness=0.2, specular_level=0.5),
+            "glass_ball": principled("glass", (1.0, 1.0, 1.0), transmission=1.0, roughness=0.0,
+                                     specular_level=0.5)}
+    for name, loc, rad in SPHERES:
+        new_primitive_object("sphere", name, location=loc, size=rad, segments=96, material=mats[name],
+                             collection=scene.collection)
+    add_light(scene, "AREA", "key_light", power=light_power, location=(0.4, -0.6, 1.6),
+              rotation=(math.radians(25.0), 0.0, 0.0), size=1.0)
+    add_camera(scene, (0.0, -3.2, 1.1), (math.radians(78.0), 0.0, 0.0), lens=35.0)
+    set_world(scene, (world, world, world))
+    return _finish(scene, path, width, height, engine, photons, samples)

@@ -39,6 +39,7 @@ class RenderRun:
     cancelled: bool = False
     image: np.ndarray = None
     orientation_lightmaps: list = field(default_factory=list)   # ol_bake.summarize rows
+    environment: dict = None    # the world's map: name, width, height, bytes, bake_seconds
 
     def as_dict(self):
         return {"scene": self.scene, "width": self.width, "height": self.height,
@@ -48,7 +49,8 @@ class RenderRun:
                 "memory": {"lightmap_bytes": self.lightmap_bytes, "peak_rss_bytes": peak_rss_bytes()},
                 "lightmaps": self.lightmaps, "texels": self.texels,
                 "warnings": list(self.warnings), "cancelled": self.cancelled,
-                "orientation_lightmaps": [dict(r) for r in self.orientation_lightmaps]}
+                "orientation_lightmaps": [dict(r) for r in self.orientation_lightmaps],
+                "environment": dict(self.environment) if self.environment else None}
 
 
 LAST_RUN = None
@@ -90,7 +92,8 @@ def _export(depsgraph, run, report, camera_override, resolution):
     """Phase 1: the engine scene, with a warning where nothing would show."""
     scene, _ = export_scene(depsgraph, report=report, camera_override=camera_override, resolution=resolution)
     run.width, run.height = scene.camera.width, scene.camera.height
-    has_light = bool(scene.lights) or np.any(np.asarray(scene.environment) > 0) or any(
+    world = getattr(scene.environment, "pixels", scene.environment)   # constant or map
+    has_light = bool(scene.lights) or np.any(np.asarray(world) > 0) or any(
         np.any(np.asarray(m.emission) > 0) for m in scene.materials)
     if not scene.instances:
         report("WARNING", "Photon Lightmaps: the scene has no renderable geometry")
@@ -110,6 +113,12 @@ def _compile(scene, run, report):
         report("WARNING", f"Photon Lightmaps: coincident CSG operand faces ({cs.info['csg_ties']:,} ties on "
                           f"{cs.info['csg_tie_texels']:,} texels), resolved by the tie rule (thesis 4.1.2)")
     run.lightmaps, run.texels = int(cs.info.get("lightmaps", 0)), int(cs.info.get("texels", 0))
+    env = cs.info.get("environment")
+    if env:
+        run.environment = dict(env)
+        how = f"baked in {env['bake_seconds']:.1f} s" if env["bake_seconds"] > 0 else "cached"
+        report("INFO", f"Photon Lightmaps: world '{env['name']}' as a {env['width']}x{env['height']} "
+                       f"map ({_mib(env['bytes']):.1f} MiB), {how}")
     return cs
 
 
@@ -124,7 +133,7 @@ def _photons(cs, scene, settings, run, report, stats, progress, should_stop, lm_
         return not should_stop()
 
     if scene.instances and settings.photons > 0 and cs.lights.total_power > 0.0:
-        ps = session.photon_pass(cs, settings, progress=photon_progress)
+        ps = session.photon_pass(cs, settings, progress=photon_progress, caustics=True)
         run.photons, run.rays = ps.photons, ps.rays
         run.photons_per_second = ps.photons / max(ps.seconds, 1e-9)
     if cs.info.get("orientation_lightmaps"):   # also the automatic ones (unwrap fallbacks)

@@ -478,7 +478,7 @@ def run_case(i):
 
 def _weights_bounded(ms):
     """True when no band of any material can weigh a surviving photon above 1
-    (materials.lobe_probabilities): then absorbed energy is never negative. A
+    (bsdf.lobe_probabilities): then absorbed energy is never negative. A
     material whose lobes peak in different bands (diffuse [.9, .1], specular
     [.1, .9]) is unbiased but its bands' weights exceed 1, so a finite run may
     book a slightly negative absorption in one band."""

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import csg as CSG
+from . import environment as ENV
 from . import memory_budget
 from . import lightmap as LM
 from . import texel_areas as TA
@@ -18,12 +19,14 @@ from . import orientation_lightmap as OL
 from . import primitives as P
 from . import split_texels as ST
 from .area_estimation import estimate_areas
+from .bsdf import compile_bsdf
 from .geometry import DCSG as DCSG_KIND
 from .geometry import check_mesh_arrays, compile_geometry, nondegenerate
-from .lights import compile_lights
+from .lights import compile_lights, environment_map
 from .materials import compile_materials
+from .texture import compile_textures, texture_bytes
 from .renderer import compile_camera
-from .scene import CSGNode, OrientationLightmap, SceneError, TriangleMesh, _bands
+from .scene import CSGNode, OrientationLightmap, SceneError, TriangleMesh
 
 
 @dataclass
@@ -35,13 +38,19 @@ class CompiledScene:
     lights: object
     lightmaps: object
     camera: object
-    environment: np.ndarray
+    environment: object          # environment.EnvMap (np.asarray: the mean radiance per band)
     info: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
     # instance_lightmaps[i] lists lightmap ids of instance i, in surface-slot order.
     instance_lightmaps: list = field(default_factory=list)
     # orientation lightmaps: routing of instances to OLs and their lightmap ids
     orientation: object = None
+    # finer lightmaps for caustic photons (same lightmap ids as `lightmaps`), or None
+    caustics: object = None
+    caustics_traced: bool = False   # the last photon pass stored its caustics there
+    bsdf: object = None             # bsdf.BsdfTables: albedo tables, layer and Fresnel per material
+    # material textures (engine/texture.py TextureSet; empty when the scene has none)
+    textures: object = None
 
     def lightmap_bytes(self):
         lm = self.lightmaps
@@ -51,9 +60,11 @@ class CompiledScene:
 
     def reset_lightmaps(self):
         """Clears recorded photons (areas stay) so a new photon pass starts from zero."""
-        for a in (self.lightmaps.flux, self.lightmaps.flux_sq, self.lightmaps.hits,
-                  self.lightmaps.irradiance, self.lightmaps.state):
-            a[...] = 0
+        for lm in (self.lightmaps, self.caustics):
+            if lm is None:
+                continue
+            for a in (lm.flux, lm.flux_sq, lm.hits, lm.irradiance, lm.state):
+                a[...] = 0
 
 
 def _prototype_surfaces(geom):
@@ -427,6 +438,41 @@ def compile_warnings(info):
     return out
 
 
+# A lobe this smooth (Blender roughness) or smoother keeps a photon's caustic focus.
+CAUSTIC_ROUGHNESS = 0.1
+
+
+def _caustic_lightmaps(scene, geom, density, max_resolution, csg, csg_split, dcsg, info):
+    """The caustic lightmaps: the instances' lightmaps again at caustic_resolution x the
+    texel density, allocated only when a material can focus light (a sharp mirror or
+    glass). Their ids equal the regular ones, so a hit finds its texel in either."""
+    k = float(getattr(scene, "caustic_resolution", 1.0))
+    if not (math.isfinite(k) and k > 1.0):
+        return None
+    sharp = [m.name for m in scene.materials
+             if float(m.roughness) <= CAUSTIC_ROUGHNESS
+             and (np.any(np.asarray(m.specular, float) > 0) or np.any(np.asarray(m.transmission, float) > 0))]
+    if not sharp or not np.any(geom.inst_lm_base >= 0):
+        return None
+    # instance lightmaps only (OLs come after them, so the ids still agree)
+    plain = replace(scene, orientation_lightmaps=[])
+    asked = k
+    while k > 1.0:
+        try:      # allocate_lightmaps checks the memory budget before it allocates
+            lm, _, _ = allocate_lightmaps(plain, geom, density * k, int(max_resolution * k), csg, csg_split,
+                                          {}, None, dcsg)
+        except memory_budget.BudgetError:
+            k *= 0.5          # caustics may be coarser; they never make a scene fail
+            continue
+        if k < asked:
+            info.setdefault("warnings", []).append(
+                f"caustic lightmaps at {k:g}x the texel density instead of {asked:g}x (memory)")
+        info.update(caustic_texels=int(lm.area.shape[0]), caustic_resolution=k)
+        return lm
+    info.setdefault("warnings", []).append("caustic lightmaps are off: they do not fit in memory")
+    return None
+
+
 def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True):
     t0 = time.perf_counter()
     if int(scene.n_bands) < 1:
@@ -435,6 +481,8 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     if not (math.isfinite(density) and density > 0):
         raise SceneError(f"texel density must be positive, got {density}")
     materials = compile_materials(scene)
+    bsdf_tables = compile_bsdf(scene.materials)
+    textures = compile_textures(scene)
     warnings = []
     # instances under a (non-backup) OL record there instead of on own lightmaps
     scene = _lsystem_orientation(scene)
@@ -465,6 +513,7 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     info["warnings"] = warnings + compile_warnings(info)
     lightmaps, per_instance, ol_maps = allocate_lightmaps(scene, geom, density, max_resolution,
                                                           csg, csg_split, info, ol_maps, dcsg)
+    caustics = _caustic_lightmaps(scene, geom, density, max_resolution, csg, csg_split, dcsg, info)
     t_lm = time.perf_counter()
     if geom.tlas_min.shape[0] > 0:
         bounds = (geom.tlas_min[0].astype(np.float64), geom.tlas_max[0].astype(np.float64))
@@ -475,11 +524,20 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     memory_budget.check(f"render resolution {camera.width}x{camera.height}",
                         camera.width * camera.height * (PIXEL_BYTES + PIXEL_BAND_BYTES * scene.n_bands),
                         "lower the resolution (Output Properties > Format)")
-    env = _bands(scene.environment, scene.n_bands, "environment")
+    env = environment_map(lights)    # environment.EnvMap: radiance(), sample(), pdf() on it
+    env_info = ENV.describe(env)
+    if env_info is not None:
+        env_info.update(name=str(getattr(scene.environment, "name", "world")),
+                        bake_seconds=float(getattr(scene.environment, "bake_seconds", 0.0)))
+        info["environment"] = env_info
     info.update(lightmaps=int(lightmaps.offset.shape[0]), texels=int(lightmaps.area.shape[0]),
                 lights=int(lights.kind.shape[0]))
+    info.update(textures=int(textures.tex_first.shape[0]), texture_bytes=texture_bytes(textures),
+                texture_bake_seconds=float(sum(getattr(t, "bake_seconds", 0.0)
+                                               for t in getattr(scene, "textures", None) or [])))
     cs = CompiledScene(scene.name, int(scene.n_bands), geom, materials, lights, lightmaps, camera,
-                       env, info, instance_lightmaps=per_instance, orientation=ol_maps)
+                       env, info, instance_lightmaps=per_instance, orientation=ol_maps,
+                       textures=textures, bsdf=bsdf_tables, caustics=caustics)
     cs.timings.update(unwrap=t_unwrap - t0, geometry=t_geo - t0, lightmap_setup=t_lm - t_geo,
                       setup=time.perf_counter() - t0)
     return cs

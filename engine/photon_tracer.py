@@ -23,12 +23,16 @@ from . import lightmap as LM
 from . import memory_budget
 from . import orientation_lightmap as OL
 from .lightmap import lightmap_slot  # noqa: F401  (hosts import it from here)
-from .lights import emit_photon
-from .materials import DIFFUSE, SPECULAR, TRANSMIT, lobe_probabilities, scatter
+from .lights import emit_photon, photon_tint
+from . import bsdf as BS
+from . import materials as MT
 from .raycast import STACK_WORDS, intersect_closest
 from .sampling import next_float, stream_state
 
 MAX_BOUNCES_LIMIT = 256
+# GGX alpha (Blender roughness 0.1 squared, compile.CAUSTIC_ROUGHNESS) up to which a
+# bounce keeps a photon's path a caustic
+CAUSTIC_ALPHA = 0.01
 
 
 
@@ -68,15 +72,22 @@ def ray_epsilon(px, py, pz):
 
 
 @njit(cache=True, parallel=True)
-def _trace_chunk(g, ms, ls, lm, ol, seed, first, n_total, max_bounces, record_from,
+def _trace_chunk(g, ms, bt, ts, ls, lm, lmc, use_caustics, caustic_alpha, ol, seed, first, n_total,
+                 max_bounces, record_from,
                  rec_texel, rec_power, rec_point, ledger, rays):
     count = rec_texel.shape[0]
     n_rec = rec_texel.shape[1]
     nb = ledger.shape[2]
     scale = ls.total_power / n_total
+    n_main = lm.area.shape[0]
     for i in prange(count):
         stack = np.empty(STACK_WORDS, np.int32)
         power = np.empty(nb)
+        wt = np.empty(nb)
+        kd = np.empty(nb)
+        ks = np.empty(nb)
+        kt = np.empty(nb)
+        pc = np.empty(BS.P_SIZE)
         for r in range(n_rec):
             rec_texel[i, r] = -1
         for k in range(4):
@@ -85,10 +96,12 @@ def _trace_chunk(g, ms, ls, lm, ol, seed, first, n_total, max_bounces, record_fr
         state = stream_state(seed, first + i)
         state, li, ox, oy, oz, dx, dy, dz, w = emit_photon(ls, g, state)
         p_light = ls.flux[li].mean()
+        photon_tint(ls, li, dx, dy, dz, wt)     # an environment map's colour along d
         for b in range(nb):
-            power[b] = w * ls.flux[li, b] * scale / p_light if p_light > 0.0 else 0.0
+            power[b] = w * wt[b] * ls.flux[li, b] * scale / p_light if p_light > 0.0 else 0.0
             ledger[i, 0, b] = power[b]
         n_rays = 0
+        caustic = use_caustics
         rec = 0
         depth = 0
         tmin = 0.0
@@ -102,9 +115,17 @@ def _trace_chunk(g, ms, ls, lm, ol, seed, first, n_total, max_bounces, record_fr
                 break
             px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
             if depth >= record_from:
-                lid, f, s, tt = LM.record_slot(g, lm, inst, shape, face, u, v)
+                lid = -1
+                if caustic and depth >= 1:
+                    # only sharp mirrors and glass since the light: the finer caustic lightmap
+                    lid, f, s, tt = LM.record_slot(g, lmc, inst, shape, face, u, v)
+                    if lid >= 0 and rec < n_rec:
+                        rec_texel[i, rec] = n_main + LM.record_index(lmc, lid, f, s, tt)
+                if lid < 0:
+                    lid, f, s, tt = LM.record_slot(g, lm, inst, shape, face, u, v)
+                    if lid >= 0 and rec < n_rec:
+                        rec_texel[i, rec] = LM.record_index(lm, lid, f, s, tt)
                 if lid >= 0 and rec < n_rec:
-                    rec_texel[i, rec] = LM.record_index(lm, lid, f, s, tt)
                     for b in range(nb):
                         rec_power[i, rec, b] = power[b]
                     if rec_point.shape[0] > 0:
@@ -129,28 +150,58 @@ def _trace_chunk(g, ms, ls, lm, ol, seed, first, n_total, max_bounces, record_fr
                     ledger[i, 3, b] += power[b]
                 break
             m = g.shape_material[shape]
-            pd, ps, pt = lobe_probabilities(ms, m)
+            # photons read textures at their finest level: the albedo at the hit itself
+            rough, ior, _ = MT.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, 0.0, kd, ks, kt)
+            snx, sny, snz = MT.shading_normal(ms, ts, g, inst, m, shape, face, u, v, 0.0, nx, ny, nz)
+            # the local frame faces where the photon came from; entering by the outward normal
+            cos_dn = dx * nx + dy * ny + dz * nz
+            if cos_dn > 0.0:
+                fx, fy, fz, sx, sy, sz = -nx, -ny, -nz, -snx, -sny, -snz
+            else:
+                fx, fy, fz, sx, sy, sz = nx, ny, nz, snx, sny, snz
+            cos_o = -(dx * sx + dy * sy + dz * sz)
+            if cos_o <= 1e-6:
+                sx, sy, sz = fx, fy, fz
+                cos_o = abs(cos_dn)
+            BS.closure_scalars(bt, m, rough, ior, cos_dn < 0.0, cos_o, pc)
+            pd, ps, pm, pg = BS.lobe_probabilities(pc, kd, ks, kt, cos_o)
             state, ur = next_float(state)
+            state, u1 = next_float(state)
+            state, u2 = next_float(state)
+            state, u3 = next_float(state)
+            ok = True
+            # a diffuse or rough bounce spreads the focus: the rest of the path is no caustic
+            caustic = caustic and ur >= pd and pc[BS.P_ALPHA] <= caustic_alpha
             if ur < pd:
-                lobe, k, prob = DIFFUSE, ms.diffuse, pd
-            elif ur < pd + ps:
-                lobe, k, prob = SPECULAR, ms.specular, ps
-            elif ur < pd + ps + pt:
-                lobe, k, prob = TRANSMIT, ms.transmission, pt
+                # Russian roulette on the lobe (thesis 3.4.3): a survivor keeps
+                # power k/p <= power per band, the rest is absorbed here
+                ix, iy, iz = BS.sample_diffuse(u1, u2)
+                ds = BS.diffuse_scale(pc)
+                for b in range(nb):
+                    wt[b] = kd[b] * ds / pd
+            elif ur < pd + ps + pm + pg:
+                q = ps + pm + pg
+                lox, loy, loz = BS.to_local(-dx, -dy, -dz, sx, sy, sz)
+                ok, ix, iy, iz, _, _ = BS.sample_glossy(pc, ks, kt, ps, pm, pg, lox, loy, loz,
+                                                        (ur - pd) / q, u1, u2, u3, wt)
+                for b in range(nb):
+                    wt[b] /= q
             else:
                 for b in range(nb):
                     ledger[i, 1, b] += power[b]
                 break
-            # Survivor keeps power * k / p <= power per band; the rest is absorbed here.
+            if not ok:
+                for b in range(nb):
+                    ledger[i, 1, b] += power[b]
+                break
             for b in range(nb):
-                kept = power[b] * k[m, b] / prob
+                kept = power[b] * wt[b]
                 ledger[i, 1, b] += power[b] - kept
                 power[b] = kept
-            state, u1 = next_float(state)
-            state, u2 = next_float(state)
-            state, u3 = next_float(state)
-            ok, dx, dy, dz = scatter(ms, m, lobe, dx, dy, dz, nx, ny, nz, u1, u2, u3)
-            if not ok:
+            dx, dy, dz = BS.from_local(ix, iy, iz, sx, sy, sz)
+            if (dx * fx + dy * fy + dz * fz) * iz <= 0.0:
+                # the shading frame's side and the face's disagree: absorbed, so a
+                # normal map never leaks light through the surface
                 for b in range(nb):
                     ledger[i, 1, b] += power[b]
                 break
@@ -163,7 +214,7 @@ def _trace_chunk(g, ms, ls, lm, ol, seed, first, n_total, max_bounces, record_fr
 
 
 def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
-                  progress=None, chunk=None, keep_points=False):
+                  progress=None, chunk=None, keep_points=False, caustics=False):
     """Runs the photon pass on a compiled scene `cs`, adding into cs.lightmaps.
 
     record_direct: True when the lightmaps must hold direct light too (baking);
@@ -171,6 +222,8 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     progress(done, total) may return False to cancel (raises Cancelled).
     keep_points: also return every recorded hit as stats.points (K, 6)
     position+normal and stats.point_power (K, B), for photon-map baselines.
+    caustics: store photons that came only through sharp mirrors and glass in
+    cs.caustics (the renderer reads them there; bakes write cs.lightmaps alone).
     """
     if not 0 <= int(max_bounces) <= MAX_BOUNCES_LIMIT:
         raise ValueError(f"max_bounces must be in [0, {MAX_BOUNCES_LIMIT}], got {max_bounces}")
@@ -197,15 +250,28 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     rec_point = np.empty((chunk if keep_points else 0, n_rec, 6))
     points, point_power = [], []
     lm = cs.lightmaps
+    # bakes keep every photon in the one lightmap they write out; renders split caustics off
+    lmc = getattr(cs, "caustics", None)
+    use_caustics = bool(caustics) and lmc is not None and not record_direct
+    lmc = lmc if use_caustics else lm
+    cs.caustics_traced = use_caustics
+    n_main = lm.area.shape[0]
     done = 0
     while done < n_photons:
         c = min(chunk, n_photons - done)
-        _trace_chunk(cs.geometry, cs.materials, cs.lights, lm, ol, np.uint64(seed), done, n_photons,
-                     int(max_bounces), 0 if record_direct else 1,
+        _trace_chunk(cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights, lm, lmc, use_caustics,
+                     CAUSTIC_ALPHA, ol, np.uint64(seed), done, n_photons, int(max_bounces),
+                     0 if record_direct else 1,
                      rec_texel[:c], rec_power[:c], rec_point[:c], ledger[:c], rays[:c])
         ids = rec_texel[:c].reshape(-1)
         keep = ids >= 0
-        LM.accumulate(lm, ids[keep], rec_power[:c].reshape(-1, nb)[keep])
+        powers = rec_power[:c].reshape(-1, nb)
+        if use_caustics:
+            fine = ids >= n_main
+            LM.accumulate(lmc, ids[fine] - n_main, powers[fine])
+            LM.accumulate(lm, ids[keep & ~fine], powers[keep & ~fine])
+        else:
+            LM.accumulate(lm, ids[keep], powers[keep])
         if keep_points:
             points.append(rec_point[:c].reshape(-1, 6)[keep])
             point_power.append(rec_power[:c].reshape(-1, nb)[keep])
@@ -224,5 +290,7 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
         stats.points = np.concatenate(points)
         stats.point_power = np.concatenate(point_power)
     LM.finalize(lm)
+    if use_caustics:
+        LM.finalize(lmc)
     stats.seconds = time.perf_counter() - t0
     return stats

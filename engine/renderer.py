@@ -1,10 +1,12 @@
 """Two-pass renderer (thesis 8.2): direct light by sampling the lights, indirect
-light from the photon lightmaps, specular and refraction by recursive tracing.
+light from the photon lightmaps, glossy, specular and refractive paths traced on.
 
-Camera paths stop at the first diffuse interaction: its direct part comes from
-shadow rays to the lights, everything else from the lightmap irradiance E
-(radiance kd·E/π). Specular, glossy and refractive lobes continue the path.
-Rendering proceeds tile by tile so a host can display progress and cancel.
+At every hit the closure (bsdf.py, with textured inputs from materials.py) is split:
+its diffuse part takes direct light from shadow rays and everything else from the
+lightmap irradiance E, plus the caustic lightmaps' (radiance kd·E/π); its glossy
+lobes take direct light too, weighted by multiple importance sampling against the
+glossy sample that continues the path, which also sees lights and the world
+(light_hits.py). Rendering proceeds tile by tile so a host can show progress and cancel.
 """
 import math
 import time
@@ -15,11 +17,14 @@ from numba import njit, prange
 
 from . import lightmap as LM
 from . import orientation_lightmap as OL
-from .lights import sample_light
+from . import bsdf as BS
+from . import light_hits as LH
+from . import materials as MT
+from . import environment as ENV
+from .lights import EMISSIVE, sample_light_radiance
 from .photon_tracer import Cancelled, ray_epsilon
 from .raycast import STACK_WORDS, intersect_closest, occluded
-from .sampling import next_float, stream_state
-from .materials import SPECULAR, TRANSMIT, scatter
+from .sampling import next_float, sample_discrete, stream_state
 
 CameraData = namedtuple("CameraData", "xf kind sx sy width height")
 
@@ -72,17 +77,20 @@ def camera_ray(cam, fx, fy):
 
 
 @njit(cache=True)
-def direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, out):
-    """Adds the direct irradiance at p (normal n facing the viewer) into out[bands].
-
-    With few lights every light gets one sample; with many, four are drawn in
-    proportion to power (unbiased either way).
-    """
+def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx, sy, sz,
+                 ox, oy, oz, state, e, lg, f, rad):
+    """Direct light at p, sampled as texel_gather.direct_irradiance samples it: the
+    diffuse irradiance into e[bands] and the glossy lobes' radiance towards wo
+    (local o, in the frame of s) into lg, weighted by the power heuristic against
+    glossy sampling (light_hits). f is the face normal on the viewer's side, s the
+    (normal-mapped) shading normal: cosines are s's, and a light must lie on the
+    side of f that the lobe scatters to (no light through a normal map's tilt)."""
     n_lights = ls.kind.shape[0]
     if n_lights == 0:
         return state
+    nb = e.shape[0]
+    glossy = ps + pm + pg > 0.0 and p[BS.P_ALPHA] > BS.DELTA_ALPHA
     eps = ray_epsilon(px, py, pz)
-    ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
     all_lights = n_lights <= 8
     n_samples = n_lights if all_lights else 4
     total = ls.power_cdf[n_lights - 1]
@@ -92,40 +100,66 @@ def direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, out):
             w_sel = 1.0
         else:
             state, us = next_float(state)
-            target = us * total
-            li = 0
-            while li < n_lights - 1 and ls.power_cdf[li] <= target:
-                li += 1
+            li = sample_discrete(ls.power_cdf, us)
             p_li = (ls.power_cdf[li] - (ls.power_cdf[li - 1] if li > 0 else 0.0)) / total
             w_sel = 1.0 / (n_samples * p_li)
         state, u1 = next_float(state)
         state, u2 = next_float(state)
         state, u3 = next_float(state)
-        wx, wy, wz, dist, scale, ok = sample_light(ls, g, li, px, py, pz, u1, u2, u3)
-        if not ok:
+        wx, wy, wz, dist, scale, ok = sample_light_radiance(ls, g, li, px, py, pz, u1, u2, u3, rad)
+        if not ok or scale <= 0.0:
             continue
-        cos_r = wx * nx + wy * ny + wz * nz
-        if cos_r <= 0.0:
+        cos_g = wx * fx + wy * fy + wz * fz
+        cos_r = wx * sx + wy * sy + wz * sz
+        if cos_g * cos_r <= 0.0:
             continue
+        # a glass lobe also sees lights behind the surface
+        if cos_r <= 0.0 and not (glossy and pg > 0.0):
+            continue
+        gl = 0.0
+        if glossy and ls.kind[li] != EMISSIVE:
+            ix, iy, iz = BS.to_local(wx, wy, wz, sx, sy, sz)
+            pdf_b = BS.eval_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz, ix, iy, iz, f)
+            pdf_l = LH.light_pdf(ls, li, px, py, pz, wx, wy, wz, dist)
+            gl = 1.0 if pdf_l == math.inf else LH.power_heuristic(LH.selection_factor(ls, li) * pdf_l,
+                                                                 pdf_b)
+        if cos_r <= 0.0 and gl == 0.0:
+            continue
+        side = eps if cos_r > 0.0 else -eps
+        qx, qy, qz = px + side * fx, py + side * fy, pz + side * fz
         tmax = dist * (1.0 - 1e-6) - eps if dist < math.inf else math.inf
-        if tmax <= 0.0 or occluded(g, stack, ox, oy, oz, wx, wy, wz, 0.0, tmax):
+        if tmax <= 0.0 or occluded(g, stack, qx, qy, qz, wx, wy, wz, 0.0, tmax):
             continue
-        c = cos_r * scale * w_sel
-        for b in range(out.shape[0]):
-            out[b] += ls.radiance[li, b] * c
+        c = scale * w_sel
+        for b in range(nb):
+            if cos_r > 0.0:
+                e[b] += rad[b] * cos_r * c
+            if gl > 0.0:
+                lg[b] += rad[b] * f[b] * c * gl
     return state
 
 
 @njit(cache=True, parallel=True)
-def _render_tile(g, ms, ls, lm, ol, cam, env, x0, y0, tw, th, spp, seed, mode, max_depth, indirect,
-                 out):
+def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, seed, mode, max_depth,
+                 indirect, out):
     nb = out.shape[2]
+    # a pixel's ray cone: its width grows by this per metre travelled (texture filtering)
+    spread = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 0 else 0.0
+    width0 = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 1 else 0.0
+    env_li = LH.environment_light(ls)
     for idx in prange(tw * th):
         stack = np.empty(STACK_WORDS, np.int32)
         acc = np.zeros(nb)
         tp = np.empty(nb)
         e = np.empty(nb)
+        lg = np.empty(nb)
         ind = np.empty(nb)
+        f = np.empty(nb)
+        kd = np.empty(nb)
+        ks = np.empty(nb)
+        kt = np.empty(nb)
+        pc = np.empty(BS.P_SIZE)
+        rad = np.empty(nb)
         px_i = x0 + idx % tw
         py_i = y0 + idx // tw
         pixel = py_i * cam.width + px_i
@@ -138,59 +172,81 @@ def _render_tile(g, ms, ls, lm, ol, cam, env, x0, y0, tw, th, spp, seed, mode, m
             ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
             for b in range(nb):
                 tp[b] = 1.0 / spp
-            tmin = 0.0
+            pdf_b = 0.0
+            delta = True
+            travelled = 0.0
             for depth in range(max_depth + 1):
                 hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
-                    g, stack, ox, oy, oz, dx, dy, dz, tmin, math.inf)
+                    g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
+                if depth > 0:      # lights are invisible to the camera, as in Cycles
+                    LH.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf,
+                                       pdf_b, delta, tp, acc)
                 if not hit:
+                    w = 1.0
+                    if not delta and env_li >= 0:
+                        w = LH.power_heuristic(pdf_b, LH.selection_factor(ls, env_li) *
+                                               LH.light_pdf(ls, env_li, ox, oy, oz, dx, dy, dz, math.inf))
+                    ENV.radiance(env, dx, dy, dz, rad)
                     for b in range(nb):
-                        acc[b] += tp[b] * env[b]
+                        acc[b] += tp[b] * rad[b] * w
                     break
                 px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
                 m = g.shape_material[shape]
-                cos_v = -(dx * nx + dy * ny + dz * nz)
+                cos_dn = dx * nx + dy * ny + dz * nz
                 for b in range(nb):
                     acc[b] += tp[b] * ms.emission[m, b]
-                fx, fy, fz = (nx, ny, nz) if cos_v >= 0.0 else (-nx, -ny, -nz)
-                kd_max = 0.0
+                travelled += t
+                foot = width0 + spread * travelled
+                rough, ior, _ = MT.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, foot, kd, ks, kt)
+                snx, sny, snz = MT.shading_normal(ms, ts, g, inst, m, shape, face, u, v, foot, nx, ny, nz)
+                # the frame faces the viewer; the outward normal tells entering from leaving
+                if cos_dn > 0.0:
+                    fx, fy, fz, sx, sy, sz = -nx, -ny, -nz, -snx, -sny, -snz
+                else:
+                    fx, fy, fz, sx, sy, sz = nx, ny, nz, snx, sny, snz
+                cos_o = -(dx * sx + dy * sy + dz * sz)
+                if cos_o <= 1e-6:      # a normal map tilted away from the viewer: use the face's
+                    sx, sy, sz = fx, fy, fz
+                    cos_o = abs(cos_dn)
+                BS.closure_scalars(bt, m, rough, ior, cos_dn < 0.0, cos_o, pc)
+                pd, ps, pm, pg = BS.lobe_probabilities(pc, kd, ks, kt, cos_o)
+                lox, loy, loz = BS.to_local(-dx, -dy, -dz, sx, sy, sz)
+                ds = BS.diffuse_scale(pc)
                 for b in range(nb):
-                    kd_max = max(kd_max, ms.diffuse[m, b])
-                if kd_max > 0.0:
+                    e[b] = 0.0
+                    lg[b] = 0.0
+                if pd > 0.0 or (ps + pm + pg > 0.0 and pc[BS.P_ALPHA] > BS.DELTA_ALPHA):
+                    state = direct_light(g, ls, stack, pc, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz,
+                                         sx, sy, sz, lox, loy, loz, state, e, lg, f, rad)
+                if pd > 0.0 and indirect and OL.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
+                                                                   nx, ny, nz, mode, ind):
                     for b in range(nb):
-                        e[b] = 0.0
-                    state = direct_irradiance(g, ls, stack, px, py, pz, fx, fy, fz, state, e)
-                    if indirect and OL.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
-                                                          nx, ny, nz, mode, ind):
+                        e[b] += ind[b]
+                if pd > 0.0 and indirect and caustics:
+                    lid, cf, cs_, ct = LM.lightmap_slot(g, lmc, inst, shape, face, u, v)
+                    if lid >= 0:
+                        LM.lookup(lmc, lid, cf, cs_, ct, mode, ind)
                         for b in range(nb):
                             e[b] += ind[b]
-                    for b in range(nb):
-                        acc[b] += tp[b] * ms.diffuse[m, b] * e[b] / math.pi
-                # Continue along a specular or transmitted lobe, chosen by probability.
-                ps = 0.0
-                pt = 0.0
                 for b in range(nb):
-                    ps = max(ps, ms.specular[m, b])
-                    pt = max(pt, ms.transmission[m, b])
-                if depth == max_depth or ps + pt <= 0.0:
+                    acc[b] += tp[b] * (kd[b] * ds * e[b] / math.pi + lg[b])
+                # Continue along the glossy lobes (the diffuse light came from the lightmaps).
+                q = ps + pm + pg
+                if depth == max_depth or q <= 0.0:
                     break
-                norm = max(1.0, ps + pt)
-                ps /= norm
-                pt /= norm
-                state, ur = next_float(state)
-                if ur < ps:
-                    lobe, k, prob = SPECULAR, ms.specular, ps
-                elif ur < ps + pt:
-                    lobe, k, prob = TRANSMIT, ms.transmission, pt
-                else:
-                    break
-                for b in range(nb):
-                    tp[b] *= k[m, b] / prob
+                state, u0 = next_float(state)
                 state, u1 = next_float(state)
                 state, u2 = next_float(state)
                 state, u3 = next_float(state)
-                ok, dx, dy, dz = scatter(ms, m, lobe, dx, dy, dz, nx, ny, nz, u1, u2, u3)
+                ok, ix, iy, iz, pdf_b, delta = BS.sample_glossy(pc, ks, kt, ps, pm, pg, lox, loy, loz,
+                                                                u0, u1, u2, u3, f)
                 if not ok:
                     break
+                dx, dy, dz = BS.from_local(ix, iy, iz, sx, sy, sz)
+                if (dx * fx + dy * fy + dz * fz) * iz <= 0.0:
+                    break           # the shading frame's side and the face's disagree
+                for b in range(nb):
+                    tp[b] *= f[b]
                 eps = ray_epsilon(px, py, pz)
                 side = eps if (dx * nx + dy * ny + dz * nz) > 0.0 else -eps
                 ox, oy, oz = px + side * nx, py + side * ny, pz + side * nz
@@ -207,14 +263,17 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
     """
     cam = cs.camera
     img = np.zeros((cam.height, cam.width, cs.n_bands))
-    env = np.ascontiguousarray(cs.environment, dtype=np.float64)
+    env = cs.environment        # environment.EnvMap
     ol = cs.orientation if cs.orientation is not None else OL.empty_maps(cs.geometry.inst_proto.shape[0])
+    # photons the caustic lightmaps hold are in no other lightmap (photon_tracer)
+    lmc = cs.caustics if getattr(cs, "caustics_traced", False) else cs.lightmaps
     t0 = time.perf_counter()
     for y0 in range(0, cam.height, tile):
         for x0 in range(0, cam.width, tile):
             tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
             out = np.zeros((th, tw, cs.n_bands))
-            _render_tile(cs.geometry, cs.materials, cs.lights, cs.lightmaps, ol, cam, env,
+            _render_tile(cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights, cs.lightmaps,
+                         lmc, lmc is not cs.lightmaps, ol, cam, env,
                          x0, y0, tw, th, int(samples), np.uint64(seed), int(mode), int(max_depth),
                          bool(indirect), out)
             img[y0:y0 + th, x0:x0 + tw] = out

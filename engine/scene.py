@@ -99,6 +99,41 @@ class Material:
     transmission: object = 0.0
     ior: float = 1.5
     emission: object = 0.0          # radiance W/(m² sr) per band, Lambertian, front side
+    # Dielectric specular layer over the diffuse lobe (Principled 'Specular IOR Level'):
+    # 0.5 gives F0 from `ior`, 0 no layer (a plain Lambertian, the default here).
+    specular_level: float = 0.0
+    # The specular lobe's colour is a Schlick F0 (Principled metal, F82 tint white);
+    # False: a constant reflectance, as Blender's Glossy BSDF.
+    metal_fresnel: bool = False
+    # Principled inputs textures may drive; with `textures` set, the lobe weights are
+    # recomputed per hit as diffuse = B(1-M)(1-T), specular = B M, transmission = B(1-M)T.
+    base_color: object = 0.8
+    metallic: float = 0.0
+    transmission_weight: float = 0.0
+    # input name ('base_color', 'roughness', 'metallic', 'transmission', 'normal')
+    # -> index into Scene.textures, sampled at the mesh's `tex_uvs`
+    textures: dict = field(default_factory=dict)
+
+
+@dataclass
+class Texture:
+    """An image a material samples at its UV map: (H, W, C) float32 scene-linear
+    values (C = 1, 3 or 4; colour textures are linear RGB, data textures raw).
+    Texel (0, 0) is the bottom-left corner, as Blender stores images; UVs wrap."""
+    pixels: np.ndarray
+    name: str = "texture"
+    bake_seconds: float = 0.0       # what baking it in Blender took (0: given, or cached)
+
+
+@dataclass
+class EnvironmentMap:
+    """World radiance as an equirectangular map (H, W, n_bands), W/(m² sr).
+
+    The direction <-> pixel mapping is Blender's equirectangular one (see
+    engine/environment.py); row 0 is the bottom (d.z = -1)."""
+    pixels: np.ndarray
+    name: str = "world"
+    bake_seconds: float = 0.0       # time the host spent making it (0: cached), for the report
 
 
 @dataclass
@@ -109,6 +144,7 @@ class TriangleMesh:
     material_ids: np.ndarray | None = None  # (T,) per-triangle override
     uvs: np.ndarray | None = None   # (T, 3, 2) lightmap UVs in [0,1]²; None -> xatlas
     name: str = "mesh"
+    tex_uvs: np.ndarray | None = None  # (T, 3, 2) the materials' UV map (textures); any range
 
 
 @dataclass
@@ -226,10 +262,14 @@ class Scene:
     instances: list = field(default_factory=list)
     lights: list = field(default_factory=list)
     camera: Camera = field(default_factory=Camera)
-    environment: object = 0.0       # constant world radiance per band
+    environment: object = 0.0       # constant world radiance per band, or an EnvironmentMap
     texel_density: float = 16.0     # lightmap texels per metre
+    # Caustic lightmaps (renders): photons that reached a surface only through sharp
+    # mirrors and glass are stored at this many times the texel density (1: off).
+    caustic_resolution: float = 4.0
     name: str = "scene"
     orientation_lightmaps: list = field(default_factory=list)  # OrientationLightmap
+    textures: list = field(default_factory=list)   # Texture, indexed by Material.textures
 
     # convenience builders -------------------------------------------------
     def add_material(self, material):

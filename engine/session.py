@@ -23,6 +23,7 @@ class Settings:
     max_bounces: int = 8
     seed: int = 0
     texel_density: float = 16.0
+    caustic_resolution: float = 4.0
     samples: int = 16
     reconstruction: str = "BILINEAR"
 
@@ -53,16 +54,17 @@ def compile(scene):
     return compile_scene(scene)
 
 
-def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=None):
+def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=None, caustics=False):
     """Traces the photons into cs.lightmaps -> PhotonStats. Raises Cancelled.
 
     record_direct=False keeps first hits out (the direct part is gathered per
     texel instead, see gather_direct); orientation-lightmap bakes record them.
+    caustics=True (renders): caustic photons go to the finer cs.caustics.
     """
     from .photon_tracer import trace_photons
     n = settings.photons if photons is None else photons
     return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
-                         record_direct=record_direct, progress=progress)
+                         record_direct=record_direct, progress=progress, caustics=caustics)
 
 
 def compile_and_trace(scene, settings, *, record_direct=False, progress=None):

@@ -6,7 +6,7 @@ assignment), so 100 linked duplicates cost one prototype and 100 transforms.
 import numpy as np
 
 from ..engine.scene import Instance
-from . import csg, lsystems
+from . import csg, lsystems, textures
 from .camera import camera
 from .context import ExportContext, InstanceRecord, matrix
 from .lights import light
@@ -38,6 +38,7 @@ def _run(ctx, camera_override, resolution):
     ctx.scene.name = bscene.name
     if settings is not None:
         ctx.scene.texel_density = float(settings.texel_density)
+        ctx.scene.caustic_resolution = float(getattr(settings, "caustic_resolution", 4.0))
     operands = csg.find_operands(dg)
     ctx.map.csg_operands = {o.name: solid for o, solid in operands.items()}
     router = OLRouter(bscene, ctx.report) if ctx.use_ols else None
@@ -50,6 +51,8 @@ def _run(ctx, camera_override, resolution):
         seed = int(settings.seed) if settings is not None else 0
         ctx.scene.orientation_lightmaps, ctx.map.orientation_lightmaps = router.build(seed)
     _camera_and_world(ctx, bscene, camera_override, resolution)
+    # last: the bakes add and remove datablocks, so no evaluated one is read after them
+    textures.bake_queued(ctx)
     return ctx.scene, ctx.map
 
 

@@ -77,6 +77,10 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
     texel_density: FloatProperty(
         name="Texel Density", default=_D.texel_density, min=0.01, soft_max=1024.0, unit='NONE',
         description="Lightmap texels per metre for surfaces without a forced resolution")
+    caustic_resolution: FloatProperty(
+        name="Caustic Resolution", default=_D.caustic_resolution, min=1.0, soft_max=16.0,
+        description="Renders keep photons that arrive only through sharp glass or mirrors in "
+                    "lightmaps this many times finer, so caustics stay sharp (1: off)")
     reconstruction: EnumProperty(
         name="Reconstruction", default=_D.reconstruction,
         items=(('BILINEAR', "Bilinear", "Interpolate irradiance between texel centres"),

@@ -35,12 +35,13 @@ from .sampling import cosine_hemisphere, orthonormal_basis
 DELTA_ALPHA = 3.2e-4
 
 # closure scalars (one small float64 array per hit, filled by closure_scalars)
-P_ALPHA, P_ETA, P_LAYER_F0, P_LAYER_ETA, P_LAYER_W, P_SCHLICK, P_E_LAYER, P_E_METAL, P_SIZE = range(9)
+(P_ALPHA, P_ETA, P_LAYER_F0, P_LAYER_ETA, P_LAYER_W, P_SCHLICK, P_E_LAYER, P_E_METAL, P_METAL,
+ P_SIZE) = range(10)
 
 # selected lobe
 ABSORB, DIFFUSE, GLOSSY = 0, 1, 2
 
-BsdfTables = namedtuple("BsdfTables", "e_metal e_layer layer_f0 layer_eta layer_weight metal_fresnel")
+BsdfTables = namedtuple("BsdfTables", "e_metal e_layer layer_f0 layer_eta layer_weight metal_fresnel metallic")
 
 # albedo tables: cos_o, alpha and F0 on sqrt-spaced grids (resolution at grazing
 # angles, low roughness and the small F0 of common dielectrics, where the albedo
@@ -136,6 +137,7 @@ def compile_bsdf(materials):
     eta = np.ones(n)
     weight = np.zeros(n)
     schlick = np.zeros(n, np.bool_)
+    metallic = np.zeros(n)
     for i, m in enumerate(materials):
         level = float(getattr(m, "specular_level", 0.0))
         if not math.isfinite(level):
@@ -146,7 +148,8 @@ def compile_bsdf(materials):
         # legacy materials (no Principled weights) put the layer over all of their diffuse
         weight[i] = (1.0 - metal) * (1.0 - trans)
         schlick[i] = bool(getattr(m, "metal_fresnel", False))
-    return BsdfTables(_TABLES[0], _TABLES[1], f0, eta, weight, schlick)
+        metallic[i] = metal
+    return BsdfTables(_TABLES[0], _TABLES[1], f0, eta, weight, schlick, metallic)
 
 
 # --------------------------------------------------------------------------------------
@@ -274,6 +277,7 @@ def closure_scalars(bt, m, roughness, ior, entering, cos_o, p):
     p[P_LAYER_ETA] = bt.layer_eta[m]
     p[P_LAYER_W] = bt.layer_weight[m] if bt.layer_f0[m] > 0.0 else 0.0
     p[P_SCHLICK] = 1.0 if bt.metal_fresnel[m] else 0.0
+    p[P_METAL] = bt.metallic[m]
     mu = min(max(cos_o, 0.0), 1.0)
     if p[P_LAYER_W] > 0.0:
         if a <= DELTA_ALPHA:
@@ -293,8 +297,12 @@ def diffuse_scale(p):
 
 @njit(cache=True)
 def _metal_fresnel(p, ks, b, c):
+    """ks = B M (Principled): the metal's share M times Schlick of F0 = B, so a
+    dielectric (M = 0) has no metal lobe even at grazing angles."""
     if p[P_SCHLICK] > 0.0:
-        return _schlick(ks[b], c)
+        m = 1.0 - c
+        m2 = m * m
+        return ks[b] + (p[P_METAL] - ks[b]) * m2 * m2 * m
     return ks[b]
 
 
@@ -302,7 +310,7 @@ def _metal_fresnel(p, ks, b, c):
 def _metal_compensation(p, ks, b):
     """1 + F_avg (1 - E) / E: the energy of multiply scattered light, re-added (Cycles)."""
     e = p[P_E_METAL]
-    f_avg = ks[b] + (1.0 - ks[b]) / 21.0 if p[P_SCHLICK] > 0.0 else ks[b]
+    f_avg = ks[b] + (p[P_METAL] - ks[b]) / 21.0 if p[P_SCHLICK] > 0.0 else ks[b]
     return 1.0 + f_avg * (1.0 - e) / e
 
 
@@ -316,10 +324,8 @@ def lobe_probabilities(p, kd, ks, kt, cos_o):
     ds = diffuse_scale(p)
     for b in range(kd.shape[0]):
         pd = max(pd, kd[b] * ds)
-        if p[P_SCHLICK] > 0.0:
-            pm = max(pm, _schlick(ks[b], min(max(cos_o, 0.0), 1.0)))
-        else:
-            pm = max(pm, ks[b])
+        # with the multiscatter weight, so a metal's sample weight stays within 1
+        pm = max(pm, _metal_fresnel(p, ks, b, min(max(cos_o, 0.0), 1.0)) * _metal_compensation(p, ks, b))
         pg = max(pg, kt[b])
     ps = p[P_LAYER_W] * p[P_E_LAYER]
     s = pd + ps + pm + pg

@@ -52,6 +52,10 @@ def render_exr(scene, engine, path, cycles_samples=128):
         c.light_sampling_threshold = 0.0
         c.max_bounces = c.diffuse_bounces = 16
         c.seed = 1
+        # Cycles' defaults clamp indirect samples at 10 and blur glossy paths (Filter
+        # Glossy): both bias light through glass and mirrors low; compare unbiased
+        c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
+        c.blur_glossy = 0.0
     scene.render.filepath = str(path)
     scene.render.use_file_extension = False
     im = scene.render.image_settings

@@ -127,6 +127,7 @@ def test_sample_weights_agree_with_eval(roughness):
         ks, kt = one(0.7), one(0.9)
         p2 = p.copy()
         p2[BS.P_SCHLICK] = 1.0
+        p2[BS.P_METAL] = 1.0
         alb, _ = _albedo(p2, ks, kt, ps, pm, pg, *wo, 60000, 2)
         integ, pdf_mass = _eval_integral(p2, ks, kt, ps, pm, pg, *wo, 1500)
         assert alb[0] == pytest.approx(integ, rel=0.03), (ps, pm, pg)
@@ -167,7 +168,7 @@ def test_chi2_sampling_matches_pdf(roughness, ps, pm, pg):
 
 
 def test_reflection_is_reciprocal():
-    p = closure(0.4, level=0.5, schlick=True)
+    p = closure(0.4, level=0.5, schlick=True, metallic=1.0)
     rng = np.random.default_rng(3)
     fa, fb = np.empty(1), np.empty(1)
     for _ in range(50):

@@ -9,6 +9,11 @@ conventions: texel (0, 0) is the bottom-left corner, texel centres sit at
 ((i + 0.5) / W, (j + 0.5) / H), UVs wrap (Repeat), and within a level the
 interpolation is bilinear (Cycles' "Linear"); between levels it is linear in
 log2 of the footprint (trilinear).
+
+Textures with encoding "srgb" (8-bit sRGB images, see scene.Texture) keep
+sRGB-encoded RGB in every level, interpolate it and decode the result, as
+Cycles does; their coarser levels are box means of the decoded values,
+re-encoded, so a minified texture keeps its true linear mean.
 """
 import math
 from collections import namedtuple
@@ -20,10 +25,12 @@ from . import memory_budget
 from .scene import SceneError
 
 # tex_first[k]: first level (row of level_*) of texture k; tex_levels[k]: its count;
-# tex_channels[k]: floats per texel, 1 (data), 3 (RGB) or 4 (RGBA).
+# tex_channels[k]: floats per texel, 1 (data), 3 (RGB) or 4 (RGBA);
+# tex_srgb[k]: 1 when its RGB is sRGB-encoded (decoded after interpolation).
 # level_offset[l]: first float of level l in `texels`; level_w/h: its size.
-TextureSet = namedtuple("TextureSet", "texels tex_first tex_levels tex_channels "
+TextureSet = namedtuple("TextureSet", "texels tex_first tex_levels tex_channels tex_srgb "
                                       "level_offset level_w level_h")
+ENCODINGS = ("linear", "srgb")
 
 MAX_SIDE = 16384
 
@@ -44,8 +51,28 @@ def _texels(pixels, what):
     return a
 
 
-def mip_levels(texels):
-    """The pyramid of an (H, W, C) array, finest first, down to 1x1."""
+def srgb_to_linear(x):
+    x = np.asarray(x, np.float32)
+    return np.where(x <= 0.04045, x / np.float32(12.92),
+                    ((np.maximum(x, 0.04045) + np.float32(0.055)) / np.float32(1.055)) ** np.float32(2.4))
+
+
+def linear_to_srgb(x):
+    x = np.asarray(x, np.float32)
+    return np.where(x <= 0.0031308, x * np.float32(12.92),
+                    np.float32(1.055) * np.maximum(x, 0.0031308) ** np.float32(1.0 / 2.4) - np.float32(0.055))
+
+
+def mip_levels(texels, srgb=False):
+    """The pyramid of an (H, W, C) array, finest first, down to 1x1; `srgb`: the
+    RGB of `texels` is sRGB-encoded, averaged decoded and re-encoded per level."""
+    if srgb:
+        a = np.array(texels, np.float32)
+        a[..., :3] = srgb_to_linear(a[..., :3])
+        levels = mip_levels(a)
+        for lv in levels[1:]:
+            lv[..., :3] = linear_to_srgb(lv[..., :3])
+        return [np.asarray(texels, np.float32)] + levels[1:]
     levels = [np.asarray(texels, np.float32)]
     while levels[-1].shape[0] > 1 or levels[-1].shape[1] > 1:
         a = levels[-1]
@@ -77,13 +104,18 @@ def compile_textures(scene, n_bands=None):
                for t in texs)
     memory_budget.check(f"{len(texs)} material textures", need,
                         "lower the texture resolution (export/textures.py TEXEL_DENSITY, MAX_SIDE)")
-    first, count, chans, offs, ws, hs, chunks = [], [], [], [], [], [], []
+    first, count, chans, srgb, offs, ws, hs, chunks = [], [], [], [], [], [], [], []
     n = 0
     for k, tex in enumerate(texs):
-        px = _texels(tex.pixels, f"texture '{getattr(tex, 'name', k)}'")
+        what = f"texture '{getattr(tex, 'name', k)}'"
+        px = _texels(tex.pixels, what)
+        enc = getattr(tex, "encoding", "linear")
+        if enc not in ENCODINGS:
+            raise SceneError(f"{what}: encoding must be one of {ENCODINGS}, got {enc!r}")
         first.append(len(offs))
         chans.append(px.shape[2])
-        lv = mip_levels(px)
+        srgb.append(int(enc == "srgb" and px.shape[2] >= 3))
+        lv = mip_levels(px, srgb[-1] == 1)
         count.append(len(lv))
         for a in lv:
             offs.append(n)
@@ -94,7 +126,8 @@ def compile_textures(scene, n_bands=None):
     texels = np.concatenate(chunks) if chunks else np.zeros(4, np.float32)
     return TextureSet(np.ascontiguousarray(texels, np.float32),
                       np.array(first, np.int32).reshape(-1), np.array(count, np.int32).reshape(-1),
-                      np.array(chans, np.int32).reshape(-1), np.array(offs, np.int64).reshape(-1),
+                      np.array(chans, np.int32).reshape(-1), np.array(srgb, np.int32).reshape(-1),
+                      np.array(offs, np.int64).reshape(-1),
                       np.array(ws, np.int32).reshape(-1), np.array(hs, np.int32).reshape(-1))
 
 
@@ -142,6 +175,14 @@ def _bilinear(ts, lvl, nc, s, t):
 
 
 @njit(cache=True)
+def _decode(c):
+    """sRGB -> linear for one channel (clamped below at 0, as bytes are)."""
+    if c <= 0.04045:
+        return max(c, 0.0) / 12.92
+    return ((c + 0.055) / 1.055) ** 2.4
+
+
+@njit(cache=True)
 def lod_for(ts, tid, footprint_uv):
     """Mip level (fractional) for a footprint of `footprint_uv` UV units: log2 of
     the footprint in texels of the finest level, clamped to the pyramid."""
@@ -165,16 +206,19 @@ def sample4(ts, tid, s, t, lod):
     if not lod > 0.0:
         lod = 0.0
     if lod >= top:
-        return _bilinear(ts, ts.tex_first[tid] + top, nc, s, t)
-    l = int(math.floor(lod))
-    f = lod - l
-    r, g, b, a = _bilinear(ts, ts.tex_first[tid] + l, nc, s, t)
-    if f > 0.0:
-        r1, g1, b1, a1 = _bilinear(ts, ts.tex_first[tid] + l + 1, nc, s, t)
-        r += f * (r1 - r)
-        g += f * (g1 - g)
-        b += f * (b1 - b)
-        a += f * (a1 - a)
+        r, g, b, a = _bilinear(ts, ts.tex_first[tid] + top, nc, s, t)
+    else:
+        l = int(math.floor(lod))
+        f = lod - l
+        r, g, b, a = _bilinear(ts, ts.tex_first[tid] + l, nc, s, t)
+        if f > 0.0:
+            r1, g1, b1, a1 = _bilinear(ts, ts.tex_first[tid] + l + 1, nc, s, t)
+            r += f * (r1 - r)
+            g += f * (g1 - g)
+            b += f * (b1 - b)
+            a += f * (a1 - a)
+    if ts.tex_srgb[tid] != 0:
+        r, g, b = _decode(r), _decode(g), _decode(b)
     return r, g, b, a
 
 

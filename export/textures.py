@@ -50,6 +50,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..engine.scene import Texture
+from ..engine.texture import linear_to_srgb
 
 # engine input -> socket name, per shader node type (engine/materials.py TEXTURE_INPUTS)
 TEXTURE_SOCKETS = {
@@ -396,6 +397,23 @@ def _driving_images(mat, node, sname):
     return sides or None
 
 
+def input_encoding(node, sname):
+    """"srgb" when the input reads an 8-bit sRGB Image Texture's Color directly:
+    Cycles interpolates such images in sRGB and decodes afterwards, so the baked
+    texel-centre values are re-encoded and interpolated the same way; "linear"
+    otherwise (float images, data, anything computed from the image)."""
+    up, out = _upstream(node.inputs[sname])
+    img = getattr(up, "image", None)
+    if (up is None or up.bl_idname != "ShaderNodeTexImage" or img is None or out.name != "Color"
+            or up.interpolation == "Closest"):
+        return "linear"
+    try:
+        byte = not img.is_float
+    except (AttributeError, ReferenceError):
+        return "linear"
+    return "srgb" if byte and img.colorspace_settings.name == "sRGB" else "linear"
+
+
 # ------------------------------------------------------------------- the bake
 
 def _on_main_thread(fn):
@@ -596,7 +614,7 @@ def bake_queued(ctx):
     digests = {}
     for job in jobs:
         job.digest = mesh_digest(job)
-        plan = {}                  # slot -> {key: cache key}
+        plan = {}                  # slot -> {key: (cache key, encoding)}
         todo = {}
         for slot, (mid, mat) in enumerate(job.materials):
             rec = ctx.textured.get(mid)
@@ -612,7 +630,8 @@ def bake_queued(ctx):
                 imgs = _driving_images(mat, node, sname) if key != "normal" else None
                 side = bake_side(job, slot, imgs)
                 ck = f"{digests[mid]}|{job.digest}|{job.uv_name}|{key}|{side}"
-                plan.setdefault(slot, {})[key] = ck
+                enc = input_encoding(node, sname) if key in COLOUR_INPUTS else "linear"
+                plan.setdefault(slot, {})[key] = (ck, enc)
                 if _cache_get(ck) is None:
                     todo.setdefault(key, {})[slot] = (sname, side, ck)
                 else:
@@ -641,13 +660,17 @@ def _bind(ctx, job, plan, tex_index):
     scene = ctx.scene
     for slot, keys in plan.items():
         textures = {}
-        for key, ck in keys.items():
+        for key, (ck, enc) in keys.items():
             px = _cache_get(ck)
             if px is None:
                 continue
             if ck not in tex_index:
+                if enc == "srgb":
+                    px = px.copy()
+                    px[..., :3] = linear_to_srgb(px[..., :3])
                 scene.textures.append(Texture(px, name=f"{job.materials[slot][1].original.name}:{key}",
-                                              bake_seconds=ctx.texture_seconds.get(ck, 0.0)))
+                                              bake_seconds=ctx.texture_seconds.get(ck, 0.0),
+                                              encoding=enc))
                 tex_index[ck] = len(scene.textures) - 1
             textures[key] = tex_index[ck]
         if not textures:

@@ -83,6 +83,26 @@ def test_mip_levels_average_exactly():
                                atol=1e-6)
 
 
+def test_srgb_textures_interpolate_encoded_and_keep_linear_means():
+    """8-bit sRGB images as Cycles reads them: encoded values interpolated, then decoded;
+    the coarse levels hold the decoded mean, so a minified texture is not darkened."""
+    enc = np.array([[[0.1, 0.5, 0.9], [0.9, 0.5, 0.1]]], np.float32)      # 1 x 2 texels
+    ts = TX.compile_textures(Scene(textures=[Texture(enc, encoding="srgb"), Texture(enc)]))
+    assert list(ts.tex_srgb) == [1, 0]
+    lin = TX.srgb_to_linear(enc)
+    # texel centres decode exactly; the midpoint decodes the mean of the codes
+    np.testing.assert_allclose(sample(ts, 0, 0.25, 0.5)[0, :3], lin[0, 0], rtol=1e-5)
+    mid = sample(ts, 0, 0.5, 0.5)[0, :3]
+    np.testing.assert_allclose(mid, TX.srgb_to_linear(enc.mean(1))[0], rtol=1e-5)
+    assert np.all(mid[[0, 2]] < lin[0, :, [0, 2]].mean(1) * 0.8)            # darker than linear
+    np.testing.assert_allclose(sample(ts, 0, 0.5, 0.5, lod=1e9)[0, :3], lin[0].mean(0), rtol=1e-5)
+    # the linear texture is read as it is
+    np.testing.assert_allclose(sample(ts, 1, 0.5, 0.5)[0, :3], enc.mean(1)[0], rtol=1e-6)
+    assert np.allclose(TX.linear_to_srgb(TX.srgb_to_linear(enc)), enc, atol=1e-6)
+    with pytest.raises(SceneError, match="encoding"):
+        TX.compile_textures(Scene(textures=[Texture(enc, encoding="gamma")]))
+
+
 def test_odd_sizes_and_grey():
     img = np.arange(15, dtype=np.float32).reshape(3, 5)      # 1 channel: replicated to RGB
     ts = one_texture(img)
@@ -340,7 +360,10 @@ def test_image_texture_bakes_to_blender_values(blender):
     scene, emap, msgs = export(bpy)
     assert calls == ["EMIT"]
     (m,) = textured_materials(scene)
-    tex = scene.textures[m.textures["base_color"]].pixels
+    texture = scene.textures[m.textures["base_color"]]
+    # an 8-bit sRGB image read directly: kept encoded, as Cycles interpolates it
+    assert texture.encoding == "srgb"
+    tex = TX.srgb_to_linear(texture.pixels)
     assert tex.shape == (16, 16, 3)                      # capped at the image's own size
     # what Blender holds: sRGB bytes, which Cycles decodes to scene linear
     want = srgb_to_linear(image_pixels(img)[..., :3].astype(np.float64))

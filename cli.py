@@ -78,6 +78,9 @@ def build_parser():
     r.add_argument("--out", required=True, metavar="IMG", help="output image (.png or .exr)")
     _add_common(r)
     r.add_argument("--samples", type=_count(1), default=None, help="pixel samples")
+    r.add_argument("--indirect", choices=("gather", "lookup"), default=None,
+                   help="indirect light by final gather or by the hit's own lightmap")
+    r.add_argument("--gather-rays", type=_count(1), default=None, help="final-gather rays per sample")
     r.set_defaults(func=render_main)
 
     b = sub.add_parser("bake", help="bake photon lightmaps of a .blend to OpenEXR images")
@@ -219,17 +222,20 @@ def render_main(args):
         raise InputError(f"scene '{scene.name}': no camera; add one and set it as the scene camera "
                          "(Scene Properties > Camera)")
     settings = scene.photon_lightmaps
-    for name in ("photons", "samples", "seed"):
+    for name in ("photons", "samples", "seed", "gather_rays"):
         value = getattr(args, name, None)
         if value is not None:
             setattr(settings, name, value)
+    if getattr(args, "indirect", None):
+        settings.indirect = args.indirect.upper()
     t_load = time.perf_counter()
     run = render_to_file(scene, out)
     t_end = time.perf_counter()
     report = run.as_dict()
     report.update(blend=str(blend), image=str(out), engine=ENGINE_ID,
                   settings={k: getattr(settings, k) for k in ("photons", "max_bounces", "texel_density",
-                                                              "reconstruction", "samples", "seed")})
+                                                              "reconstruction", "samples", "seed", "indirect",
+                                                              "gather_rays")})
     # "total" is the whole command (load, render, save); "pipeline" is export to last tile.
     report["seconds"].update(load=t_load - t0, pipeline=run.seconds["total"], total=t_end - t0)
     print(f"{out}: {run.width}x{run.height}, {run.photons:,} photons in {run.seconds['photon_pass']:.2f} s, "
@@ -373,7 +379,7 @@ def _render_lsystem(grammar, args, report):
     t0 = time.perf_counter()
     cs = session.compile(scene)
     t1 = time.perf_counter()
-    stats = session.photon_pass(cs, settings, caustics=True)
+    stats = session.render_photon_pass(cs, settings)
     t2 = time.perf_counter()
     image = session.render(cs, settings)
     t3 = time.perf_counter()

@@ -133,7 +133,7 @@ def _photons(cs, scene, settings, run, report, stats, progress, should_stop, lm_
         return not should_stop()
 
     if scene.instances and settings.photons > 0 and cs.lights.total_power > 0.0:
-        ps = session.photon_pass(cs, settings, progress=photon_progress, caustics=True)
+        ps = session.render_photon_pass(cs, settings, progress=photon_progress)
         run.photons, run.rays = ps.photons, ps.rays
         run.photons_per_second = ps.photons / max(ps.seconds, 1e-9)
     if cs.info.get("orientation_lightmaps"):   # also the automatic ones (unwrap fallbacks)

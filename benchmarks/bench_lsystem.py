@@ -161,7 +161,7 @@ def e2e_once(cfg):
     finally:
         D.estimate_graph_areas = orig
     t2 = time.perf_counter()
-    ps = session.photon_pass(cs, settings)
+    ps = session.render_photon_pass(cs, settings)
     t3 = time.perf_counter()
     img = session.render(cs, settings)
     t4 = time.perf_counter()

@@ -48,6 +48,7 @@ class CompiledScene:
     # finer lightmaps for caustic photons (same lightmap ids as `lightmaps`), or None
     caustics: object = None
     caustics_traced: bool = False   # the last photon pass stored its caustics there
+    lightmaps_hold_direct: bool = False   # ... and recorded first hits (final gather, bakes of OLs)
     bsdf: object = None             # bsdf.BsdfTables: albedo tables, layer and Fresnel per material
     # material textures (engine/texture.py TextureSet; empty when the scene has none)
     textures: object = None
@@ -447,7 +448,8 @@ def _caustic_lightmaps(scene, geom, density, max_resolution, csg, csg_split, dcs
     texel density, allocated only when a material can focus light (a sharp mirror or
     glass). Their ids equal the regular ones, so a hit finds its texel in either."""
     k = float(getattr(scene, "caustic_resolution", 1.0))
-    if not (math.isfinite(k) and k > 1.0):
+    # at 1x they still keep caustics apart: the final gather reads them at the hit
+    if not (math.isfinite(k) and k >= 1.0):
         return None
     sharp = [m.name for m in scene.materials
              if float(m.roughness) <= CAUSTIC_ROUGHNESS
@@ -457,7 +459,7 @@ def _caustic_lightmaps(scene, geom, density, max_resolution, csg, csg_split, dcs
     # instance lightmaps only (OLs come after them, so the ids still agree)
     plain = replace(scene, orientation_lightmaps=[])
     asked = k
-    while k > 1.0:
+    while k >= 1.0:
         try:      # allocate_lightmaps checks the memory budget before it allocates
             lm, _, _ = allocate_lightmaps(plain, geom, density * k, int(max_resolution * k), csg, csg_split,
                                           {}, None, dcsg)

@@ -121,6 +121,12 @@ def _trace_chunk(g, ms, bt, ts, ls, lm, lmc, use_caustics, caustic_alpha, ol, se
                     lid, f, s, tt = LM.record_slot(g, lmc, inst, shape, face, u, v)
                     if lid >= 0 and rec < n_rec:
                         rec_texel[i, rec] = n_main + LM.record_index(lmc, lid, f, s, tt)
+                        if record_from == 0 and rec + 1 < n_rec:
+                            # total irradiance for the final gather: in the main lightmap too
+                            for b in range(nb):
+                                rec_power[i, rec, b] = power[b]
+                            rec += 1
+                            lid = -1
                 if lid < 0:
                     lid, f, s, tt = LM.record_slot(g, lm, inst, shape, face, u, v)
                     if lid >= 0 and rec < n_rec:
@@ -217,13 +223,16 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
                   progress=None, chunk=None, keep_points=False, caustics=False):
     """Runs the photon pass on a compiled scene `cs`, adding into cs.lightmaps.
 
-    record_direct: True when the lightmaps must hold direct light too (baking);
-    False for the two-pass renderer, which samples direct light itself.
+    record_direct: True when the lightmaps must hold direct light too (baking,
+    and renders with final gather, which read total irradiance one bounce
+    away); False for the renderer's lookup, which samples direct light itself.
     progress(done, total) may return False to cancel (raises Cancelled).
     keep_points: also return every recorded hit as stats.points (K, 6)
     position+normal and stats.point_power (K, B), for photon-map baselines.
     caustics: store photons that came only through sharp mirrors and glass in
     cs.caustics (the renderer reads them there; bakes write cs.lightmaps alone).
+    With record_direct too (final gather) they go to both maps: the caustic one
+    is read at the hit, the main one is what gather rays see.
     """
     if not 0 <= int(max_bounces) <= MAX_BOUNCES_LIMIT:
         raise ValueError(f"max_bounces must be in [0, {MAX_BOUNCES_LIMIT}], got {max_bounces}")
@@ -239,6 +248,10 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     ol = cs.orientation if cs.orientation is not None else OL.empty_maps(cs.geometry.inst_proto.shape[0])
     # one record per hit on an own lightmap, plus one per OL level above the instance
     n_rec = (int(max_bounces) + 1) * (1 + OL.levels(ol))
+    lmc = getattr(cs, "caustics", None)
+    use_caustics = bool(caustics) and lmc is not None
+    if use_caustics and record_direct:
+        n_rec += int(max_bounces)          # a caustic hit is recorded twice
     chunk = chunk or max(4096, min(1 << 16, (1 << 21) // n_rec))
     if keep_points:   # a photon map keeps every hit: refuse what cannot fit before tracing
         memory_budget.check(f"photon map ({n_photons:,} photons kept, up to {n_rec} hits each)",
@@ -251,10 +264,9 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     points, point_power = [], []
     lm = cs.lightmaps
     # bakes keep every photon in the one lightmap they write out; renders split caustics off
-    lmc = getattr(cs, "caustics", None)
-    use_caustics = bool(caustics) and lmc is not None and not record_direct
     lmc = lmc if use_caustics else lm
     cs.caustics_traced = use_caustics
+    cs.lightmaps_hold_direct = bool(record_direct)
     n_main = lm.area.shape[0]
     done = 0
     while done < n_photons:

@@ -7,6 +7,12 @@ lightmap irradiance E, plus the caustic lightmaps' (radiance kd·E/π); its glos
 lobes take direct light too, weighted by multiple importance sampling against the
 glossy sample that continues the path, which also sees lights and the world
 (light_hits.py). Rendering proceeds tile by tile so a host can show progress and cancel.
+
+With `gather` > 0 the diffuse part's indirect light comes from a final gather
+(final_gather.py) instead of the hit's own texel: the lightmaps then hold total
+irradiance (the photon pass recorded direct hits), and only the caustic
+lightmaps are still read at the hit. Each later diffuse hit along a glossy
+continuation gathers with a quarter of the rays of the one before.
 """
 import math
 import time
@@ -21,6 +27,7 @@ from . import bsdf as BS
 from . import light_hits as LH
 from . import materials as MT
 from . import environment as ENV
+from . import final_gather as FG
 from .lights import EMISSIVE, sample_light_radiance
 from .photon_tracer import Cancelled, ray_epsilon
 from .raycast import STACK_WORDS, intersect_closest, occluded
@@ -141,7 +148,7 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
 
 @njit(cache=True, parallel=True)
 def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, seed, mode, max_depth,
-                 indirect, out):
+                 indirect, gather, out):
     nb = out.shape[2]
     # a pixel's ray cone: its width grows by this per metre travelled (texture filtering)
     spread = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 0 else 0.0
@@ -160,6 +167,13 @@ def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw,
         kt = np.empty(nb)
         pc = np.empty(BS.P_SIZE)
         rad = np.empty(nb)
+        kd2 = np.empty(nb)
+        ks2 = np.empty(nb)
+        kt2 = np.empty(nb)
+        pc2 = np.empty(BS.P_SIZE)
+        tp2 = np.empty(nb)
+        f2 = np.empty(nb)
+        rad2 = np.empty(nb)
         px_i = x0 + idx % tw
         py_i = y0 + idx // tw
         pixel = py_i * cam.width + px_i
@@ -175,6 +189,7 @@ def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw,
             pdf_b = 0.0
             delta = True
             travelled = 0.0
+            n_gather = gather
             for depth in range(max_depth + 1):
                 hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
                     g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
@@ -218,8 +233,13 @@ def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw,
                 if pd > 0.0 or (ps + pm + pg > 0.0 and pc[BS.P_ALPHA] > BS.DELTA_ALPHA):
                     state = direct_light(g, ls, stack, pc, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz,
                                          sx, sy, sz, lox, loy, loz, state, e, lg, f, rad)
-                if pd > 0.0 and indirect and OL.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
-                                                                   nx, ny, nz, mode, ind):
+                if pd > 0.0 and indirect and n_gather > 0:
+                    state = FG.gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, stack, px, py, pz,
+                                                 fx, fy, fz, sx, sy, sz, n_gather, mode, state,
+                                                 kd2, ks2, kt2, pc2, ind, tp2, f2, rad2, e)
+                    n_gather = max(1, n_gather // 4)
+                elif pd > 0.0 and indirect and OL.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
+                                                                     nx, ny, nz, mode, ind):
                     for b in range(nb):
                         e[b] += ind[b]
                 if pd > 0.0 and indirect and caustics:
@@ -255,12 +275,20 @@ def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw,
 
 
 def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
-           indirect=True, progress=None):
+           indirect=True, gather=0, progress=None):
     """Renders cs.camera to a (height, width, n_bands) float array of radiance.
+
+    gather: final-gather rays per sample at the first diffuse hit (0: read the
+    hit's own lightmap, the thesis's way). It needs lightmaps that hold direct
+    light too (trace_photons(record_direct=True)); the lookup needs ones that do not.
 
     progress(x0, y0, tile_image, image) is called after each tile; returning
     False cancels (raises Cancelled).
     """
+    gather = int(gather)
+    holds_direct = getattr(cs, "lightmaps_hold_direct", False)
+    if indirect and gather > 0 and not holds_direct:
+        raise ValueError("final gather needs a photon pass that recorded direct light (record_direct=True)")
     cam = cs.camera
     img = np.zeros((cam.height, cam.width, cs.n_bands))
     env = cs.environment        # environment.EnvMap
@@ -275,7 +303,7 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
             _render_tile(cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights, cs.lightmaps,
                          lmc, lmc is not cs.lightmaps, ol, cam, env,
                          x0, y0, tw, th, int(samples), np.uint64(seed), int(mode), int(max_depth),
-                         bool(indirect), out)
+                         bool(indirect), max(gather, 0), out)
             img[y0:y0 + th, x0:x0 + tw] = out
             if progress is not None and progress(x0, y0, out, img) is False:
                 raise Cancelled("render cancelled")

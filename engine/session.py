@@ -26,6 +26,8 @@ class Settings:
     caustic_resolution: float = 4.0
     samples: int = 16
     reconstruction: str = "BILINEAR"
+    indirect: str = "GATHER"        # renders: "GATHER" (final gather) or "LOOKUP" (the thesis's)
+    gather_rays: int = 16           # final-gather rays per camera sample
 
     @classmethod
     def read(cls, props, **overrides):
@@ -41,6 +43,11 @@ class Settings:
             if value is not None:
                 kw[f.name] = type(f.default)(value)
         return cls(**kw)
+
+    @property
+    def gathers(self):
+        """Renders use the final gather."""
+        return self.indirect == "GATHER" and self.gather_rays > 0
 
     @property
     def mode(self):
@@ -65,6 +72,12 @@ def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=Non
     n = settings.photons if photons is None else photons
     return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
                          record_direct=record_direct, progress=progress, caustics=caustics)
+
+
+def render_photon_pass(cs, settings, *, progress=None):
+    """The photon pass a render needs: caustics apart, and direct hits recorded
+    when the render gathers (the gather reads total irradiance one bounce away)."""
+    return photon_pass(cs, settings, record_direct=settings.gathers, progress=progress, caustics=True)
 
 
 def compile_and_trace(scene, settings, *, record_direct=False, progress=None):
@@ -108,5 +121,6 @@ def bake_direct_csg(cs, leaves, settings):
 def render(cs, settings, *, tile=64, progress=None):
     """The render pass over a traced compiled scene -> (H, W, n_bands) radiance."""
     from .renderer import render as render_image
+    gather = int(settings.gather_rays) if settings.gathers else 0
     return render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
-                        max_depth=int(settings.max_bounces), tile=tile, progress=progress)
+                        max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress)

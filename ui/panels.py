@@ -58,6 +58,10 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         col.prop(s, "reconstruction")
         col = layout.column(heading="Render")
         col.prop(s, "samples")
+        col.prop(s, "indirect")
+        sub = col.column()
+        sub.active = s.indirect == "GATHER"
+        sub.prop(s, "gather_rays")
         _draw_last_run(layout, context.scene)
 
 

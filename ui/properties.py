@@ -80,7 +80,7 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
     caustic_resolution: FloatProperty(
         name="Caustic Resolution", default=_D.caustic_resolution, min=1.0, soft_max=16.0,
         description="Renders keep photons that arrive only through sharp glass or mirrors in "
-                    "lightmaps this many times finer, so caustics stay sharp (1: off)")
+                    "lightmaps of their own, this many times finer, so caustics stay sharp")
     reconstruction: EnumProperty(
         name="Reconstruction", default=_D.reconstruction,
         items=(('BILINEAR', "Bilinear", "Interpolate irradiance between texel centres"),
@@ -89,6 +89,16 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
     samples: IntProperty(
         name="Samples", default=_D.samples, min=1, soft_max=4096,
         description="Camera samples per pixel in the render pass")
+    indirect: EnumProperty(
+        name="Indirect Light", default=_D.indirect,
+        items=(('GATHER', "Final Gather", "Gather rays read the lightmaps one bounce away: smooth, "
+                                          "no texel pattern"),
+               ('LOOKUP', "Lightmap", "Read the hit's own lightmap texel (the thesis's renderer): "
+                                      "fastest, shows photon noise and texels")),
+        description="How renders compute indirect light at diffuse surfaces")
+    gather_rays: IntProperty(
+        name="Gather Rays", default=_D.gather_rays, min=1, soft_max=256,
+        description="Final-gather rays per camera sample at the first diffuse hit")
     seed: IntProperty(
         name="Seed", default=_D.seed, min=0,
         description="Random seed; the same seed gives the same image")

@@ -1,0 +1,105 @@
+"""Final gather (engine/final_gather.py): the same integral the lightmap lookup
+estimates, read one bounce away, so both agree in the mean, the furnace keeps
+its closed form, and the gather's own noise falls as 1/sqrt(rays)."""
+import math
+
+import numpy as np
+import pytest
+from numba import njit
+
+from photon_lightmaps.engine import demo_scenes, final_gather as FG, renderer
+from photon_lightmaps.engine import bsdf as BS, lightmap as LM, orientation_lightmap as OL
+from photon_lightmaps.engine.compile import compile_scene
+from photon_lightmaps.engine.photon_tracer import trace_photons
+from photon_lightmaps.engine.raycast import STACK_WORDS
+from photon_lightmaps.engine.sampling import stream_state
+from photon_lightmaps.engine.scene import Camera, compose, rotate, translate
+
+RHO, FLUX = 0.5, 100.0
+
+
+def furnace(mesh=False):
+    sc = demo_scenes.furnace_sphere(RHO, FLUX, mesh=mesh)
+    sc.camera = Camera(transform=compose(translate(0.0, 0.0, 0.0), rotate("x", 90)), fov=math.radians(60),
+                       width=24, height=24)
+    return sc
+
+
+@pytest.mark.parametrize("mesh", [False, True], ids=["analytic", "triangle_mesh"])
+def test_gathered_furnace_matches_the_closed_form(mesh):
+    """Inside a closed sphere of albedo rho with a central point light, every wall
+    point sends L = rho E_d / ((1 - rho) pi). Gathered: within 0.5 % (measured 0.1 %)."""
+    cs = compile_scene(furnace(mesh))
+    trace_photons(cs, 400_000, seed=1, max_bounces=64, record_direct=True)
+    img = renderer.render(cs, samples=4, seed=2, max_depth=0, gather=16)
+    e_d = FLUX / (4.0 * math.pi)
+    want = RHO * e_d / ((1.0 - RHO) * math.pi)
+    if mesh:      # the tessellated sphere is a little smaller: its own area
+        want *= 4.0 * math.pi / cs.lightmaps.area.sum()
+    got = img.mean()
+    print(f"\ngathered furnace: {got:.5f} against {want:.5f} ({got / want - 1:+.4f})")
+    assert got == pytest.approx(want, rel=0.005)
+
+
+def test_gather_refuses_lightmaps_without_direct_light():
+    cs = compile_scene(furnace())
+    trace_photons(cs, 10_000, seed=1, record_direct=False)
+    with pytest.raises(ValueError, match="record_direct"):
+        renderer.render(cs, samples=1, gather=4)
+
+
+def test_gather_and_lookup_agree_on_the_room_mean():
+    """The Cornell box (diffuse walls, a box, mirror and glass balls): the image
+    means of the gather and of the thesis's lookup agree within 1 % (measured 0.2-0.3 %)."""
+    sc = demo_scenes.cornell_box(width=48, height=48)
+    lookup = compile_scene(sc)
+    trace_photons(lookup, 400_000, seed=3, caustics=True)
+    a = renderer.render(lookup, samples=8, seed=1)
+    gathered = compile_scene(sc)
+    trace_photons(gathered, 400_000, seed=3, caustics=True, record_direct=True)
+    b = renderer.render(gathered, samples=8, seed=1, gather=16)
+    ratio = b.mean(axis=(0, 1)) / a.mean(axis=(0, 1))
+    print(f"\nroom mean, gather / lookup: {ratio}")
+    np.testing.assert_allclose(ratio, 1.0, atol=0.01)
+
+
+@njit(cache=True)
+def _many(cs_g, ms, bt, ts, ls, lm, ol, env, p, f, n_rays, n_trials, mode, out):
+    stack = np.empty(STACK_WORDS, np.int32)
+    nb = out.shape[1]
+    kd = np.empty(nb)
+    ks = np.empty(nb)
+    kt = np.empty(nb)
+    pc = np.empty(BS.P_SIZE)
+    ind = np.empty(nb)
+    e = np.empty(nb)
+    tp = np.empty(nb)
+    fw = np.empty(nb)
+    rad = np.empty(nb)
+    for k in range(n_trials):
+        state = stream_state(np.uint64(11), k)
+        for b in range(nb):
+            e[b] = 0.0
+        FG.gather_irradiance(cs_g, ms, bt, ts, ls, lm, ol, env, stack, p[0], p[1], p[2], f[0], f[1], f[2],
+                             f[0], f[1], f[2], n_rays, mode, state, kd, ks, kt, pc, ind, tp, fw, rad, e)
+        for b in range(nb):
+            out[k, b] = e[b]
+
+
+def test_gather_noise_falls_as_one_over_sqrt_rays():
+    """At one floor point of the Cornell box, over a fixed photon pass: the gather's
+    standard deviation at 4x the rays is at most half (1/sqrt(rays); the stratified
+    lattice does better: measured 2.7x and 3.5x), and its mean does not move."""
+    cs = compile_scene(demo_scenes.cornell_box(width=8, height=8))
+    trace_photons(cs, 200_000, seed=3, record_direct=True)
+    ol = OL.empty_maps(cs.geometry.inst_proto.shape[0])
+    p, f = np.array([0.3, 0.2, 1e-4]), np.array([0.0, 0.0, 1.0])
+    stats = []
+    for n in (8, 32, 128):
+        out = np.zeros((400, cs.n_bands))
+        _many(cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights, cs.lightmaps, ol, cs.environment, p, f, n, 400, LM.MODE_BILINEAR, out)
+        stats.append((out[:, 0].mean(), out[:, 0].std()))
+    print("\n" + "\n".join(f"{n} rays: mean {m:.4f}, std {s:.4f}" for n, (m, s) in zip((8, 32, 128), stats)))
+    for (m0, s0), (m1, s1) in zip(stats, stats[1:]):
+        assert 1.8 <= s0 / s1 <= 8.0
+        assert abs(m1 - m0) < 3.0 * math.hypot(s0, s1) / math.sqrt(400)

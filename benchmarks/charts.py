@@ -16,6 +16,7 @@ STYLE = {
     "cycles_bake": dict(color="C3", marker="^", label="Cycles bake"),
     "ours_render_constant": dict(color="C0", marker="o", ls="--", label="ours, constant lookup"),
     "ours_render_bilinear": dict(color="C1", marker="D", label="ours, bilinear lookup"),
+    "ours_render_gather": dict(color="C4", marker="P", label="ours, final gather"),
     "cycles_render": dict(color="C3", marker="^", label="Cycles render"),
     "ours_floor_constant": dict(color="C0", marker="o", ls="--", label="constant lookup"),
     "ours_floor_bilinear": dict(color="C1", marker="D", label="bilinear lookup"),
@@ -52,7 +53,7 @@ def error_vs_time(result, out, files):
         for ax, kind, methods, floor in (
                 (axes[0], "baked lightmaps, texel by texel", ("ours_bake", "photon_map", "cycles_bake"),
                  info["bake_noise_floor"]),
-                (axes[1], "renders, pixel by pixel", ("ours_render_constant", "ours_render_bilinear",
+                (axes[1], "renders, pixel by pixel", ("ours_render_constant", "ours_render_bilinear", "ours_render_gather",
                                                       "cycles_render"), info["render_noise_floor"])):
             for m in methods:
                 xs, ys, c = _curve(pts, sc, m)

@@ -3,7 +3,8 @@
 * Cycles: Diffuse bake (Direct + Indirect, no Color) on the Lightmap UV layer,
   and camera renders, over samples.
 * Photon lightmaps (this engine): bake_objects' compute path over photon count,
-  and two-pass renders over photon count (constant or bilinear lookup).
+  and two-pass renders over photon count (constant or bilinear lookup, or the
+  final gather over the bilinear lightmaps).
 * The photon-map baseline lives in photon_map.py.
 
 Baked arrays are (res, res, 3) E/pi with rows bottom-up (image pixel = texel);
@@ -166,6 +167,18 @@ def ours_render(photons, samples, seed, modes=(LM.MODE_CONSTANT, LM.MODE_BILINEA
         img = render_image(cs, samples=samples, seed=seed, mode=mode, max_depth=MAX_BOUNCES)
         out[mode] = (img[..., :3], t_shared + time.perf_counter() - t1)
     return out
+
+
+def ours_render_gather(photons, samples, seed, gather_rays=16):
+    """Render with the final gather (the photon pass records direct hits) -> (image, seconds)."""
+    t0 = time.perf_counter()
+    scene, _ = export_scene(bpy.context.evaluated_depsgraph_get())
+    cs = compile_scene(scene)
+    trace_photons(cs, max(int(photons), 1), seed=seed, max_bounces=MAX_BOUNCES, record_direct=True,
+                  caustics=True)
+    img = render_image(cs, samples=samples, seed=seed, mode=LM.MODE_BILINEAR, max_depth=MAX_BOUNCES,
+                       gather=gather_rays)
+    return img[..., :3], time.perf_counter() - t0
 
 
 # --------------------------------------------------------------------------------------

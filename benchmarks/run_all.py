@@ -133,6 +133,7 @@ def run_scene(name, cfg, log):
     # Warm-ups: numba kernels from the cache, Cycles' kernels and scene sync.
     M.ours_bake(objs, 1000, 0, res)
     M.ours_render(1000, 1, 0)
+    M.ours_render_gather(1000, 1, 0)
     with quiet():
         M.cycles_bake(objs, 8, 1, 0)
         M.cycles_render(1, 0)
@@ -200,6 +201,10 @@ def run_scene(name, cfg, log):
             meth = "ours_render_constant" if mode == LM.MODE_CONSTANT else "ours_render_bilinear"
             add("render", meth, "photons", n_ph, t, render_score(img), samples=RENDER_SPP)
             images.setdefault("ours_render", {})[(n_ph, meth)] = (t, img)
+        img, t = M.ours_render_gather(n_ph, RENDER_SPP, 7)
+        add("render", "ours_render_gather", "photons", n_ph, t, render_score(img), samples=RENDER_SPP,
+            gather_rays=16)
+        images.setdefault("ours_render", {})[(n_ph, "ours_render_gather")] = (t, img)
     for spp in cfg["cycles_render_spp"]:
         with quiet():
             img, t = M.cycles_render(spp, 11)

@@ -27,7 +27,7 @@ class Settings:
     samples: int = 16
     reconstruction: str = "BILINEAR"
     indirect: str = "GATHER"        # renders: "GATHER" (final gather) or "LOOKUP" (the thesis's)
-    gather_rays: int = 16           # final-gather rays per camera sample
+    gather_rays: int = 8            # final-gather rays per camera sample
 
     @classmethod
     def read(cls, props, **overrides):

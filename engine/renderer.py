@@ -287,7 +287,8 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
     """
     gather = int(gather)
     holds_direct = getattr(cs, "lightmaps_hold_direct", False)
-    if indirect and gather > 0 and not holds_direct:
+    # (lightmaps nothing was traced into are right for either: zero)
+    if indirect and gather > 0 and not holds_direct and np.any(cs.lightmaps.flux):
         raise ValueError("final gather needs a photon pass that recorded direct light (record_direct=True)")
     cam = cs.camera
     img = np.zeros((cam.height, cam.width, cs.n_bands))

@@ -294,7 +294,10 @@ def test_image_texture_is_baked_and_other_shaders_fall_back():
     # (export/textures.py; tests/test_textures.py checks texel by texel).
     grey = 128 / 255
     expect = (1.0 + ((grey + 0.055) / 1.055) ** 2.4) / 2
-    tex = scene.textures[m["textured"].textures["base_color"]].pixels
+    texture = scene.textures[m["textured"].textures["base_color"]]
+    assert texture.encoding == "srgb"                  # an 8-bit sRGB image: kept encoded
+    from photon_lightmaps.engine.texture import srgb_to_linear
+    tex = srgb_to_linear(texture.pixels)
     assert tex.shape == (2, 2, 3)                      # the image's own resolution
     np.testing.assert_allclose(tex.mean(axis=(0, 1)), [expect] * 3, atol=5e-3)
     np.testing.assert_allclose(m["toon"].diffuse, [0.2, 0.3, 0.4], rtol=1e-6)

@@ -103,3 +103,34 @@ def test_gather_noise_falls_as_one_over_sqrt_rays():
     for (m0, s0), (m1, s1) in zip(stats, stats[1:]):
         assert 1.8 <= s0 / s1 <= 8.0
         assert abs(m1 - m0) < 3.0 * math.hypot(s0, s1) / math.sqrt(400)
+
+
+_THREADS_SCRIPT = """
+import hashlib
+import numba
+from photon_lightmaps.engine import demo_scenes, renderer
+from photon_lightmaps.engine.compile import compile_scene
+from photon_lightmaps.engine.photon_tracer import trace_photons
+for threads, seed in ((4, 5), (1, 5), (3, 5), (4, 6)):
+    numba.set_num_threads(threads)
+    cs = compile_scene(demo_scenes.cornell_box(width=24, height=24))
+    trace_photons(cs, 20_000, seed=3, record_direct=True, caustics=True, chunk=4096)
+    img = renderer.render(cs, samples=2, seed=seed, gather=4, tile=8)
+    print(threads, seed, hashlib.sha1(img.tobytes()).hexdigest())
+"""
+
+
+def test_gathered_render_is_bit_identical_across_thread_counts():
+    """Same seed, same image with 1, 3 or 4 threads (a process of its own, since
+    numba sizes its pool when it loads); another seed, another image."""
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, NUMBA_NUM_THREADS="4")
+    out = subprocess.run([sys.executable, "-c", _THREADS_SCRIPT], env=env, capture_output=True,
+                         text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    rows = [line.split() for line in out.stdout.strip().splitlines()]
+    digests = {(int(t), int(s)): h for t, s, h in rows}
+    assert digests[(4, 5)] == digests[(1, 5)] == digests[(3, 5)]
+    assert digests[(4, 6)] != digests[(4, 5)]

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..engine import lightmap as LM
-from ..export.context import srgb_to_linear
+from ..engine.texture import srgb_to_linear
 from ..messages import InputError
 
 IMAGE_SUFFIX = "_Lightmap"

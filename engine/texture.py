@@ -51,16 +51,22 @@ def _texels(pixels, what):
     return a
 
 
+def _float(x):
+    """x as a float array of its own precision (float32 at least)."""
+    x = np.asarray(x)
+    return x.astype(np.result_type(x.dtype, np.float32), copy=False)
+
+
 def srgb_to_linear(x):
-    x = np.asarray(x, np.float32)
-    return np.where(x <= 0.04045, x / np.float32(12.92),
-                    ((np.maximum(x, 0.04045) + np.float32(0.055)) / np.float32(1.055)) ** np.float32(2.4))
+    """sRGB-encoded values (byte images) -> scene linear (the one decoder: export uses it too)."""
+    x = _float(x)
+    return np.where(x <= 0.04045, x / 12.92, ((np.maximum(x, 0.04045) + 0.055) / 1.055) ** 2.4).astype(x.dtype)
 
 
 def linear_to_srgb(x):
-    x = np.asarray(x, np.float32)
-    return np.where(x <= 0.0031308, x * np.float32(12.92),
-                    np.float32(1.055) * np.maximum(x, 0.0031308) ** np.float32(1.0 / 2.4) - np.float32(0.055))
+    x = _float(x)
+    return np.where(x <= 0.0031308, x * 12.92,
+                    1.055 * np.maximum(x, 0.0031308) ** (1.0 / 2.4) - 0.055).astype(x.dtype)
 
 
 def mip_levels(texels, srgb=False):

@@ -80,11 +80,6 @@ def output_priority(node):
     return (node.target not in ("ALL", "CYCLES"), not node.is_active_output)
 
 
-def srgb_to_linear(c):
-    """sRGB-encoded values (byte images) -> scene linear."""
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
 class ExportContext:
     """One export's state: the engine Scene being filled, its ExportMap and the caches."""
 

@@ -11,7 +11,8 @@ import numpy as np
 
 from ..engine.scene import Material
 from . import textures
-from .context import DEFAULT_DIFFUSE, output_priority, srgb_to_linear
+from ..engine.texture import srgb_to_linear
+from .context import DEFAULT_DIFFUSE, output_priority
 
 
 def image_mean(ctx, image):

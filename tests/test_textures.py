@@ -295,8 +295,7 @@ def blender(monkeypatch):
     ET.clear_cache()
 
 
-def srgb_to_linear(c):
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+srgb_to_linear = TX.srgb_to_linear
 
 
 def make_plane(bpy, name="plane", size=2.0):

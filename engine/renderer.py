@@ -310,3 +310,64 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
                 raise Cancelled("render cancelled")
     cs.timings["render"] = time.perf_counter() - t0
     return img
+
+
+@njit(cache=True, parallel=True)
+def _aux_tile(g, ms, ts, cam, x0, y0, tw, th, spp, seed, albedo, normal):
+    """First-hit albedo and shading normal per pixel, averaged over the render's own
+    anti-aliasing jitter (same stream as _render_tile), for the denoiser."""
+    nb = ms.emission.shape[1]
+    spread = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 0 else 0.0
+    width0 = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 1 else 0.0
+    for idx in prange(tw * th):
+        stack = np.empty(STACK_WORDS, np.int32)
+        kd = np.empty(nb)
+        ks = np.empty(nb)
+        kt = np.empty(nb)
+        px_i = x0 + idx % tw
+        py_i = y0 + idx // tw
+        pixel = py_i * cam.width + px_i
+        iy, ix = idx // tw, idx % tw
+        for s in range(spp):
+            state = stream_state(seed, pixel * spp + s)
+            state, jx = next_float(state)
+            state, jy = next_float(state)
+            if spp == 1:
+                jx, jy = 0.5, 0.5
+            ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
+            hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
+                g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
+            if not hit:
+                continue        # the world: albedo 0, normal 0 (OIDN's convention for "nothing")
+            m = g.shape_material[shape]
+            if m < 0:
+                continue
+            MT.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, width0 + spread * t, kd, ks, kt)
+            sx, sy, sz = MT.shading_normal(ms, ts, g, inst, m, shape, face, u, v, width0 + spread * t,
+                                           nx, ny, nz)
+            if dx * nx + dy * ny + dz * nz > 0.0:     # the side facing the camera, as the render shades it
+                sx, sy, sz = -sx, -sy, -sz
+            for c in range(3):
+                b = c if nb >= 3 else 0
+                # all lobes together: glass and mirrors are not black to the denoiser
+                albedo[iy, ix, c] += min(kd[b] + ks[b] + kt[b], 1.0) / spp
+            normal[iy, ix, 0] += sx / spp
+            normal[iy, ix, 1] += sy / spp
+            normal[iy, ix, 2] += sz / spp
+
+
+def render_aux(cs, samples=4, seed=0, tile=64):
+    """(albedo, normal), each (height, width, 3) float32, of cs.camera's first hits."""
+    cam = cs.camera
+    albedo = np.zeros((cam.height, cam.width, 3))
+    normal = np.zeros((cam.height, cam.width, 3))
+    for y0 in range(0, cam.height, tile):
+        for x0 in range(0, cam.width, tile):
+            tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
+            a = np.zeros((th, tw, 3))
+            n = np.zeros((th, tw, 3))
+            _aux_tile(cs.geometry, cs.materials, cs.textures, cam, x0, y0, tw, th, int(samples),
+                      np.uint64(seed), a, n)
+            albedo[y0:y0 + th, x0:x0 + tw] = a
+            normal[y0:y0 + th, x0:x0 + tw] = n
+    return albedo.astype(np.float32), normal.astype(np.float32)

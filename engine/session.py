@@ -28,6 +28,7 @@ class Settings:
     reconstruction: str = "BILINEAR"
     indirect: str = "GATHER"        # renders: "GATHER" (final gather) or "LOOKUP" (the thesis's)
     gather_rays: int = 8            # final-gather rays per camera sample
+    denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/denoise.py)
 
     @classmethod
     def read(cls, props, **overrides):
@@ -122,5 +123,41 @@ def render(cs, settings, *, tile=64, progress=None):
     """The render pass over a traced compiled scene -> (H, W, n_bands) radiance."""
     from .renderer import render as render_image
     gather = int(settings.gather_rays) if settings.gathers else 0
-    return render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
-                        max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress)
+    if settings.denoise:
+        from . import denoise
+        denoise.require()
+    img = render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
+                       max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress)
+    if settings.denoise:
+        t0 = time.perf_counter()
+        img = denoise_render(cs, img, settings)
+        cs.timings["denoise"] = time.perf_counter() - t0
+    return img
+
+
+def denoise_render(cs, img, settings):
+    """A rendered (H, W, n_bands) image -> its OIDN-denoised copy, guided by the
+    first hits' albedo and normal (traced here with the render's own pixel jitter)."""
+    import numpy as np
+
+    from . import denoise
+    from .renderer import render_aux
+    albedo, normal = render_aux(cs, samples=int(settings.samples), seed=int(settings.seed))
+    nb = img.shape[2]
+    if nb == 3:
+        return denoise.denoise_image(img, albedo, normal).astype(img.dtype)
+    # Other band counts: each band as a grey image, with a grey albedo to match.
+    grey = np.repeat(albedo.mean(axis=2, keepdims=True), 3, axis=2)
+    out = np.empty_like(img)
+    for b in range(nb):
+        out[..., b] = denoise.denoise_image(np.repeat(img[..., b:b + 1], 3, axis=2), grey, normal)[..., 0]
+    return out
+
+
+def denoise_baked(rgba, tiles=1):
+    """A baked (H, W, 4) RGBA lightmap (A = coverage) -> the same with RGB denoised;
+    texels no UV triangle covers keep their values (engine/denoise.denoise_lightmap)."""
+    from . import denoise
+    out = rgba.copy()
+    out[..., :3] = denoise.denoise_lightmap(rgba[..., :3], covered=rgba[..., 3] > 0.0, tiles=tiles)
+    return out

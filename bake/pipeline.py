@@ -118,7 +118,7 @@ def _covering_ol(router, ob):
 
 
 def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
-                 indirect_only=False):
+                 indirect_only=False, denoise=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
@@ -163,7 +163,15 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
         raise
     job.uv_undo = uv_undo
     job.settings = BakeSettings.read(props, photons=photons, seed=seed, resolution=resolution,
-                                     indirect_only=indirect_only)
+                                     indirect_only=indirect_only, denoise=denoise)
+    if job.settings.denoise:
+        # Missing pyoidn is told now, not after the photon pass.
+        try:
+            from ..engine import denoise as DN
+            DN.require()
+        except BaseException:
+            _uv_restore(uv_undo)
+            raise
     job.direct, job.t_start = not indirect_only, t0
     result.seconds["export"] = time.perf_counter() - t0
     return job
@@ -328,8 +336,24 @@ def compute_bake(job, progress=None):
         lm_id = cs.instance_lightmaps[i][0]
         result.maps[name] = BakedMap(name, images.lightmap_rgba(cs.lightmaps, lm_id), lm_id)
     result.seconds["extract"] = time.perf_counter() - t1
+    if job.settings.denoise:
+        t2 = time.perf_counter()
+        for bm in result.maps.values():
+            _denoise_map(cs, bm)
+        result.seconds["denoise"] = time.perf_counter() - t2
     job.cs = cs
     return job
+
+
+def _denoise_map(cs, bm):
+    """Denoises a BakedMap in place, one face tile / CSG leaf block at a time so that
+    no light crosses into an unrelated part of the image."""
+    if bm.tiles is None:
+        bm.rgba = session.denoise_baked(bm.rgba, tiles=int(cs.lightmaps.tiles[bm.lightmap_id]))
+        return
+    for x, y, w, h in bm.tiles.values():    # a leaf block: its primitive's square face tiles
+        bm.rgba[y:y + h, x:x + w] = session.denoise_baked(bm.rgba[y:y + h, x:x + w],
+                                                          tiles=max(w // max(h, 1), 1))
 
 
 def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materials=False):
@@ -369,17 +393,18 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
 
 def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, progress=None, overwrite=False, save_dir=None, pack=False,
-                 hook_materials=False):
+                 hook_materials=False, denoise=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass (indirect light) for all of them, plus the direct light
     gathered per texel unless `indirect_only`. `resolution` forces R x R texels per object; otherwise the object's
-    own setting or the scene's texel density decides. `progress(done, total)`
+    own setting or the scene's texel density decides. `denoise` (None: the scene's
+    setting) runs OIDN over each map (engine/denoise.py). `progress(done, total)`
     may return False to cancel: Cancelled is raised before any image changes.
     See the module docstring for image naming, overwriting and saving.
     """
     job = prepare_bake(context_or_depsgraph, objects, photons=photons, seed=seed,
-                       resolution=resolution, indirect_only=indirect_only)
+                       resolution=resolution, indirect_only=indirect_only, denoise=denoise)
     try:
         compute_bake(job, progress)
     except BaseException:

@@ -40,6 +40,7 @@ class RenderRun:
     image: np.ndarray = None
     orientation_lightmaps: list = field(default_factory=list)   # ol_bake.summarize rows
     environment: dict = None    # the world's map: name, width, height, bytes, bake_seconds
+    denoised: bool = False      # image is OIDN's output (the tiles shown while rendering were not)
 
     def as_dict(self):
         return {"scene": self.scene, "width": self.width, "height": self.height,
@@ -50,6 +51,7 @@ class RenderRun:
                 "lightmaps": self.lightmaps, "texels": self.texels,
                 "warnings": list(self.warnings), "cancelled": self.cancelled,
                 "orientation_lightmaps": [dict(r) for r in self.orientation_lightmaps],
+                "denoised": self.denoised,
                 "environment": dict(self.environment) if self.environment else None}
 
 
@@ -177,9 +179,12 @@ def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=Non
     progress = progress or (lambda f: None)
     should_stop = should_stop or (lambda: False)
     settings = session.Settings.read(depsgraph.scene.photon_lightmaps)
-    run = RenderRun(scene=depsgraph.scene.name, samples=settings.samples)
+    run = RenderRun(scene=depsgraph.scene.name, samples=settings.samples, denoised=settings.denoise)
     LAST_RUN = run
     t0 = time.perf_counter()
+    if settings.denoise:
+        from ..engine import denoise
+        denoise.require()       # missing pyoidn: say so before the photon pass, not after
 
     def report(level, msg):
         if level == "WARNING" and msg not in run.warnings:
@@ -206,6 +211,8 @@ def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=Non
     run.seconds = {"export": t_export - t0, "compile": t_compile - t_export,
                    "photon_pass": t_photons - t_photon0, "render": t_render - t_photons,
                    "total": t_render - t0}
+    if "denoise" in cs.timings:     # part of "render" (session.render denoises the finished image)
+        run.seconds["denoise"] = cs.timings["denoise"]
     return run
 
 
@@ -272,6 +279,8 @@ def render(self, depsgraph):
     record(scene.name, "render", run.warnings)
     if run.cancelled:
         return
+    if run.denoised:
+        on_tile(0, 0, run.image)    # the tiles went out noisy, as they finished: replace them all
     self.update_memory_stats(memory_used=_mib(run.lightmap_bytes), memory_peak=_mib(peak_rss_bytes()))
     self.update_stats("", f"Done | {run.photons:,} photons in {run.seconds['photon_pass']:.2f} s "
                           f"({run.photons_per_second:,.0f} photons/s) | render {run.seconds['render']:.2f} s | "

@@ -59,6 +59,12 @@ def _add_common(p):
     p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
 
 
+def _add_denoise(p):
+    # --denoise / --no-denoise; neither keeps the scene's setting.
+    p.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=None,
+                   help="OIDN denoising pass (needs the pyoidn package; default: scene setting)")
+
+
 def build_parser():
     p = _Parser(
         prog="python -m photon_lightmaps",
@@ -81,6 +87,7 @@ def build_parser():
     r.add_argument("--indirect", choices=("gather", "lookup"), default=None,
                    help="indirect light by final gather or by the hit's own lightmap")
     r.add_argument("--gather-rays", type=_count(1), default=None, help="final-gather rays per sample")
+    _add_denoise(r)
     r.set_defaults(func=render_main)
 
     b = sub.add_parser("bake", help="bake photon lightmaps of a .blend to OpenEXR images")
@@ -89,6 +96,7 @@ def build_parser():
     _add_common(b)
     b.add_argument("--resolution", type=_count(1), default=None, metavar="R", help="force R x R lightmaps")
     b.add_argument("--indirect-only", action="store_true", help="leave direct light out of the maps")
+    _add_denoise(b)
     b.set_defaults(func=bake_main)
 
     o = sub.add_parser("bake-ol", help="bake the orientation lightmaps of a .blend to OpenEXR images")
@@ -222,7 +230,7 @@ def render_main(args):
         raise InputError(f"scene '{scene.name}': no camera; add one and set it as the scene camera "
                          "(Scene Properties > Camera)")
     settings = scene.photon_lightmaps
-    for name in ("photons", "samples", "seed", "gather_rays"):
+    for name in ("photons", "samples", "seed", "gather_rays", "denoise"):
         value = getattr(args, name, None)
         if value is not None:
             setattr(settings, name, value)
@@ -235,7 +243,7 @@ def render_main(args):
     report.update(blend=str(blend), image=str(out), engine=ENGINE_ID,
                   settings={k: getattr(settings, k) for k in ("photons", "max_bounces", "texel_density",
                                                               "reconstruction", "samples", "seed", "indirect",
-                                                              "gather_rays")})
+                                                              "gather_rays", "denoise")})
     # "total" is the whole command (load, render, save); "pipeline" is export to last tile.
     report["seconds"].update(load=t_load - t0, pipeline=run.seconds["total"], total=t_end - t0)
     print(f"{out}: {run.width}x{run.height}, {run.photons:,} photons in {run.seconds['photon_pass']:.2f} s, "
@@ -261,7 +269,8 @@ def bake_main(args):
     ensure_registered()
     blend = open_blend(args.blend)
     context = bpy.context
-    settings = Settings.read(context.scene.photon_lightmaps, photons=args.photons, seed=args.seed)
+    settings = Settings.read(context.scene.photon_lightmaps, photons=args.photons, seed=args.seed,
+                             denoise=getattr(args, "denoise", None))
     photons, seed = settings.photons, settings.seed
     objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
     out_dir = os.path.abspath(args.out)
@@ -273,7 +282,7 @@ def bake_main(args):
 
     res = bake_objects(context, objects, photons=photons, seed=seed, resolution=args.resolution,
                        indirect_only=args.indirect_only, progress=progress, save_dir=out_dir,
-                       overwrite=True)
+                       overwrite=True, denoise=settings.denoise)
     print(file=sys.stderr)
     stats = res.stats
     report = {
@@ -283,7 +292,9 @@ def bake_main(args):
         "seconds": {"photon_pass": res.seconds.get("photon_pass", 0.0),
                     "direct": res.seconds.get("direct", 0.0),
                     "bake": res.seconds.get("bake", 0.0),
+                    "denoise": res.seconds.get("denoise", 0.0),
                     "total": time.perf_counter() - t0},
+        "denoised": bool(settings.denoise),
         "objects": {name: {"path": res.paths[name], "width": bm.width, "height": bm.height,
                            "bytes": os.path.getsize(res.paths[name]), "mean": bm.mean()}
                     for name, bm in res.maps.items()},

@@ -62,7 +62,17 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         sub = col.column()
         sub.active = s.indirect == "GATHER"
         sub.prop(s, "gather_rays")
+        col = layout.column(heading="Renders and Bakes")
+        col.prop(s, "denoise")
+        if s.denoise and not _denoiser_available():
+            col.label(text="Denoise needs the pyoidn package (not installed)", icon='ERROR')
         _draw_last_run(layout, context.scene)
+
+
+def _denoiser_available():
+    # find_spec, not an import: panels redraw often, and loading OIDN's libraries is slow.
+    import importlib.util
+    return importlib.util.find_spec("pyoidn") is not None
 
 
 # Lines the warnings box shows; the rest are in the Info editor and the JSON report.

@@ -99,6 +99,11 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
     gather_rays: IntProperty(
         name="Gather Rays", default=_D.gather_rays, min=1, soft_max=256,
         description="Final-gather rays per camera sample at the first diffuse hit")
+    denoise: BoolProperty(
+        name="Denoise", default=_D.denoise,
+        description="Run Intel Open Image Denoise (the pyoidn package) over renders, guided by "
+                    "albedo and normal, and over baked lightmaps, chart by chart. Removes noise "
+                    "at the cost of some bias")
     seed: IntProperty(
         name="Seed", default=_D.seed, min=0,
         description="Random seed; the same seed gives the same image")

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Builds the Photon Lightmaps extension packages, one zip per platform.
 
-1. Downloads the pinned numba, llvmlite and xatlas wheels (cp311, as in
+1. Downloads the pinned numba, llvmlite, xatlas and pyoidn wheels (cp311, as in
    Blender 4.2-5.0) for each platform into wheels/ (git-ignored). numpy is
    not bundled: Blender ships numpy 1.26, which numba 0.68 accepts
    (numpy >=1.22,<2.6).
@@ -34,7 +34,9 @@ MANIFEST = os.path.join(ROOT, "blender_manifest.toml")
 WHEELS_DIR = os.path.join(ROOT, "wheels")
 
 # Same versions as the development venv, so the bundled kernels are the tested ones.
-PINS = {"numba": "0.68.1", "llvmlite": "0.50.0", "xatlas": "0.0.11"}
+# pyoidn (the optional Denoise setting) is a py3-none wheel carrying OIDN's own
+# libraries and TBB: about 50 MB per platform, the bulk of each package.
+PINS = {"numba": "0.68.1", "llvmlite": "0.50.0", "xatlas": "0.0.11", "pyoidn": "2.5.1.0"}
 PYTHON_VERSION = "3.11"
 
 # Blender platform -> pip --platform tags. pip does not widen manylinux tags by

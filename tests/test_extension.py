@@ -109,16 +109,18 @@ def test_zip_layout_and_manifest(linux_zip, build, bext):
     listed = sorted(w[len("./wheels/"):] for w in manifest.wheels)
     assert listed == sorted(wheel_members), (listed, sorted(wheel_members))
 
-    # Exactly the pinned numba, llvmlite and xatlas for this platform; numpy comes with Blender.
+    # Exactly the pinned numba, llvmlite, xatlas and pyoidn for this platform; numpy comes with Blender.
     by_name = {build.wheel_fields(w)[0]: w for w in listed}
     assert sorted(by_name) == sorted(build.PINS)
     for name, wheel in by_name.items():
         _, version, py_tag, plat_tag = build.wheel_fields(wheel)
-        assert version == build.PINS[name] and py_tag == "cp311", wheel
+        # pyoidn binds OIDN through cffi: one py3 wheel per platform, not per Python
+        assert version == build.PINS[name] and py_tag == ("py3" if name == "pyoidn" else "cp311"), wheel
         assert bext.blender_platforms_from_wheel_platform(plat_tag.split(".")[0]) == [PLATFORM], wheel
     assert "numba/__init__.py" in wheel_members[by_name["numba"]]
     assert "llvmlite/binding/__init__.py" in wheel_members[by_name["llvmlite"]]
     assert any(m.startswith("xatlas") and m.endswith(".so") for m in wheel_members[by_name["xatlas"]])
+    assert "pyoidn/__init__.py" in wheel_members[by_name["pyoidn"]]
 
 
 # Runs inside a fresh bpy. Prints one `RESULT <json>` line; any failure raises.

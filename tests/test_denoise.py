@@ -118,3 +118,27 @@ def test_bake_with_denoise_keeps_uncovered_texels(bake_uv_cache):
         print(f"\n{name}: {int(out.sum())} uncovered texels untouched, covered mean shift {100 * shift:+.2f} %")
         assert abs(shift) < 0.02
     assert np.count_nonzero(plain.maps["tall_box"].rgba[..., 3] == 0.0) > 0   # the check above bit
+
+
+@needs_oidn
+def test_cli_flags_reach_the_render_engine_and_the_bake(tmp_path):
+    import json
+
+    from photon_lightmaps import cli
+    from photon_lightmaps.bake import render as render_engine
+
+    from blender_session import read_image
+    blend = tmp_path / "room.blend"
+    demo_blend.build_cornell_blend(str(blend), width=80, height=70, photons=10_000, samples=2)  # 2 x 2 tiles
+    exr, report = tmp_path / "room.exr", tmp_path / "render.json"
+    assert cli.main(["render", str(blend), "--out", str(exr), "--denoise", "--json", str(report)]) == 0
+    rep = json.loads(report.read_text())
+    run = render_engine.LAST_RUN
+    assert rep["denoised"] and rep["settings"]["denoise"] and rep["seconds"]["denoise"] > 0.0
+    # the saved frame is the denoised image, not the noisy tiles shown while rendering
+    np.testing.assert_allclose(read_image(exr)[..., :3], run.image.astype(np.float32), rtol=1e-5, atol=1e-6)
+    bake_report = tmp_path / "bake.json"
+    assert cli.main(["bake", str(blend), "--out", str(tmp_path / "maps"), "--resolution", "16",
+                     "--denoise", "--json", str(bake_report)]) == 0
+    rep = json.loads(bake_report.read_text())
+    assert rep["denoised"] and rep["seconds"]["denoise"] > 0.0 and rep["objects"]

@@ -18,6 +18,8 @@ STYLE = {
     "ours_render_bilinear": dict(color="C1", marker="D", label="ours, bilinear lookup"),
     "ours_render_gather": dict(color="C4", marker="P", label="ours, final gather"),
     "cycles_render": dict(color="C3", marker="^", label="Cycles render"),
+    "ours_bake_oidn": dict(color="C0", marker="o", ls=":", mfc="none", label="photon lightmap + OIDN"),
+    "ours_render_gather_oidn": dict(color="C4", marker="P", ls=":", mfc="none", label="final gather + OIDN"),
     "ours_floor_constant": dict(color="C0", marker="o", ls="--", label="constant lookup"),
     "ours_floor_bilinear": dict(color="C1", marker="D", label="bilinear lookup"),
 }
@@ -51,10 +53,11 @@ def error_vs_time(result, out, files):
         sc = info["scene"]
         fig, axes = plt.subplots(1, 2, figsize=(10, 4))
         for ax, kind, methods, floor in (
-                (axes[0], "baked lightmaps, texel by texel", ("ours_bake", "photon_map", "cycles_bake"),
-                 info["bake_noise_floor"]),
-                (axes[1], "renders, pixel by pixel", ("ours_render_constant", "ours_render_bilinear", "ours_render_gather",
-                                                      "cycles_render"), info["render_noise_floor"])):
+                (axes[0], "baked lightmaps, texel by texel",
+                 ("ours_bake", "ours_bake_oidn", "photon_map", "cycles_bake"), info["bake_noise_floor"]),
+                (axes[1], "renders, pixel by pixel",
+                 ("ours_render_constant", "ours_render_bilinear", "ours_render_gather", "ours_render_gather_oidn",
+                  "cycles_render"), info["render_noise_floor"])):
             for m in methods:
                 xs, ys, c = _curve(pts, sc, m)
                 if not xs:

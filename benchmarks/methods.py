@@ -4,7 +4,8 @@
   and camera renders, over samples.
 * Photon lightmaps (this engine): bake_objects' compute path over photon count,
   and two-pass renders over photon count (constant or bilinear lookup, or the
-  final gather over the bilinear lightmaps).
+  final gather over the bilinear lightmaps); optionally OIDN over either
+  (engine/denoise.py), timed on top.
 * The photon-map baseline lives in photon_map.py.
 
 Baked arrays are (res, res, 3) E/pi with rows bottom-up (image pixel = texel);
@@ -20,7 +21,9 @@ from numba import njit, prange
 
 from photon_lightmaps import bake as B
 from photon_lightmaps.export import uv_layers
+from photon_lightmaps.bake import pipeline
 from photon_lightmaps.engine import lightmap as LM
+from photon_lightmaps.engine import session
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.photon_tracer import trace_photons
 from photon_lightmaps.engine.renderer import render as render_image
@@ -169,8 +172,12 @@ def ours_render(photons, samples, seed, modes=(LM.MODE_CONSTANT, LM.MODE_BILINEA
     return out
 
 
-def ours_render_gather(photons, samples, seed, gather_rays=16):
-    """Render with the final gather (the photon pass records direct hits) -> (image, seconds)."""
+def ours_render_gather(photons, samples, seed, gather_rays=16, denoise=False):
+    """Render with the final gather (the photon pass records direct hits) -> (image, seconds).
+
+    denoise=True -> ((image, seconds), (denoised image, seconds + denoise seconds)): the
+    same render, then the OIDN pass (albedo and normal traced by session.denoise_render),
+    so both curves share their photons and the denoised one pays for its pass."""
     t0 = time.perf_counter()
     scene, _ = export_scene(bpy.context.evaluated_depsgraph_get())
     cs = compile_scene(scene)
@@ -178,7 +185,23 @@ def ours_render_gather(photons, samples, seed, gather_rays=16):
                   caustics=True)
     img = render_image(cs, samples=samples, seed=seed, mode=LM.MODE_BILINEAR, max_depth=MAX_BOUNCES,
                        gather=gather_rays)
-    return img[..., :3], time.perf_counter() - t0
+    t = time.perf_counter() - t0
+    if not denoise:
+        return img[..., :3], t
+    t1 = time.perf_counter()
+    den = session.denoise_render(cs, img, session.Settings(samples=samples, seed=seed))
+    return (img[..., :3], t), (den[..., :3], t + time.perf_counter() - t1)
+
+
+def oidn_bake(job):
+    """ours_bake's maps denoised as a bake with Denoise on does it -> (maps, denoise seconds)."""
+    t0 = time.perf_counter()
+    maps = {}
+    for n, m in job.result.maps.items():
+        bm = B.BakedMap(m.object_name, m.rgba.copy(), m.lightmap_id, m.tiles)
+        pipeline._denoise_map(job.cs, bm)
+        maps[n] = bm.rgba
+    return maps, time.perf_counter() - t0
 
 
 # --------------------------------------------------------------------------------------

@@ -5,6 +5,9 @@ Usage (from the repository root):
     .venv/bin/python -m benchmarks.run_all --quick    # tiny knobs, cornell only (about a minute)
 Options: --scenes cornell,window  --out DIR  --charts DIR  --no-charts
          --csg (then also benchmarks/bench_csg.py: exact CSG, its own JSON and charts)
+With pyoidn installed, also ours_bake_oidn and ours_render_gather_oidn: the
+same runs denoised (engine/denoise.py), scored the same way, so a denoiser's
+bias shows as an error floor and in mean_error.
 
 Writes DIR/results.json (every measured point) and PNG charts, and prints the
 headline ratios. Errors are scored against converged Cycles references
@@ -31,6 +34,7 @@ import numpy as np  # noqa: E402
 
 import photon_lightmaps  # noqa: E402
 from photon_lightmaps import registration  # noqa: E402
+from photon_lightmaps.engine import denoise as DN  # noqa: E402
 from photon_lightmaps.engine import lightmap as LM  # noqa: E402
 from photon_lightmaps.engine.compile import compile_scene  # noqa: E402
 from photon_lightmaps.engine.photon_tracer import trace_photons  # noqa: E402
@@ -46,6 +50,8 @@ from benchmarks.quiet import quiet  # noqa: E402
 DEFAULT_PHOTONS = 1_000_000
 DEFAULT_RES = 32
 RENDER_SPP = 16       # our camera samples: direct light and anti-aliasing only
+# The *_oidn curves (the same bakes and renders plus OIDN, its time added) need pyoidn.
+OIDN = DN.available()
 
 
 def pm_k(n_photons):
@@ -133,7 +139,7 @@ def run_scene(name, cfg, log):
     # Warm-ups: numba kernels from the cache, Cycles' kernels and scene sync.
     M.ours_bake(objs, 1000, 0, res)
     M.ours_render(1000, 1, 0)
-    M.ours_render_gather(1000, 1, 0)
+    M.ours_render_gather(1000, 1, 0, denoise=OIDN)
     with quiet():
         M.cycles_bake(objs, 8, 1, 0)
         M.cycles_render(1, 0)
@@ -160,6 +166,10 @@ def run_scene(name, cfg, log):
         add("bake", "ours_bake", "photons", n_ph, t, bake_score(x), nbytes,
             memory_compact_bytes=12 * len(names) * res * res,
             photons_per_texel=stats.records / max(len(names) * res * res, 1))
+        if OIDN:
+            dmaps, t_dn = M.oidn_bake(job)
+            add("bake", "ours_bake_oidn", "photons", n_ph, t + t_dn, bake_score(stack_maps(dmaps, names)),
+                nbytes, memory_compact_bytes=12 * len(names) * res * res, seconds_denoise=t_dn)
         if n_ph == min(cfg["bake_photons"]):
             images["ours_low"] = (n_ph, x)
         if n_ph == DEFAULT_PHOTONS or (n_ph == cfg["bake_photons"][-1] and "ours_default" not in images):
@@ -201,7 +211,13 @@ def run_scene(name, cfg, log):
             meth = "ours_render_constant" if mode == LM.MODE_CONSTANT else "ours_render_bilinear"
             add("render", meth, "photons", n_ph, t, render_score(img), samples=RENDER_SPP)
             images.setdefault("ours_render", {})[(n_ph, meth)] = (t, img)
-        img, t = M.ours_render_gather(n_ph, RENDER_SPP, 7)
+        if OIDN:
+            (img, t), (dimg, t_d) = M.ours_render_gather(n_ph, RENDER_SPP, 7, denoise=True)
+            # RT filter with albedo and normal of the first hits (session.denoise_render)
+            add("render", "ours_render_gather_oidn", "photons", n_ph, t_d, render_score(dimg),
+                samples=RENDER_SPP, gather_rays=16, seconds_denoise=t_d - t, aux="albedo+normal")
+        else:
+            img, t = M.ours_render_gather(n_ph, RENDER_SPP, 7)
         add("render", "ours_render_gather", "photons", n_ph, t, render_score(img), samples=RENDER_SPP,
             gather_rays=16)
         images.setdefault("ours_render", {})[(n_ph, "ours_render_gather")] = (t, img)

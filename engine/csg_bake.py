@@ -33,7 +33,7 @@ from . import primitives as P
 from .raycast import STACK_WORDS
 from .texel_gather import direct_irradiance
 from .sampling import next_float, stream_state
-from .texel_gather import _grid_side
+from .texel_gather import _grid_side, _jitter
 
 GUTTER = 1   # texels around each leaf block
 
@@ -190,6 +190,47 @@ def solid_leaves(cs, inst):
 # Direct light over the visible part of each texel
 # --------------------------------------------------------------------------------------
 
+@njit(cache=True)
+def csg_texel_point(buf, cb, bits, split, split_first, split_cell, kind, params, leaf, root, pxf, pinv,
+                    wxf, cof, eps, sgn, face, x, y, row0, inv_r, u1, u2):
+    """The point of a CSG leaf texel for unit-square sample (u1, u2), if it lies on
+    the solid's boundary as part of this leaf (csg._visibility_kernel's test).
+
+    -> (ok, row, J, px, py, pz, nx, ny, nz, s, t): the texel's row (the region's
+    sub-texel row in a split texel), the world area element, world point, the
+    solid's outward unit normal (sgn flips it on subtracted leaves) and the
+    chart coordinates."""
+    S = LM.SPLIT_SUB
+    s = (x + u1) * inv_r
+    t = (y + u2) * inv_r
+    r = P.prim_point(kind, params, face, s, t)
+    cx, cy, cz = cross(r[3], r[4], r[5], r[6], r[7], r[8])
+    qx, qy, qz = apply_point(pxf, r[0], r[1], r[2])
+    nx, ny, nz = apply_transposed(pinv, cx, cy, cz)
+    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if not ln > 0.0:
+        return False, row0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s, t   # crease or apex
+    d = eps / ln
+    a = CSG._inside(buf, cb, root, qx + d * nx, qy + d * ny, qz + d * nz, bits)
+    b = CSG._inside(buf, cb, root, qx - d * nx, qy - d * ny, qz - d * nz, bits)
+    if a == b or b == CSG._inside(buf, cb, root, qx - d * nx, qy - d * ny, qz - d * nz,
+                                  bits, leaf, False):
+        return False, row0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s, t
+    row = row0
+    ks = split[row0]
+    if ks >= 0:
+        c = split_cell[ks, min(int(u2 * S), S - 1) * S + min(int(u1 * S), S - 1)]
+        if c > 0:
+            row = split_first[ks] + c - 1
+    wx, wy, wz = apply_linear(cof, cx, cy, cz)
+    jac = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if not jac > 0.0:
+        return False, row, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s, t
+    px, py, pz = apply_point(wxf, r[0], r[1], r[2])
+    f = sgn / jac
+    return True, row, jac, px, py, pz, wx * f, wy * f, wz * f, s, t
+
+
 @njit(cache=True, parallel=True)
 def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, item_x, item_y,
                 item_row, item_key, item_local, lm_kind, lm_params, lm_leaf, lm_root, lm_pxf,
@@ -198,7 +239,6 @@ def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, 
     texel that lie on the solid's boundary as part of the item's leaf (rows of
     a split texel by the region label of the sample's cell)."""
     cb = CSG.csg_base(buf)
-    S = LM.SPLIT_SUB
     K = item_lm.shape[0]
     nb = acc.shape[1]
     k = _grid_side(n_samples)
@@ -207,76 +247,36 @@ def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, 
         bits = np.empty(3 * CSG.MAX_WORK + 8, np.int32)
         e = np.zeros(nb)
         l = item_lm[it]
-        kind = lm_kind[l]
-        params = lm_params[l]
-        leaf = lm_leaf[l]
-        root = lm_root[l]
-        pxf = lm_pxf[l]
-        pinv = lm_pinv[l]
-        wxf = lm_wxf[l]
-        cof = lm_ncof[l]
         inv_r = 1.0 / lm_res[l]
-        eps = lm_eps[l]
         sgn = -1.0 if lm_flip[l] else 1.0
-        face = item_face[it]
-        row0 = item_row[it]
-        ks = split[row0]
         state = stream_state(item_key[it], item_local[it])
         for s in range(n_samples):
             state, j1 = next_float(state)
             state, j2 = next_float(state)
-            if s < k * k:
-                u1, u2 = (s % k + j1) / k, (s // k + j2) / k
-            else:
-                u1, u2 = j1, j2
-            r = P.prim_point(kind, params, face, (item_x[it] + u1) * inv_r,
-                             (item_y[it] + u2) * inv_r)
-            cx, cy, cz = cross(r[3], r[4], r[5], r[6], r[7], r[8])
-            # on the solid's boundary as part of this leaf (csg._visibility_kernel's test)
-            qx, qy, qz = apply_point(pxf, r[0], r[1], r[2])
-            nx, ny, nz = apply_transposed(pinv, cx, cy, cz)
-            ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-            if not ln > 0.0:
-                continue   # crease or apex: no area there
-            d = eps / ln
-            a = CSG._inside(buf, cb, root, qx + d * nx, qy + d * ny, qz + d * nz, bits)
-            b = CSG._inside(buf, cb, root, qx - d * nx, qy - d * ny, qz - d * nz, bits)
-            if a == b or b == CSG._inside(buf, cb, root, qx - d * nx, qy - d * ny, qz - d * nz,
-                                          bits, leaf, False):
+            u1, u2 = _jitter(s, k, j1, j2)
+            ok, row, jac, px, py, pz, nx, ny, nz, _, _ = csg_texel_point(
+                buf, cb, bits, split, split_first, split_cell, lm_kind[l], lm_params[l], lm_leaf[l],
+                lm_root[l], lm_pxf[l], lm_pinv[l], lm_wxf[l], lm_ncof[l], lm_eps[l], sgn,
+                item_face[it], item_x[it], item_y[it], item_row[it], inv_r, u1, u2)
+            if not ok:
                 continue
-            row = row0
-            if ks >= 0:
-                c = split_cell[ks, min(int(u2 * S), S - 1) * S + min(int(u1 * S), S - 1)]
-                if c > 0:
-                    row = split_first[ks] + c - 1
-            wx, wy, wz = apply_linear(cof, cx, cy, cz)
-            jac = math.sqrt(wx * wx + wy * wy + wz * wz)
-            if not jac > 0.0:
-                continue
-            px, py, pz = apply_point(wxf, r[0], r[1], r[2])
-            f = sgn / jac
             for bb in range(nb):
                 e[bb] = 0.0
-            state = direct_irradiance(g, ls, stack, px, py, pz, wx * f, wy * f, wz * f, state, e)
+            state = direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, e)
             for bb in range(nb):
                 acc[row, bb] += jac * e[bb]
             wsum[row] += jac
 
 
-def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
-    """Direct irradiance of CSG leaf texels, averaged over their visible part.
-
-    leaves: (instance, solid_leaves() entry) pairs of primitive leaves. Returns
-    (texel rows int64[K], E float64[K, B]) for texel_gather.add_direct; rows
-    include sub-texel rows of split texels. Sample streams are keyed like
-    texel_gather's (seed, instance, slot, texel), so results are deterministic.
-    Lights inside the solid are not gathered (the solid's inside is closed).
-    """
+def csg_texel_items(cs, leaves, seed=0):
+    """The texels of CSG leaves as the leaf-texel kernels take them -> (buf, items, per-lightmap
+    arrays) or None when no leaf has a texel on the solid. items carry the owning
+    lightmap (`lid`) and texel row of each; per-lightmap arrays are indexed by items['lm']."""
     from .texel_gather import _affine_compose, _lightmap_key
     lm = cs.lightmaps
     g = cs.geometry
     buf = _trace(g)
-    items = dict(lm=[], face=[], x=[], y=[], row=[], key=[], local=[])
+    items = dict(lm=[], lid=[], face=[], x=[], y=[], row=[], key=[], local=[])
     pl = dict(kind=[], params=[], leaf=[], root=[], pxf=[], pinv=[], wxf=[], ncof=[], res=[],
               flip=[], eps=[])
     cb_flip = _leaf_flips(buf)
@@ -290,6 +290,7 @@ def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
             continue
         y, x = np.divmod(local, w)
         items["lm"].append(np.full(local.size, len(pl["kind"]), np.int64))
+        items["lid"].append(np.full(local.size, lid, np.int64))
         items["face"].append(x // r)
         items["x"].append(x % r)
         items["y"].append(y)
@@ -310,20 +311,38 @@ def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
         pl["res"].append(r)
         pl["flip"].append(int(cb_flip[d["leaf"]]))
         pl["eps"].append(float(_root_eps(buf, np.int64(d["root"]))))
-    nb = cs.n_bands
     if not items["lm"]:
+        return None
+    cat = {k: np.ascontiguousarray(np.concatenate(v).astype(np.uint64 if k == "key" else np.int64))
+           for k, v in items.items()}
+    per_lm = (np.asarray(pl["kind"], np.int32), np.stack(pl["params"]),
+              np.asarray(pl["leaf"], np.int64), np.asarray(pl["root"], np.int64),
+              np.stack(pl["pxf"]), np.stack(pl["pinv"]), np.stack(pl["wxf"]), np.stack(pl["ncof"]),
+              np.asarray(pl["res"], np.int64), np.asarray(pl["flip"], np.int64),
+              np.asarray(pl["eps"], np.float64))
+    return buf, cat, per_lm
+
+
+def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
+    """Direct irradiance of CSG leaf texels, averaged over their visible part.
+
+    leaves: (instance, solid_leaves() entry) pairs of primitive leaves. Returns
+    (texel rows int64[K], E float64[K, B]) for texel_gather.add_direct; rows
+    include sub-texel rows of split texels. Sample streams are keyed like
+    texel_gather's (seed, instance, slot, texel), so results are deterministic.
+    Lights inside the solid are not gathered (the solid's inside is closed).
+    """
+    lm = cs.lightmaps
+    nb = cs.n_bands
+    got = csg_texel_items(cs, leaves, seed)
+    if got is None:
         return np.zeros(0, np.int64), np.zeros((0, nb))
-    cat = {k: np.ascontiguousarray(np.concatenate(v)) for k, v in items.items()}
+    buf, cat, per_lm = got
     acc = np.zeros((lm.area.shape[0], nb))
     wsum = np.zeros(lm.area.shape[0])
-    _gather_csg(g, cs.lights, buf, lm.split, lm.split_first, lm.split_cell,
-                cat["lm"], cat["face"].astype(np.int64), cat["x"].astype(np.int64),
-                cat["y"].astype(np.int64), cat["row"], cat["key"], cat["local"],
-                np.asarray(pl["kind"], np.int32), np.stack(pl["params"]),
-                np.asarray(pl["leaf"], np.int64), np.asarray(pl["root"], np.int64),
-                np.stack(pl["pxf"]), np.stack(pl["pinv"]), np.stack(pl["wxf"]), np.stack(pl["ncof"]),
-                np.asarray(pl["res"], np.int64), np.asarray(pl["flip"], np.int64),
-                np.asarray(pl["eps"], np.float64), int(samples_per_texel), acc, wsum)
+    _gather_csg(cs.geometry, cs.lights, buf, lm.split, lm.split_first, lm.split_cell,
+                cat["lm"], cat["face"], cat["x"], cat["y"], cat["row"], cat["key"], cat["local"],
+                *per_lm, int(samples_per_texel), acc, wsum)
     ids = np.flatnonzero(wsum > 0.0).astype(np.int64)
     return ids, acc[ids] / wsum[ids][:, None]
 

@@ -41,10 +41,15 @@ CHAIN = 3          # vertices a gather ray follows through glossy lobes
 
 
 @njit(cache=True)
-def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, stack, px, py, pz, fx, fy, fz, sx, sy, sz, n_rays,
-                      mode, state, kd, ks, kt, pc, ind, tp, f, rad, out):
+def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, pz, fx, fy, fz, sx, sy, sz,
+                      n_rays, mode, state, kd, ks, kt, pc, ind, tp, f, rad, out):
     """Indirect irradiance at p from n_rays gather rays into out[bands] (added).
 
+    inst_side (one per instance, or empty: no test): the lit side of a closed
+    surface, +1 along its hit normal, 0 for open ones. A ray that first meets a
+    closed surface from inside reads nothing: p lies inside that solid (a bake
+    point where a box touches the floor), where no light comes, while its texels
+    hold the outside's.
     f: the face normal on the viewer's side, s: the shading normal (rays are
     cosine-distributed about s; those that leave below f count zero, as the
     direct light's do). kd, ks, kt, pc, ind, tp, f, rad: scratch arrays. A
@@ -81,11 +86,13 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, stack, px, py, pz, fx, fy,
                     for b in range(nb):
                         out[b] += tp[b] * rad[b]
                 break
+            cos_dn = dx * nx + dy * ny + dz * nz
+            if k == 0 and inst_side.shape[0] > 0 and inst_side[inst] * cos_dn > 0.0:
+                break
             m = g.shape_material[shape]
             if k > 0 and not sharp:
                 for b in range(nb):
                     out[b] += tp[b] * ms.emission[m, b]
-            cos_dn = dx * nx + dy * ny + dz * nz
             qx, qy, qz = ox + t * dx, oy + t * dy, oz + t * dz
             rough, ior, _ = MT.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, spread * t, kd, ks, kt)
             cos_o = min(abs(cos_dn), 1.0)

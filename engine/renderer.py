@@ -154,6 +154,7 @@ def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw,
     spread = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 0 else 0.0
     width0 = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 1 else 0.0
     env_li = LH.environment_light(ls)
+    no_sides = np.zeros(0, np.int64)      # camera hits are on the outside already
     for idx in prange(tw * th):
         stack = np.empty(STACK_WORDS, np.int32)
         acc = np.zeros(nb)
@@ -234,7 +235,7 @@ def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw,
                     state = direct_light(g, ls, stack, pc, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz,
                                          sx, sy, sz, lox, loy, loz, state, e, lg, f, rad)
                 if pd > 0.0 and indirect and n_gather > 0:
-                    state = FG.gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, stack, px, py, pz,
+                    state = FG.gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, no_sides, stack, px, py, pz,
                                                  fx, fy, fz, sx, sy, sz, n_gather, mode, state,
                                                  kd2, ks2, kt2, pc2, ind, tp2, f2, rad2, e)
                     n_gather = max(1, n_gather // 4)

@@ -7,7 +7,7 @@ No bpy: the Blender layer reads its PropertyGroup into a `Settings` and hands
 over a plain engine Scene.
 """
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 from . import lightmap as LM
 
@@ -26,8 +26,9 @@ class Settings:
     caustic_resolution: float = 4.0
     samples: int = 16
     reconstruction: str = "BILINEAR"
-    indirect: str = "GATHER"        # renders: "GATHER" (final gather) or "LOOKUP" (the thesis's)
+    indirect: str = "GATHER"        # renders and bakes: "GATHER" (final gather) or "LOOKUP" (the thesis's)
     gather_rays: int = 8            # final-gather rays per camera sample
+    bake_gather_rays: int = 256     # final-gather rays per baked texel and lit side
     denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/denoise.py)
 
     @classmethod
@@ -49,6 +50,16 @@ class Settings:
     def gathers(self):
         """Renders use the final gather."""
         return self.indirect == "GATHER" and self.gather_rays > 0
+
+    @property
+    def bake_gathers(self):
+        """Bakes use the final gather (engine/bake_gather.py)."""
+        return self.indirect == "GATHER" and self.bake_gather_rays > 0
+
+    @property
+    def bake_rays_per_point(self):
+        """Gather rays per texel point: bake_gather_rays spread over the DIRECT_SAMPLES points."""
+        return max(1, round(self.bake_gather_rays / DIRECT_SAMPLES))
 
     @property
     def mode(self):
@@ -85,6 +96,50 @@ def compile_and_trace(scene, settings, *, record_direct=False, progress=None):
     """compile + photon_pass -> (compiled scene, PhotonStats)."""
     cs = compile(scene)
     return cs, photon_pass(cs, settings, record_direct=record_direct, progress=progress)
+
+
+def compile_and_trace_bake(scene, settings, *, progress=None):
+    """compile + the photon pass a bake needs -> (compiled scene, PhotonStats).
+
+    A lookup bake keeps first hits out (its direct part is gathered per texel);
+    a gathering bake records them, since gather rays read total irradiance one
+    bounce away, and keeps caustics apart (gather rays cannot find them). Its
+    caustic lightmaps need no finer texels than the bake's own: they are
+    averaged over each baked texel."""
+    if not settings.bake_gathers:
+        return compile_and_trace(scene, settings, progress=progress)
+    cs = compile(replace(scene, caustic_resolution=1.0))
+    return cs, photon_pass(cs, settings, record_direct=True, progress=progress, caustics=True)
+
+
+def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True):
+    """A bake's texel values into cs.lightmaps -> seconds per part.
+
+    Direct light per texel (unless direct=False), plus either the photons' own
+    indirect light (lookup) or the final gather over the photon lightmaps
+    (engine/bake_gather.py). lightmap_ids: instance lightmaps; csg_leaves:
+    (instance, leaf) pairs of CSG solids (csg_bake.solid_leaves)."""
+    from . import texel_gather as TG
+    lightmap_ids, csg_leaves = list(lightmap_ids), list(csg_leaves)
+    seconds = {}
+    t0 = time.perf_counter()
+    parts = []
+    if direct and lightmap_ids:
+        parts.append(gather_direct(cs, lightmap_ids, settings))
+    if direct and csg_leaves:
+        parts.append(gather_direct_csg(cs, csg_leaves, settings))
+    seconds["direct"] = time.perf_counter() - t0
+    if not settings.bake_gathers:
+        for part in parts:
+            add_direct(cs.lightmaps, part)
+        return seconds
+    from . import bake_gather as BG
+    t1 = time.perf_counter()
+    indirect = BG.gathered_indirect(cs, lightmap_ids, csg_leaves, DIRECT_SAMPLES, settings.bake_rays_per_point,
+                                    settings.mode, seed=int(settings.seed))
+    BG.set_gathered(cs.lightmaps, TG._by_texel(parts, cs.n_bands), indirect)
+    seconds["gather"] = time.perf_counter() - t1
+    return seconds
 
 
 def gather_direct(cs, lightmap_ids, settings):

@@ -144,6 +144,89 @@ def _jitter(s, k, j1, j2):
     return j1, j2
 
 
+@njit(cache=True)
+def mesh_texel_point(g, xf, ptri, parea, pnv, pb, p0, p1, total, u1, u2):
+    """The point of a mesh texel for unit-square sample (u1, u2): uniform by world
+    area over its UV pieces p0..p1 (total area `total`).
+
+    -> (ok, px, py, pz, nx, ny, nz, triangle row, b1, b2): world point, unit
+    geometric normal from the world edges (its sign is the triangle's winding),
+    barycentrics; ok False on a zero-area triangle (it has no area share)."""
+    # Piece by world area; u1 is rescaled inside the chosen interval so the
+    # jitter keeps stratifying what follows.
+    target = u1 * total
+    p = p0
+    acc = 0.0
+    while p < p1 - 1 and acc + parea[p] <= target:
+        acc += parea[p]
+        p += 1
+    u1 = min(max((target - acc) / parea[p], 0.0), 1.0) if parea[p] > 0.0 else 0.5
+    # Fan triangle (0, i, i+1) of the clipped polygon by area (affine: bary ∝ world).
+    nv = pnv[p]
+    ax, ay = pb[p, 0, 0], pb[p, 0, 1]
+    poly = 0.0
+    for i in range(1, nv - 1):
+        poly += abs((pb[p, i, 0] - ax) * (pb[p, i + 1, 1] - ay)
+                    - (pb[p, i + 1, 0] - ax) * (pb[p, i, 1] - ay))
+    fi = 1
+    if poly > 0.0:
+        target = u1 * poly
+        acc = 0.0
+        while fi < nv - 2:
+            a = abs((pb[p, fi, 0] - ax) * (pb[p, fi + 1, 1] - ay)
+                    - (pb[p, fi + 1, 0] - ax) * (pb[p, fi, 1] - ay))
+            if acc + a > target:
+                break
+            acc += a
+            fi += 1
+        a = abs((pb[p, fi, 0] - ax) * (pb[p, fi + 1, 1] - ay)
+                - (pb[p, fi + 1, 0] - ax) * (pb[p, fi, 1] - ay))
+        u1 = min(max((target - acc) / a, 0.0), 1.0) if a > 0.0 else 0.5
+    # Uniform point in the triangle (A, B, C) by the square-root warp.
+    su = math.sqrt(u1)
+    wa = 1.0 - su
+    wb = su * (1.0 - u2)
+    wc = su * u2
+    b1 = wa * ax + wb * pb[p, fi, 0] + wc * pb[p, fi + 1, 0]
+    b2 = wa * ay + wb * pb[p, fi, 1] + wc * pb[p, fi + 1, 1]
+    b0 = 1.0 - b1 - b2
+    t = ptri[p]
+    v = g.tri_p[t]
+    lx = b0 * v[0, 0] + b1 * v[1, 0] + b2 * v[2, 0]
+    ly = b0 * v[0, 1] + b1 * v[1, 1] + b2 * v[2, 1]
+    lz = b0 * v[0, 2] + b1 * v[1, 2] + b2 * v[2, 2]
+    px, py, pz = apply_point(xf, lx, ly, lz)
+    e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
+    e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
+    w1x, w1y, w1z = apply_linear(xf, e1x, e1y, e1z)
+    w2x, w2y, w2z = apply_linear(xf, e2x, e2y, e2z)
+    nx = w1y * w2z - w1z * w2y
+    ny = w1z * w2x - w1x * w2z
+    nz = w1x * w2y - w1y * w2x
+    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if not (ln > 0.0):
+        return False, px, py, pz, 0.0, 0.0, 0.0, t, b1, b2
+    return True, px, py, pz, nx / ln, ny / ln, nz / ln, t, b1, b2
+
+
+@njit(cache=True)
+def prim_texel_point(kind, params, xf, cof, face, x, y, inv_r, u1, u2):
+    """The point of primitive texel (x, y) of chart tile `face` for unit-square
+    sample (u1, u2) -> (ok, J, px, py, pz, nx, ny, nz, s, t): world point, unit
+    outward normal cof(M)(pu x pv) (cof sign-corrected for mirroring), the world
+    area element J and the chart coordinates; ok False at a crease or apex."""
+    s = (x + u1) * inv_r
+    t = (y + u2) * inv_r
+    r = P.prim_point(kind, params, face, s, t)
+    cx, cy, cz = cross(r[3], r[4], r[5], r[6], r[7], r[8])
+    nx, ny, nz = apply_linear(cof, cx, cy, cz)
+    jac = math.sqrt(nx * nx + ny * ny + nz * nz)
+    px, py, pz = apply_point(xf, r[0], r[1], r[2])
+    if not (jac > 0.0):
+        return False, 0.0, px, py, pz, 0.0, 0.0, 0.0, s, t
+    return True, jac, px, py, pz, nx / jac, ny / jac, nz / jac, s, t
+
+
 @njit(cache=True, parallel=True)
 def _gather_mesh(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pnv, pb,
                  n_samples, out):
@@ -168,64 +251,11 @@ def _gather_mesh(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pn
             state, j1 = next_float(state)
             state, j2 = next_float(state)
             u1, u2 = _jitter(s, k, j1, j2)
-            # Piece by world area; u1 is rescaled inside the chosen interval so the
-            # jitter keeps stratifying what follows.
-            target = u1 * total
-            p = p0
-            acc = 0.0
-            while p < p1 - 1 and acc + parea[p] <= target:
-                acc += parea[p]
-                p += 1
-            u1 = min(max((target - acc) / parea[p], 0.0), 1.0) if parea[p] > 0.0 else 0.5
-            # Fan triangle (0, i, i+1) of the clipped polygon by area (affine: bary ∝ world).
-            nv = pnv[p]
-            ax, ay = pb[p, 0, 0], pb[p, 0, 1]
-            poly = 0.0
-            for i in range(1, nv - 1):
-                poly += abs((pb[p, i, 0] - ax) * (pb[p, i + 1, 1] - ay)
-                            - (pb[p, i + 1, 0] - ax) * (pb[p, i, 1] - ay))
-            fi = 1
-            if poly > 0.0:
-                target = u1 * poly
-                acc = 0.0
-                while fi < nv - 2:
-                    a = abs((pb[p, fi, 0] - ax) * (pb[p, fi + 1, 1] - ay)
-                            - (pb[p, fi + 1, 0] - ax) * (pb[p, fi, 1] - ay))
-                    if acc + a > target:
-                        break
-                    acc += a
-                    fi += 1
-                a = abs((pb[p, fi, 0] - ax) * (pb[p, fi + 1, 1] - ay)
-                        - (pb[p, fi + 1, 0] - ax) * (pb[p, fi, 1] - ay))
-                u1 = min(max((target - acc) / a, 0.0), 1.0) if a > 0.0 else 0.5
-            # Uniform point in the triangle (A, B, C) by the square-root warp.
-            su = math.sqrt(u1)
-            wa = 1.0 - su
-            wb = su * (1.0 - u2)
-            wc = su * u2
-            b1 = wa * ax + wb * pb[p, fi, 0] + wc * pb[p, fi + 1, 0]
-            b2 = wa * ay + wb * pb[p, fi, 1] + wc * pb[p, fi + 1, 1]
-            b0 = 1.0 - b1 - b2
-            t = ptri[p]
-            v = g.tri_p[t]
-            lx = b0 * v[0, 0] + b1 * v[1, 0] + b2 * v[2, 0]
-            ly = b0 * v[0, 1] + b1 * v[1, 1] + b2 * v[2, 1]
-            lz = b0 * v[0, 2] + b1 * v[1, 2] + b2 * v[2, 2]
-            px, py, pz = apply_point(xf, lx, ly, lz)
-            # Geometric normal from the world-space edges (sign irrelevant: two-sided).
-            e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
-            e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
-            w1x, w1y, w1z = apply_linear(xf, e1x, e1y, e1z)
-            w2x, w2y, w2z = apply_linear(xf, e2x, e2y, e2z)
-            nx = w1y * w2z - w1z * w2y
-            ny = w1z * w2x - w1x * w2z
-            nz = w1x * w2y - w1y * w2x
-            ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-            if not (ln > 0.0):
-                continue   # zero-area triangle: it has no area share either
-            nx /= ln
-            ny /= ln
-            nz /= ln
+            ok, px, py, pz, nx, ny, nz, _, _, _ = mesh_texel_point(g, xf, ptri, parea, pnv, pb,
+                                                                   p0, p1, total, u1, u2)
+            if not ok:
+                continue
+            # both sides: photons from either side add into the one texel
             state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k)
             state = direct_irradiance_stratum(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e, s, k)
         inv = 1.0 / n_samples
@@ -244,12 +274,7 @@ def _gather_prim(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local
         e = np.zeros(nb)
         ew = np.zeros(nb)
         l = item_lm[it]
-        kind = lm_kind[l]
-        params = lm_params[l]
-        xf = lm_xf[l]
-        cof = lm_ncof[l]
         inv_r = 1.0 / lm_res[l]
-        face = item_face[it]
         sides = lm_sides[l]
         state = stream_state(item_key[it], item_local[it])
         wsum = 0.0
@@ -257,19 +282,11 @@ def _gather_prim(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local
             state, j1 = next_float(state)
             state, j2 = next_float(state)
             u1, u2 = _jitter(s, k, j1, j2)
-            r = P.prim_point(kind, params, face, (item_x[it] + u1) * inv_r, (item_y[it] + u2) * inv_r)
-            lx, ly, lz = r[0], r[1], r[2]
-            # World area element and outward normal: cof(M)(pu x pv), sign-corrected
-            # for mirroring transforms in lm_ncof.
-            cx, cy, cz = cross(r[3], r[4], r[5], r[6], r[7], r[8])
-            nx, ny, nz = apply_linear(cof, cx, cy, cz)
-            jac = math.sqrt(nx * nx + ny * ny + nz * nz)
-            if not (jac > 0.0):
-                continue   # crease or apex: no area there
-            nx /= jac
-            ny /= jac
-            nz /= jac
-            px, py, pz = apply_point(xf, lx, ly, lz)
+            ok, jac, px, py, pz, nx, ny, nz, _, _ = prim_texel_point(
+                lm_kind[l], lm_params[l], lm_xf[l], lm_ncof[l], item_face[it], item_x[it], item_y[it],
+                inv_r, u1, u2)
+            if not ok:
+                continue
             for b in range(nb):
                 e[b] = 0.0
             state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k)
@@ -339,14 +356,16 @@ def _lightmap_key(seed, inst, slot):
 
 class _MeshTexels:
     """Measured texels of mesh lightmaps with their UV pieces (CSR rows into the
-    piece arrays), as _gather_mesh takes them."""
+    piece arrays), as _gather_mesh takes them; with each texel's lightmap id and
+    the side(s) its surface is lit from (`side`: +1 / -1 along / against the
+    winding normal, 0 both), which the final gather needs."""
 
     def __init__(self):
-        self.cols = dict(texel=[], inst=[], key=[], local=[], start=[], tri=[], area=[], nv=[],
-                         bary=[])
+        self.cols = dict(texel=[], inst=[], lid=[], side=[], key=[], local=[], start=[], tri=[],
+                         area=[], nv=[], bary=[])
         self.n_pieces = 0
 
-    def add(self, g, inst, key, off, local, rows, xf, w, h):
+    def add(self, g, inst, lid, side, key, off, local, rows, xf, w, h):
         area3d = TA.triangle_world_areas(g.tri_p[rows], xf[:, :3])
         pcs = TA.triangle_texel_pieces(g.tri_uv[rows], area3d, w, h)
         cnt = pcs.start[local + 1] - pcs.start[local]
@@ -355,6 +374,8 @@ class _MeshTexels:
         c = self.cols
         c["texel"].append(off + local)
         c["inst"].append(np.full(local.size, inst, np.int64))
+        c["lid"].append(np.full(local.size, lid, np.int64))
+        c["side"].append(np.full(local.size, side, np.int64))
         c["key"].append(np.full(local.size, key, np.uint64))
         c["local"].append(local)
         c["start"].append(self.n_pieces + np.cumsum(cnt) - cnt)
@@ -364,20 +385,24 @@ class _MeshTexels:
         c["bary"].append(pcs.bary[sel])
         self.n_pieces += int(sel.size)
 
-    def gather(self, cs, n):
-        """(texel ids, E) of the collected texels; None when there are none."""
+    def packed(self):
+        """The columns as contiguous arrays, 'start' with its closing entry; None when empty."""
         if not self.cols["texel"]:
             return None
-        cat = {k: np.concatenate(v) for k, v in self.cols.items()}
-        K = cat["texel"].size
-        start = np.empty(K + 1, np.int64)
-        start[:K] = cat["start"]
-        start[K] = self.n_pieces
-        out = np.zeros((K, cs.n_bands))
-        _gather_mesh(cs.geometry, cs.lights, cat["inst"], cat["key"], cat["local"], start,
-                     np.ascontiguousarray(cat["tri"], np.int64), np.ascontiguousarray(cat["area"]),
-                     np.ascontiguousarray(cat["nv"], np.int64), np.ascontiguousarray(cat["bary"]),
-                     n, out)
+        cat = {k: np.ascontiguousarray(np.concatenate(v)) for k, v in self.cols.items()}
+        cat["start"] = np.append(cat["start"], self.n_pieces).astype(np.int64)
+        for k in ("tri", "nv"):
+            cat[k] = cat[k].astype(np.int64)
+        return cat
+
+    def gather(self, cs, n):
+        """(texel ids, E) of the collected texels; None when there are none."""
+        cat = self.packed()
+        if cat is None:
+            return None
+        out = np.zeros((cat["texel"].size, cs.n_bands))
+        _gather_mesh(cs.geometry, cs.lights, cat["inst"], cat["key"], cat["local"], cat["start"],
+                     cat["tri"], cat["area"], cat["nv"], cat["bary"], n, out)
         return cat["texel"], out
 
 
@@ -386,10 +411,10 @@ class _PrimTexels:
     the per-lightmap surface data, as _gather_prim takes them."""
 
     def __init__(self):
-        self.cols = dict(texel=[], lm=[], face=[], x=[], y=[], key=[], local=[])
+        self.cols = dict(texel=[], lm=[], lid=[], face=[], x=[], y=[], key=[], local=[])
         self.pl = dict(kind=[], params=[], xf=[], ncof=[], res=[], sides=[])
 
-    def add(self, cs, key, off, local, row, xf, w, f):
+    def add(self, cs, lid, key, off, local, row, xf, w, f):
         g = cs.geometry
         pk = int(g.prim_kind[row])
         params = np.zeros(4)
@@ -404,6 +429,7 @@ class _PrimTexels:
         c = self.cols
         c["texel"].append(off + local)
         c["lm"].append(np.full(local.size, len(self.pl["kind"]), np.int64))
+        c["lid"].append(np.full(local.size, lid, np.int64))
         c["face"].append(x // r)
         c["x"].append(x % r)
         c["y"].append(y)
@@ -413,27 +439,38 @@ class _PrimTexels:
                             ("res", r), ("sides", sides)):
             self.pl[name].append(value)
 
-    def gather(self, cs, n):
-        """(texel ids, E) of the collected texels; None when there are none."""
+    def packed(self):
+        """(item columns, per-lightmap arrays in _gather_prim's order) or None when empty."""
         if not self.cols["texel"]:
             return None
-        cat = {k: np.concatenate(v) for k, v in self.cols.items()}
+        cat = {k: np.ascontiguousarray(np.concatenate(v)) for k, v in self.cols.items()}
+        for k in ("face", "x", "y"):
+            cat[k] = cat[k].astype(np.int64)
         pl = self.pl
+        per_lm = (np.asarray(pl["kind"], np.int64), np.stack(pl["params"]), np.stack(pl["xf"]),
+                  np.stack(pl["ncof"]), np.asarray(pl["res"], np.int64), np.asarray(pl["sides"], np.int64))
+        return cat, per_lm
+
+    def gather(self, cs, n):
+        """(texel ids, E) of the collected texels; None when there are none."""
+        got = self.packed()
+        if got is None:
+            return None
+        cat, per_lm = got
         out = np.zeros((cat["texel"].size, cs.n_bands))
-        _gather_prim(cs.geometry, cs.lights, cat["lm"], cat["face"].astype(np.int64),
-                     cat["x"].astype(np.int64), cat["y"].astype(np.int64), cat["key"], cat["local"],
-                     np.asarray(pl["kind"], np.int64), np.stack(pl["params"]), np.stack(pl["xf"]),
-                     np.stack(pl["ncof"]), np.asarray(pl["res"], np.int64),
-                     np.asarray(pl["sides"], np.int64), n, out)
+        _gather_prim(cs.geometry, cs.lights, cat["lm"], cat["face"], cat["x"], cat["y"], cat["key"],
+                     cat["local"], *per_lm, n, out)
         return cat["texel"], out
 
 
-def _collect_texels(cs, owners, lightmap_ids, seed):
+def _collect_texels(cs, owners, lightmap_ids, seed, with_sides=False):
     """The measured texels of the given lightmaps, split by surface type:
-    -> (_MeshTexels, _PrimTexels)."""
+    -> (_MeshTexels, _PrimTexels). with_sides: find each mesh's lit sides
+    (lit_sides; the final gather needs them, direct light does not)."""
     lm = cs.lightmaps
     thr = LM.empty_thresholds(lm)
     mesh, prim = _MeshTexels(), _PrimTexels()
+    sides = {}
     for lid in lightmap_ids:
         if lid not in owners:
             raise ValueError(f"lightmap {lid} does not belong to any instance")
@@ -447,10 +484,88 @@ def _collect_texels(cs, owners, lightmap_ids, seed):
         off = int(lm.offset[lid])
         xf = cs.geometry.inst_xf[inst]
         if skind == "mesh":
-            mesh.add(cs.geometry, inst, key, off, local, np.asarray(data, np.int64), xf, w, h)
+            if inst not in sides:
+                # mesh_texel_point's normal is the world edges' cross product: det(M) times the hit normal
+                det = np.linalg.det(xf[:, :3])
+                sides[inst] = lit_sides(cs, inst) * (1 if det >= 0.0 else -1) if with_sides else 0
+            mesh.add(cs.geometry, inst, lid, sides[inst], key, off, local, np.asarray(data, np.int64),
+                     xf, w, h)
         else:
-            prim.add(cs, key, off, local, int(data), xf, w, f)
+            prim.add(cs, lid, key, off, local, int(data), xf, w, f)
     return mesh, prim
+
+
+def lit_sides(cs, inst):
+    """Which side(s) of instance `inst`'s mesh light can reach: 0 for both (an open
+    mesh), +1 / -1 for a closed one, along / against its hit normal (the world
+    normal ray queries return: counter-clockwise front), 0 when a point, spot or
+    area light lies inside it. Photons of
+    either side meet in one texel; the final gather must not read the inside of a
+    closed mesh, whose rays would see the outside's light through its own texels."""
+    from .compile import _prototype_surfaces
+    from .csg import SceneError, check_closed_mesh
+    g = cs.geometry
+    rows = [np.asarray(d, np.int64) for k, d in _prototype_surfaces(g)[int(g.inst_proto[inst])]
+            if k == "mesh"]
+    if not rows:
+        return 0
+    tri = g.tri_p[np.concatenate(rows)]
+    try:
+        orient = check_closed_mesh(tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3), "mesh")
+    except SceneError:
+        return 0
+    xf = g.inst_xf[inst]
+    ls = cs.lights
+    for li in range(ls.kind.shape[0]):
+        if int(ls.kind[li]) in (POINT, SPOT, AREA):
+            q = np.linalg.solve(xf[:, :3], np.asarray(ls.pos[li], np.float64) - xf[:, 3])
+            if _inside_mesh(tri, q):
+                return 0
+    return int(orient)
+
+
+def instance_sides(cs):
+    """lit_sides of every instance, for the gather's inside test: meshes as lit_sides,
+    closed primitives and CSG solids +1 (outward hit normals) unless a light lies
+    inside, everything else (open or mixed shapes, L-systems) 0."""
+    from .compile import _prototype_surfaces
+    g = cs.geometry
+    surfaces = _prototype_surfaces(g)
+    out = np.zeros(g.inst_proto.shape[0], np.int64)
+    for inst in range(out.shape[0]):
+        surf = surfaces[int(g.inst_proto[inst])]
+        kinds = {k for k, _ in surf}
+        if kinds == {"mesh"}:
+            out[inst] = lit_sides(cs, inst)
+        elif kinds == {"prim"}:
+            closed = True
+            for _, row in surf:
+                pk = int(g.prim_kind[row])
+                params = np.asarray(g.prim_params[row][:4], np.float64)
+                if pk in (P.DISK, P.QUAD) or _needs_inner_side(
+                        cs, pk, params, _affine_compose(g.inst_xf[inst], g.prim_xf[row])):
+                    closed = False
+            out[inst] = 1 if closed else 0
+    return out
+
+
+def _inside_mesh(tri, q):
+    """Whether point q lies inside the closed triangle mesh `tri` (T, 3, 3): crossings
+    of a ray in a generic direction (Möller–Trumbore, vectorised), counted mod 2."""
+    d = np.array([1.0, 0.0123456789, 0.00987654321])
+    e1 = tri[:, 1] - tri[:, 0]
+    e2 = tri[:, 2] - tri[:, 0]
+    pv = np.cross(d, e2)
+    det = np.einsum("ij,ij->i", e1, pv)
+    ok = np.abs(det) > 1e-300
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    tv = q - tri[:, 0]
+    u = np.einsum("ij,ij->i", tv, pv) * inv
+    qv = np.cross(tv, e1)
+    v = (qv @ d) * inv
+    t = np.einsum("ij,ij->i", e2, qv) * inv
+    hit = ok & (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0) & (t > 0.0)
+    return bool(np.count_nonzero(hit) % 2)
 
 
 def _by_texel(parts, nb):

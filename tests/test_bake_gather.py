@@ -1,0 +1,156 @@
+"""Final gather for bakes (engine/bake_gather.py): the same mean as the photon lookup,
+less noise, deterministic, and no light read through the inside of a closed mesh."""
+import math
+
+import numba
+import numpy as np
+import pytest
+
+from photon_lightmaps.engine import bake_gather as BG
+from photon_lightmaps.engine import demo_scenes
+from photon_lightmaps.engine import texel_gather as TG
+from photon_lightmaps.engine.compile import compile_scene
+from photon_lightmaps.engine.photon_tracer import trace_photons
+from photon_lightmaps.engine.scene import Light, Material, Scene, TriangleMesh, translate
+
+RHO, FLUX = 0.5, 100.0
+
+
+def all_lightmaps(cs):
+    return sorted(int(l) for ids in cs.instance_lightmaps for l in ids)
+
+
+def gather_bake(cs, photons, seed=0, points=16, rays=4, caustics=False):
+    """Photon pass recording direct hits, then direct + gathered indirect per texel."""
+    trace_photons(cs, photons, seed=seed, max_bounces=64, record_direct=True, caustics=caustics)
+    lids = all_lightmaps(cs)
+    ind = BG.gathered_indirect(cs, lids, points=points, rays=rays, seed=seed)
+    direct = TG.direct_texel_irradiance(cs, lids, 16, seed=seed)
+    BG.set_gathered(cs.lightmaps, direct, ind)
+    return direct, ind
+
+
+def lookup_bake(cs, photons, seed=0):
+    trace_photons(cs, photons, seed=seed, max_bounces=64, record_direct=False)
+    TG.bake_texels(cs, all_lightmaps(cs), 16, seed=seed)
+
+
+def area_mean(lm, ids):
+    a = lm.area[ids]
+    return (lm.irradiance[ids] * a[:, None]).sum(axis=0) / a.sum()
+
+
+@pytest.mark.parametrize("mesh", [False, True], ids=["analytic", "triangle_mesh"])
+def test_furnace_gather_matches_closed_form(mesh):
+    """A point light inside a closed sphere: the mean over the inside is Φ / (A (1 - ρ))."""
+    cs = compile_scene(demo_scenes.furnace_sphere(RHO, FLUX, source=(0.3, -0.2, 0.1), mesh=mesh,
+                                                  resolution=12))
+    direct, ind = gather_bake(cs, 400_000, seed=3)
+    ids = direct[0]
+    A = cs.lightmaps.area[ids].sum()
+    np.testing.assert_allclose(area_mean(cs.lightmaps, ids), FLUX / (A * (1 - RHO)), rtol=0.005)
+    # the indirect part on its own is uniform: ρ Φ / (A (1 - ρ)) on every texel
+    rel = ind[1][:, 0] / (RHO * FLUX / (A * (1 - RHO))) - 1.0
+    assert np.percentile(np.abs(rel), 95) < 0.06
+
+
+def test_gather_mean_agrees_with_lookup_in_the_cornell_room():
+    """Walls and box, lookup (texels' own photons) vs gather: the same room mean within 1 %.
+    The room has a mirror and a glass ball, so caustic photons take part."""
+    scene = demo_scenes.cornell_box(n_bands=3)
+    a = compile_scene(scene)
+    lookup_bake(a, 1_000_000, seed=1)
+    b = compile_scene(scene)
+    gather_bake(b, 300_000, seed=2, caustics=True)
+    assert b.caustics is not None and b.caustics_traced
+    names = [o.name for o in scene.instances]
+    keep = [i for i, n in enumerate(names) if n not in ("mirror_ball", "glass_ball")]
+    lids = [int(l) for i in keep for l in a.instance_lightmaps[i]]
+    rows = np.concatenate([np.arange(a.lightmaps.offset[l], a.lightmaps.offset[l]
+                                     + a.lightmaps.width[l] * a.lightmaps.height[l]) for l in lids])
+    rows = rows[a.lightmaps.area[rows] > 0]
+    ma, mb = area_mean(a.lightmaps, rows), area_mean(b.lightmaps, rows)
+    np.testing.assert_allclose(mb, ma, rtol=0.01)
+
+
+def _room_indirect(rays, seed, points=4):
+    cs = compile_scene(demo_scenes.cornell_box(n_bands=1, with_primitives=False))
+    trace_photons(cs, 200_000, seed=0, max_bounces=64, record_direct=True)
+    return BG.gathered_indirect(cs, all_lightmaps(cs), points=points, rays=rays, seed=seed)[1][:, 0]
+
+
+def test_gather_noise_falls_as_one_over_sqrt_rays():
+    """Two seeds differ by the gather's own noise only (same photons). 16x the rays must cut
+    the spread at least 4x, less a margin; the rays of a point are a shifted lattice, so it
+    falls faster than plain Monte Carlo (about 10x measured)."""
+    d1 = np.std(_room_indirect(1, 10) - _room_indirect(1, 11))
+    d16 = np.std(_room_indirect(16, 10) - _room_indirect(16, 11))
+    assert d1 / d16 > 3.5
+
+
+def test_same_seed_same_result_on_any_thread_count():
+    n = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        a = _room_indirect(2, 5)
+        numba.set_num_threads(max(n, 2))
+        b = _room_indirect(2, 5)
+    finally:
+        numba.set_num_threads(n)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, _room_indirect(2, 6))
+
+
+def _box(lo, hi, inward=False):
+    """An axis-aligned closed box mesh, wound outward (inward=True: reversed)."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    v = np.array([[x, y, z] for z in (z0, z1) for y in (y0, y1) for x in (x0, x1)], float)
+    quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    f = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    if inward:
+        f = f[:, ::-1]
+    return v, f
+
+
+def _box_scene(light_at, inward=False):
+    s = Scene(n_bands=1)
+    m = s.add_material(Material("grey", diffuse=0.6))
+    v, f = _box((-0.3, -0.3, 0.0), (0.3, 0.3, 0.6), inward)
+    s.add_object(TriangleMesh(v, f, material=m, name="box"), name="box", lightmap_resolution=8)
+    fv = np.array([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], float)
+    s.add_object(TriangleMesh(fv, np.array([[0, 1, 2], [0, 2, 3]]), material=m, name="floor"),
+                 name="floor", lightmap_resolution=8)
+    s.lights.append(Light("point", power=50.0, transform=translate(*light_at)))
+    return s
+
+
+@pytest.mark.parametrize("inward", [False, True], ids=["outward", "inward"])
+def test_lit_sides_of_closed_and_open_meshes(inward):
+    cs = compile_scene(_box_scene((0.8, -0.6, 1.5), inward))
+    box, floor = 0, 1
+    assert TG.lit_sides(cs, floor) == 0                       # open: both sides
+    side = TG.lit_sides(cs, box)
+    assert side == (-1 if inward else 1)                      # the outside, whatever the winding
+    assert TG.lit_sides(compile_scene(_box_scene((0.0, 0.0, 0.3), inward)), box) == 0   # light inside
+
+
+def test_closed_box_inside_adds_no_light():
+    """A box on a lit floor: gathering its outside only, its mean agrees with the lookup;
+    gathering both sides would read its outer texels again from inside (about ρ times more)."""
+    scene = _box_scene((0.8, -0.6, 1.5))
+    a = compile_scene(scene)
+    lookup_bake(a, 400_000, seed=1)
+    b = compile_scene(scene)
+    gather_bake(b, 200_000, seed=2)
+    lid = int(a.instance_lightmaps[0][0])
+    rows = np.arange(a.lightmaps.offset[lid], a.lightmaps.offset[lid] + a.lightmaps.width[lid]
+                     * a.lightmaps.height[lid])
+    rows = rows[a.lightmaps.area[rows] > 0]
+    np.testing.assert_allclose(area_mean(b.lightmaps, rows), area_mean(a.lightmaps, rows), rtol=0.03)
+
+
+def test_gather_needs_recorded_direct_light():
+    cs = compile_scene(demo_scenes.furnace_sphere(RHO, FLUX, resolution=4))
+    trace_photons(cs, 10_000, seed=0, record_direct=False)
+    with pytest.raises(ValueError, match="recorded direct light"):
+        BG.gathered_indirect(cs, all_lightmaps(cs))

@@ -96,6 +96,10 @@ def build_parser():
     _add_common(b)
     b.add_argument("--resolution", type=_count(1), default=None, metavar="R", help="force R x R lightmaps")
     b.add_argument("--indirect-only", action="store_true", help="leave direct light out of the maps")
+    b.add_argument("--indirect", choices=("gather", "lookup"), default=None,
+                   help="indirect light by final gather over the photon lightmaps or from each texel's photons")
+    b.add_argument("--bake-gather-rays", type=_count(1), default=None, metavar="N",
+                   help="final-gather rays per texel and lit side")
     _add_denoise(b)
     b.set_defaults(func=bake_main)
 
@@ -270,7 +274,9 @@ def bake_main(args):
     blend = open_blend(args.blend)
     context = bpy.context
     settings = Settings.read(context.scene.photon_lightmaps, photons=args.photons, seed=args.seed,
-                             denoise=getattr(args, "denoise", None))
+                             denoise=getattr(args, "denoise", None),
+                             indirect=args.indirect.upper() if args.indirect else None,
+                             bake_gather_rays=args.bake_gather_rays)
     photons, seed = settings.photons, settings.seed
     objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
     out_dir = os.path.abspath(args.out)
@@ -282,7 +288,8 @@ def bake_main(args):
 
     res = bake_objects(context, objects, photons=photons, seed=seed, resolution=args.resolution,
                        indirect_only=args.indirect_only, progress=progress, save_dir=out_dir,
-                       overwrite=True, denoise=settings.denoise)
+                       overwrite=True, denoise=settings.denoise, indirect=settings.indirect,
+                       bake_gather_rays=settings.bake_gather_rays)
     print(file=sys.stderr)
     stats = res.stats
     report = {
@@ -291,10 +298,13 @@ def bake_main(args):
         "rays": int(stats.rays) if stats else 0,
         "seconds": {"photon_pass": res.seconds.get("photon_pass", 0.0),
                     "direct": res.seconds.get("direct", 0.0),
+                    "gather": res.seconds.get("gather", 0.0),
                     "bake": res.seconds.get("bake", 0.0),
                     "denoise": res.seconds.get("denoise", 0.0),
                     "total": time.perf_counter() - t0},
         "denoised": bool(settings.denoise),
+        "indirect": "gather" if settings.bake_gathers else "lookup",
+        "bake_gather_rays": int(settings.bake_gather_rays) if settings.bake_gathers else 0,
         "objects": {name: {"path": res.paths[name], "width": bm.width, "height": bm.height,
                            "bytes": os.path.getsize(res.paths[name]), "mean": bm.mean()}
                     for name, bm in res.maps.items()},

@@ -53,6 +53,7 @@ class BakeResult:
     # "boundary_texels", "atlas": (w, h)}
     csg: dict = field(default_factory=dict)
     environment: dict = None    # the world's map (compiled info["environment"]), None: constant
+    gathered: bool = False      # indirect light by final gather (engine/bake_gather.py), not photon lookup
 
 
 @dataclass
@@ -118,7 +119,7 @@ def _covering_ol(router, ob):
 
 
 def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
-                 indirect_only=False, denoise=None):
+                 indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
@@ -163,7 +164,8 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
         raise
     job.uv_undo = uv_undo
     job.settings = BakeSettings.read(props, photons=photons, seed=seed, resolution=resolution,
-                                     indirect_only=indirect_only, denoise=denoise)
+                                     indirect_only=indirect_only, denoise=denoise, indirect=indirect,
+                                     bake_gather_rays=bake_gather_rays)
     if job.settings.denoise:
         # Missing pyoidn is told now, not after the photon pass.
         try:
@@ -309,18 +311,16 @@ def compute_bake(job, progress=None):
     if not job.targets:
         result.seconds["photon_pass"] = 0.0
         return job
-    cs, stats = session.compile_and_trace(job.scene, job.settings, progress=progress)
+    cs, stats = session.compile_and_trace_bake(job.scene, job.settings, progress=progress)
     result.stats = stats
     result.lightmap_bytes = cs.lightmap_bytes()
     result.environment = cs.info.get("environment")
     result.seconds["photon_pass"] = time.perf_counter() - t0
     solids = {name: csg_atlas.solid_leaves(cs, job, name) for name in job.csg}
-    if job.direct:
-        ids = [cs.instance_lightmaps[i][0] for n, i in job.targets.items() if n not in job.csg]
-        result.seconds["direct"] = session.bake_direct(cs, ids, job.settings) if ids else 0.0
-        leaves = [(job.targets[n], d) for n, ls in solids.items() for d in ls]
-        if leaves:
-            result.seconds["direct"] += session.bake_direct_csg(cs, leaves, job.settings)
+    ids = [cs.instance_lightmaps[i][0] for n, i in job.targets.items() if n not in job.csg]
+    leaves = [(job.targets[n], d) for n, ls in solids.items() for d in ls]
+    result.gathered = job.settings.bake_gathers
+    result.seconds.update(session.bake_texels(cs, ids, leaves, job.settings, direct=job.direct))
     if cs.lights.total_power <= 0.0:
         result.warnings.append("no photons were traced (no lights): lightmaps are black")
     elif stats.photons == 0:
@@ -393,18 +393,22 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
 
 def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, progress=None, overwrite=False, save_dir=None, pack=False,
-                 hook_materials=False, denoise=None):
+                 hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
-    One photon pass (indirect light) for all of them, plus the direct light
-    gathered per texel unless `indirect_only`. `resolution` forces R x R texels per object; otherwise the object's
-    own setting or the scene's texel density decides. `denoise` (None: the scene's
-    setting) runs OIDN over each map (engine/denoise.py). `progress(done, total)`
+    One photon pass for all of them; per texel the direct light (unless
+    `indirect_only`) and the indirect light, by final gather over the photon
+    lightmaps or from the texel's own photons (`indirect` "GATHER" / "LOOKUP",
+    `bake_gather_rays` per texel; None: the scene's settings). `resolution` forces
+    R x R texels per object; otherwise the object's own setting or the scene's
+    texel density decides. `denoise` (None: the scene's setting) runs OIDN over
+    each map (engine/denoise.py). `progress(done, total)`
     may return False to cancel: Cancelled is raised before any image changes.
     See the module docstring for image naming, overwriting and saving.
     """
     job = prepare_bake(context_or_depsgraph, objects, photons=photons, seed=seed,
-                       resolution=resolution, indirect_only=indirect_only, denoise=denoise)
+                       resolution=resolution, indirect_only=indirect_only, denoise=denoise,
+                       indirect=indirect, bake_gather_rays=bake_gather_rays)
     try:
         compute_bake(job, progress)
     except BaseException:

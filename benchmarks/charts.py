@@ -11,7 +11,8 @@ from matplotlib.ticker import NullFormatter  # noqa: E402
 
 DPI = 72
 STYLE = {
-    "ours_bake": dict(color="C0", marker="o", label="photon lightmap (ours)"),
+    "ours_bake": dict(color="C0", marker="o", label="photon lightmap (ours, lookup)"),
+    "ours_bake_gather": dict(color="C4", marker="P", label="photon lightmap (ours, final gather)"),
     "photon_map": dict(color="C2", marker="s", label="photon map, k nearest"),
     "cycles_bake": dict(color="C3", marker="^", label="Cycles bake"),
     "ours_render_constant": dict(color="C0", marker="o", ls="--", label="ours, constant lookup"),
@@ -54,7 +55,8 @@ def error_vs_time(result, out, files):
         fig, axes = plt.subplots(1, 2, figsize=(10, 4))
         for ax, kind, methods, floor in (
                 (axes[0], "baked lightmaps, texel by texel",
-                 ("ours_bake", "ours_bake_oidn", "photon_map", "cycles_bake"), info["bake_noise_floor"]),
+                 ("ours_bake", "ours_bake_gather", "ours_bake_oidn", "photon_map", "cycles_bake"),
+                 info["bake_noise_floor"]),
                 (axes[1], "renders, pixel by pixel",
                  ("ours_render_constant", "ours_render_bilinear", "ours_render_gather", "ours_render_gather_oidn",
                   "cycles_render"), info["render_noise_floor"])):

@@ -125,11 +125,13 @@ def render_still(scene):
 # Photon lightmaps (this engine)
 # --------------------------------------------------------------------------------------
 
-def ours_bake(objs, photons, seed, res):
+def ours_bake(objs, photons, seed, res, indirect="LOOKUP"):
     """bake_objects without writing images -> (maps {name: (res, res, 4) E/pi + coverage},
-    seconds (export + photon pass + extract), lightmap bytes, photon stats, job)."""
+    seconds (export + photon pass + texels + extract), lightmap bytes, photon stats, job).
+    indirect: "LOOKUP" (each texel's own photons, the thesis's bake) or "GATHER"
+    (final gather over the photon lightmaps, the add-on's default)."""
     t0 = time.perf_counter()
-    job = B.prepare_bake(bpy.context, objs, photons=photons, seed=seed, resolution=res)
+    job = B.prepare_bake(bpy.context, objs, photons=photons, seed=seed, resolution=res, indirect=indirect)
     B.compute_bake(job)
     seconds = time.perf_counter() - t0
     maps = {n: m.rgba for n, m in job.result.maps.items()}

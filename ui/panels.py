@@ -58,11 +58,12 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         col.prop(s, "reconstruction")
         col = layout.column(heading="Render")
         col.prop(s, "samples")
+        col = layout.column(heading="Renders and Bakes")
         col.prop(s, "indirect")
         sub = col.column()
         sub.active = s.indirect == "GATHER"
         sub.prop(s, "gather_rays")
-        col = layout.column(heading="Renders and Bakes")
+        sub.prop(s, "bake_gather_rays")
         col.prop(s, "denoise")
         if s.denoise and not _denoiser_available():
             col.label(text="Denoise needs the pyoidn package (not installed)", icon='ERROR')

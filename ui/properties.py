@@ -93,12 +93,16 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         name="Indirect Light", default=_D.indirect,
         items=(('GATHER', "Final Gather", "Gather rays read the lightmaps one bounce away: smooth, "
                                           "no texel pattern"),
-               ('LOOKUP', "Lightmap", "Read the hit's own lightmap texel (the thesis's renderer): "
-                                      "fastest, shows photon noise and texels")),
-        description="How renders compute indirect light at diffuse surfaces")
+               ('LOOKUP', "Lightmap", "Read the hit's own lightmap texel (the thesis's renderer and "
+                                      "bake): fastest, shows photon noise and texels")),
+        description="How renders and bakes compute indirect light at diffuse surfaces")
     gather_rays: IntProperty(
         name="Gather Rays", default=_D.gather_rays, min=1, soft_max=256,
         description="Final-gather rays per camera sample at the first diffuse hit")
+    bake_gather_rays: IntProperty(
+        name="Bake Gather Rays", default=_D.bake_gather_rays, min=1, soft_max=4096,
+        description="Final-gather rays per baked texel and lit side: its indirect noise falls "
+                    "as one over the square root of this")
     denoise: BoolProperty(
         name="Denoise", default=_D.denoise,
         description="Run Intel Open Image Denoise (the pyoidn package) over renders, guided by "

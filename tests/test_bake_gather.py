@@ -119,7 +119,7 @@ def _box_scene(light_at, inward=False):
     s.add_object(TriangleMesh(v, f, material=m, name="box"), name="box", lightmap_resolution=8)
     fv = np.array([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], float)
     s.add_object(TriangleMesh(fv, np.array([[0, 1, 2], [0, 2, 3]]), material=m, name="floor"),
-                 name="floor", lightmap_resolution=8)
+                 name="floor", lightmap_resolution=32)   # 12 cm texels: the gather reads them
     s.lights.append(Light("point", power=50.0, transform=translate(*light_at)))
     return s
 

@@ -69,6 +69,7 @@ class BakeJob:
     cs: object = None
     # CSG solid name -> {leaf object name: None (bake it) or why it is skipped}
     csg: dict = field(default_factory=dict)
+    recording: list = field(default_factory=list)   # per instance: the export's own lightmap flag
     primitives: set = field(default_factory=set)   # stand-alone tagged primitives among targets
     # mesh name -> its Lightmap layer state before prepare_bake (rollback_bake puts it back)
     uv_undo: dict = field(default_factory=dict)
@@ -166,6 +167,9 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     job.settings = BakeSettings.read(props, photons=photons, seed=seed, resolution=resolution,
                                      indirect_only=indirect_only, denoise=denoise, indirect=indirect,
                                      bake_gather_rays=bake_gather_rays)
+    if job.settings.bake_gathers:
+        for inst, rec in zip(job.scene.instances, job.recording):
+            inst.lightmap = inst.lightmap or rec
     if job.settings.denoise:
         # Missing pyoidn is told now, not after the photon pass.
         try:
@@ -236,14 +240,16 @@ def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, re
                                        "lightmap would not match it; fix or rename that layer")
             continue
         targets[ob.name] = i
-    # Only baked objects record photons: the others' lightmaps would cost memory and
-    # time, and recording never changes where photons go.
+    # Only baked objects record photons for a lookup bake: the others' lightmaps would
+    # cost memory and time, and recording never changes where photons go. A gathering
+    # bake gives them back (prepare_bake): its gather rays read their light.
+    recording = [bool(inst.lightmap) for inst in scene.instances]
     for i, inst in enumerate(scene.instances):
         inst.lightmap = i in targets.values()
         if inst.lightmap and resolution:
             inst.lightmap_resolution = int(resolution)
     return BakeJob(scene, emap, targets, BakeSettings.read(bscene_props(bscene)), True, result, 0.0, csg=csg,
-                   primitives=primitives)
+                   primitives=primitives, recording=recording)
 
 
 def _check_finite(ob):

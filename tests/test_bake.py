@@ -118,7 +118,7 @@ RES = 64
 # 5 % bound still needs 16 M photons; the default is held to its measured level.
 PHOTONS = 16_000_000
 DEFAULT_PHOTONS = Settings().photons
-DEFAULT_MAX_RMSE = 0.11
+DEFAULT_MAX_RMSE = 0.07   # the gathered default measured 0.052 (the lookup default was held to 0.11)
 CYCLES_SPP = 512
 
 
@@ -129,10 +129,13 @@ def test_cycles_diffuse_bake_agreement():
     scene.photon_lightmaps.max_bounces = 8
     objs = [bpy.data.objects[n] for n in CYCLES_OBJECTS]
     t0 = time.perf_counter()
-    res = B.bake_objects(bpy.context, objs, photons=PHOTONS, seed=3, resolution=RES)
+    # the thesis's bake (each texel's own photons) converges with photons ...
+    res = B.bake_objects(bpy.context, objs, photons=PHOTONS, seed=3, resolution=RES, indirect="LOOKUP")
     t_ours = time.perf_counter() - t0
     assert set(res.maps) == set(CYCLES_OBJECTS)
+    # ... and the default one (final gather, engine/bake_gather.py) at the default photon count
     res_default = B.bake_objects(bpy.context, objs, photons=DEFAULT_PHOTONS, seed=3, resolution=RES)
+    assert res_default.gathered
 
     scene.render.engine = "CYCLES"
     cy = scene.cycles

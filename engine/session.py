@@ -160,20 +160,6 @@ def add_direct(lightmaps, gathered):
     TG.add_direct(lightmaps, *gathered)
 
 
-def bake_direct(cs, lightmap_ids, settings):
-    """gather_direct + add_direct into cs.lightmaps -> seconds taken."""
-    t0 = time.perf_counter()
-    add_direct(cs.lightmaps, gather_direct(cs, lightmap_ids, settings))
-    return time.perf_counter() - t0
-
-
-def bake_direct_csg(cs, leaves, settings):
-    """gather_direct_csg + add_direct into cs.lightmaps -> seconds taken."""
-    t0 = time.perf_counter()
-    add_direct(cs.lightmaps, gather_direct_csg(cs, leaves, settings))
-    return time.perf_counter() - t0
-
-
 def render(cs, settings, *, tile=64, progress=None):
     """The render pass over a traced compiled scene -> (H, W, n_bands) radiance."""
     from .renderer import render as render_image

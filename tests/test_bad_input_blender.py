@@ -176,7 +176,7 @@ def test_cli_bug_is_an_internal_error_and_errors_start_a_fresh_line(tmp_path, ca
     assert "Traceback" in err and "in bug" in err
     assert render_engine.RAISE_BUGS     # the UI path raises bugs again
     # A user error after "\rphotons N/M" progress starts on a line of its own.
-    monkeypatch.setattr(session, "bake_direct", lambda *a, **k: (_ for _ in ()).throw(SceneError("texel density: too high")))
+    monkeypatch.setattr(session, "bake_texels", lambda *a, **k: (_ for _ in ()).throw(SceneError("texel density: too high")))
     assert cli.main(["bake", str(blend), "--out", str(tmp_path / "lm"), "--resolution", "8"]) == 2
     err = capsys.readouterr().err
     assert "\rphotons " in err and err.endswith("\nerror: texel density: too high\n")

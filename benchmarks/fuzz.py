@@ -627,7 +627,9 @@ def _warm_up():
     s.instances.append(S.Instance(len(s.prototypes) - 1, S.compose(S.translate(0.5, 0.5, 0.3), S.scale(0.2))))
     s.orientation_lightmaps.append(S.OrientationLightmap("ol", instances=[len(s.instances) - 1], samples=50,
                                                          resolution=4))
-    cs = compile_scene(s, max_resolution=32)
+    # a CSG solid with its own, split texels (most cases have one: 76 s of kernels otherwise)
+    s.instances.append(S.Instance(len(s.prototypes) - 1, S.compose(S.translate(-0.5, 0.5, 0.3), S.scale(0.2))))
+    cs = compile_scene(s, max_resolution=32, csg_split=True)
     trace_photons(cs, 500, max_bounces=3, keep_points=True)
     for mode in (0, 1):
         render(cs, samples=1, mode=mode, max_depth=2, tile=8)

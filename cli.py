@@ -41,6 +41,27 @@ def _count(least, most=2 ** 31 - 1):
     return parse
 
 
+def _fraction(text):
+    """A relative error: a number above 0 and below 1 (0.01 is 1 %)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be a fraction above 0 and below 1 (0.01 is 1 %), got '{text}'")
+    return value
+
+
+def _seconds(text):
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 < value < 1e6:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds above 0, got '{text}'")
+    return value
+
+
 def _size(text):
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -100,6 +121,12 @@ def build_parser():
                    help="indirect light by final gather over the photon lightmaps or from each texel's photons")
     b.add_argument("--bake-gather-rays", type=_count(1), default=None, metavar="N",
                    help="final-gather rays per texel and lit side")
+    b.add_argument("--target-error", type=_fraction, default=None, metavar="E",
+                   help="texels whose estimated relative error is above E (e.g. 0.01) get more "
+                        "gather rays, up to the scene's Bake Max Rays; the JSON reports each object's error")
+    b.add_argument("--time", type=_seconds, default=None, metavar="S",
+                   help="bake in about S seconds: after one pass of gather rays everywhere, the time "
+                        "left goes to the texels with the highest estimated error")
     _add_denoise(b)
     b.set_defaults(func=bake_main)
 
@@ -276,7 +303,8 @@ def bake_main(args):
     settings = Settings.read(context.scene.photon_lightmaps, photons=args.photons, seed=args.seed,
                              denoise=getattr(args, "denoise", None),
                              indirect=args.indirect.upper() if args.indirect else None,
-                             bake_gather_rays=args.bake_gather_rays)
+                             bake_gather_rays=args.bake_gather_rays,
+                             bake_target_error=args.target_error, bake_time=args.time)
     photons, seed = settings.photons, settings.seed
     objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
     out_dir = os.path.abspath(args.out)
@@ -289,7 +317,8 @@ def bake_main(args):
     res = bake_objects(context, objects, photons=photons, seed=seed, resolution=args.resolution,
                        indirect_only=args.indirect_only, progress=progress, save_dir=out_dir,
                        overwrite=True, denoise=settings.denoise, indirect=settings.indirect,
-                       bake_gather_rays=settings.bake_gather_rays)
+                       bake_gather_rays=settings.bake_gather_rays,
+                       bake_target_error=settings.bake_target_error, bake_time=settings.bake_time)
     print(file=sys.stderr)
     stats = res.stats
     report = {
@@ -305,8 +334,11 @@ def bake_main(args):
         "denoised": bool(settings.denoise),
         "indirect": "gather" if settings.bake_gathers else "lookup",
         "bake_gather_rays": int(settings.bake_gather_rays) if settings.bake_gathers else 0,
+        "target_error": float(settings.bake_target_error) if settings.bake_gathers else 0.0,
+        "time_budget": float(settings.bake_time) if settings.bake_gathers else 0.0,
         "objects": {name: {"path": res.paths[name], "width": bm.width, "height": bm.height,
-                           "bytes": os.path.getsize(res.paths[name]), "mean": bm.mean()}
+                           "bytes": os.path.getsize(res.paths[name]), "mean": bm.mean(),
+                           **({"error": res.error[name]} if name in res.error else {})}
                     for name, bm in res.maps.items()},
         "skipped": res.skipped,
         "warnings": res.warnings,

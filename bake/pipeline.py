@@ -54,6 +54,9 @@ class BakeResult:
     csg: dict = field(default_factory=dict)
     environment: dict = None    # the world's map (compiled info["environment"]), None: constant
     gathered: bool = False      # indirect light by final gather (engine/bake_gather.py), not photon lookup
+    # object name -> {"rel_error_mean", "rel_error_p95", "rel_error_max", "rays_mean"}: the gathered
+    # texels' estimated relative standard error (engine/session.texel_error) and rays they got
+    error: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -120,7 +123,8 @@ def _covering_ol(router, ob):
 
 
 def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
-                 indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None):
+                 indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None,
+                 bake_target_error=None, bake_time=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
@@ -166,7 +170,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     job.uv_undo = uv_undo
     job.settings = BakeSettings.read(props, photons=photons, seed=seed, resolution=resolution,
                                      indirect_only=indirect_only, denoise=denoise, indirect=indirect,
-                                     bake_gather_rays=bake_gather_rays)
+                                     bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error, bake_time=bake_time)
     if job.settings.bake_gathers:
         for inst, rec in zip(job.scene.instances, job.recording):
             inst.lightmap = inst.lightmap or rec
@@ -310,6 +314,24 @@ def rollback_bake(job):
     job.uv_undo = {}
 
 
+def _error_stats(cs, job, solids):
+    """Per baked object: its gathered texels' estimated relative error and rays (BakeResult.error)."""
+    ids, rel, rays = cs.bake_error
+    lm = cs.lightmaps
+    out = {}
+    for name, i in job.targets.items():
+        lids = [d["lightmap"] for d in solids[name]] if name in job.csg else [cs.instance_lightmaps[i][0]]
+        rows = np.concatenate([np.arange(LM.texel_slice(lm, l).start, LM.texel_slice(lm, l).stop)
+                               for l in lids]) if lids else np.zeros(0, np.int64)
+        sel = np.isin(ids, rows)
+        if not sel.any():
+            continue
+        r = rel[sel]
+        out[name] = dict(rel_error_mean=float(r.mean()), rel_error_p95=float(np.percentile(r, 95)),
+                         rel_error_max=float(r.max()), rays_mean=float(rays[sel].mean()))
+    return out
+
+
 def compute_bake(job, progress=None):
     """Any thread: photon pass and per-object RGBA arrays. Raises Cancelled."""
     result = job.result
@@ -326,7 +348,13 @@ def compute_bake(job, progress=None):
     ids = [cs.instance_lightmaps[i][0] for n, i in job.targets.items() if n not in job.csg]
     leaves = [(job.targets[n], d) for n, ls in solids.items() for d in ls]
     result.gathered = job.settings.bake_gathers
-    result.seconds.update(session.bake_texels(cs, ids, leaves, job.settings, direct=job.direct))
+    # --time / Bake Time counts the export too, which prepare_bake did
+    deadline = (t0 + job.settings.bake_time - result.seconds.get("export", 0.0)
+                if job.settings.bake_time > 0 else None)
+    result.seconds.update(session.bake_texels(cs, ids, leaves, job.settings, direct=job.direct,
+                                              deadline=deadline))
+    if getattr(cs, "bake_error", None) is not None:
+        result.error = _error_stats(cs, job, solids)
     if cs.lights.total_power <= 0.0:
         result.warnings.append("no photons were traced (no lights): lightmaps are black")
     elif stats.photons == 0:
@@ -399,13 +427,16 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
 
 def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, progress=None, overwrite=False, save_dir=None, pack=False,
-                 hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None):
+                 hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None,
+                 bake_target_error=None, bake_time=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
     `indirect_only`) and the indirect light, by final gather over the photon
     lightmaps or from the texel's own photons (`indirect` "GATHER" / "LOOKUP",
-    `bake_gather_rays` per texel; None: the scene's settings). `resolution` forces
+    `bake_gather_rays` per texel, more where a texel's error is above
+    `bake_target_error` or in the time left of `bake_time` seconds; None: the
+    scene's settings). `resolution` forces
     R x R texels per object; otherwise the object's own setting or the scene's
     texel density decides. `denoise` (None: the scene's setting) runs OIDN over
     each map (engine/denoise.py). `progress(done, total)`
@@ -414,7 +445,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     """
     job = prepare_bake(context_or_depsgraph, objects, photons=photons, seed=seed,
                        resolution=resolution, indirect_only=indirect_only, denoise=denoise,
-                       indirect=indirect, bake_gather_rays=bake_gather_rays)
+                       indirect=indirect, bake_gather_rays=bake_gather_rays,
+                       bake_target_error=bake_target_error, bake_time=bake_time)
     try:
         compute_bake(job, progress)
     except BaseException:

@@ -21,6 +21,7 @@ part of a bake is bit-identical with and without the gather, and results do
 not depend on the thread count.
 """
 import time
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
@@ -36,6 +37,7 @@ from .raycast import STACK_WORDS
 from .sampling import next_float, stream_state
 
 STREAM_XOR = np.uint64(0x5BD1E9955BD1E995)
+STREAM_XOR_2 = np.uint64(0x2545F4914F6CDD1D)  # the adaptive pass
 SCRATCH_ROWS = 7      # kd ks kt ind tp f rad of gather_irradiance
 
 
@@ -61,17 +63,51 @@ def _add_caustic(lmc, lid, face, s, t, tmp, out):
         out[b] += tmp[b]
 
 
+@njit(cache=True)
+def _accumulate(w, ep, e, q):
+    """e += w·ep; q += (w², w²·x, w²·x²) of the point's band mean x (for the error estimate)."""
+    nb = ep.shape[0]
+    x = 0.0
+    for b in range(nb):
+        e[b] += w * ep[b]
+        x += ep[b]
+    x /= nb
+    w2 = w * w
+    q[0] += w2
+    q[1] += w2 * x
+    q[2] += w2 * x * x
+
+
+@njit(cache=True)
+def _variance(q, wsum, e):
+    """Variance of the weighted mean of the point values (band mean), treating the
+    texel's points as independent: conservative, as they are stratified."""
+    if wsum <= 0.0:
+        return 0.0
+    m = 0.0
+    for b in range(e.shape[0]):
+        m += e[b]
+    m /= e.shape[0] * wsum
+    return max(q[2] - 2.0 * m * q[1] + m * m * q[0], 0.0) / (wsum * wsum)
+
+
 @njit(cache=True, parallel=True)
 def _indirect_mesh(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_inst, item_lid, item_side,
-                   item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, n_rays, out):
+                   item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, item_rays, order, stream, out, var):
     K = out.shape[0]
     nb = out.shape[1]
     k = TG._grid_side(n_points)
-    for it in prange(K):
+    for i in prange(K):
+        it = order[i]     # a shuffled order: prange's static chunks get equal work
+        n_rays = item_rays[it]
+        if n_rays <= 0:
+            continue
         stack = np.empty(STACK_WORDS, np.int32)
         sc = np.empty((SCRATCH_ROWS, nb))
         pc = np.empty(BS.P_SIZE)
         e = np.zeros(nb)
+        ep = np.empty(nb)
+        q = np.zeros(3)
         p0 = pstart[it]
         p1 = pstart[it + 1]
         total = 0.0
@@ -79,22 +115,25 @@ def _indirect_mesh(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
             total += parea[p]
         if total > 0.0:
             xf = g.inst_xf[item_inst[it]]
-            state = stream_state(item_key[it] ^ STREAM_XOR, item_local[it])
+            state = stream_state(item_key[it] ^ stream, item_local[it])
             for s in range(n_points):
                 state, j1 = next_float(state)
                 state, j2 = next_float(state)
                 u1, u2 = TG._jitter(s, k, j1, j2)
                 ok, px, py, pz, nx, ny, nz, t, b1, b2 = TG.mesh_texel_point(
                     g, xf, ptri, parea, pnv, pb, p0, p1, total, u1, u2)
-                if not ok:
-                    continue
-                state = point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack, px, py, pz,
-                                       nx, ny, nz, item_side[it], state, sc, pc, e)
-                if caustics:
-                    uv = g.tri_uv[t]
-                    b0 = 1.0 - b1 - b2
-                    _add_caustic(lmc, item_lid[it], 0, b0 * uv[0, 0] + b1 * uv[1, 0] + b2 * uv[2, 0],
-                                 b0 * uv[0, 1] + b1 * uv[1, 1] + b2 * uv[2, 1], sc[3], e)
+                for b in range(nb):
+                    ep[b] = 0.0
+                if ok:
+                    state = point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack,
+                                           px, py, pz, nx, ny, nz, item_side[it], state, sc, pc, ep)
+                    if caustics:
+                        uv = g.tri_uv[t]
+                        b0 = 1.0 - b1 - b2
+                        _add_caustic(lmc, item_lid[it], 0, b0 * uv[0, 0] + b1 * uv[1, 0] + b2 * uv[2, 0],
+                                     b0 * uv[0, 1] + b1 * uv[1, 1] + b2 * uv[2, 1], sc[3], ep)
+                _accumulate(1.0, ep, e, q)
+        var[it] = _variance(q, float(n_points), e)
         for b in range(nb):
             out[it, b] = e[b] / n_points
 
@@ -102,19 +141,24 @@ def _indirect_mesh(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
 @njit(cache=True, parallel=True)
 def _indirect_prim(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_lm, item_lid, item_face,
                    item_x, item_y, item_key, item_local, lm_kind, lm_params, lm_xf, lm_ncof, lm_res,
-                   lm_sides, n_points, n_rays, out):
+                   lm_sides, n_points, item_rays, order, stream, out, var):
     K = out.shape[0]
     nb = out.shape[1]
     k = TG._grid_side(n_points)
-    for it in prange(K):
+    for i in prange(K):
+        it = order[i]     # a shuffled order: prange's static chunks get equal work
+        n_rays = item_rays[it]
+        if n_rays <= 0:
+            continue
         stack = np.empty(STACK_WORDS, np.int32)
         sc = np.empty((SCRATCH_ROWS, nb))
         pc = np.empty(BS.P_SIZE)
         e = np.zeros(nb)
         ew = np.zeros(nb)
+        q = np.zeros(3)
         l = item_lm[it]
         side = 0 if lm_sides[l] == 2 else 1
-        state = stream_state(item_key[it] ^ STREAM_XOR, item_local[it])
+        state = stream_state(item_key[it] ^ stream, item_local[it])
         wsum = 0.0
         for s in range(n_points):
             state, j1 = next_float(state)
@@ -131,9 +175,9 @@ def _indirect_prim(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
                                    nx, ny, nz, side, state, sc, pc, e)
             if caustics:
                 _add_caustic(lmc, item_lid[it], item_face[it], cs_, ct, sc[3], e)
-            for b in range(nb):
-                ew[b] += jac * e[b]
+            _accumulate(jac, e, ew, q)
             wsum += jac
+        var[it] = _variance(q, wsum, ew)
         for b in range(nb):
             out[it, b] = ew[b] / wsum if wsum > 0.0 else 0.0
 
@@ -141,13 +185,20 @@ def _indirect_prim(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
 @njit(cache=True, parallel=True)
 def _indirect_csg(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, buf, item_lm, item_lid, item_face,
                   item_x, item_y, item_row, item_key, item_local, lm_kind, lm_params, lm_leaf, lm_root,
-                  lm_pxf, lm_pinv, lm_wxf, lm_ncof, lm_res, lm_flip, lm_eps, n_points, n_rays, acc, wsum):
-    """acc[row] += J·E_indirect, wsum[row] += J, like csg_bake._gather_csg (outside only)."""
+                  lm_pxf, lm_pinv, lm_wxf, lm_ncof, lm_res, lm_flip, lm_eps, n_points, item_rays, order, stream,
+                  acc, wsum, q):
+    """acc[row] += J·E_indirect, wsum[row] += J, q[row] += the error sums, like
+    csg_bake._gather_csg (outside only). An item's rows are its own (its texel and
+    that texel's split regions), so parallel items never write the same row."""
     cb = CSG.csg_base(buf)
     K = item_lm.shape[0]
     nb = acc.shape[1]
     k = TG._grid_side(n_points)
-    for it in prange(K):
+    for i in prange(K):
+        it = order[i]     # a shuffled order: prange's static chunks get equal work
+        n_rays = item_rays[it]
+        if n_rays <= 0:
+            continue
         stack = np.empty(STACK_WORDS, np.int32)
         bits = np.empty(3 * CSG.MAX_WORK + 8, np.int32)
         sc = np.empty((SCRATCH_ROWS, nb))
@@ -155,7 +206,7 @@ def _indirect_csg(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, buf,
         e = np.zeros(nb)
         l = item_lm[it]
         sgn = -1.0 if lm_flip[l] else 1.0
-        state = stream_state(item_key[it] ^ STREAM_XOR, item_local[it])
+        state = stream_state(item_key[it] ^ stream, item_local[it])
         for s in range(n_points):
             state, j1 = next_float(state)
             state, j2 = next_float(state)
@@ -172,8 +223,7 @@ def _indirect_csg(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, buf,
                                    nx, ny, nz, 1, state, sc, pc, e)
             if caustics:
                 _add_caustic(lmc, item_lid[it], item_face[it], cs_, ct, sc[3], e)
-            for b in range(nb):
-                acc[row, b] += jac * e[b]
+            _accumulate(jac, e, acc[row], q[row])
             wsum[row] += jac
 
 
@@ -188,49 +238,228 @@ def _inputs(cs):
             cs.environment, TG.instance_sides(cs))
 
 
+Gathered = namedtuple("Gathered", [
+    "ids",    # int64[K]  texel rows (the direct part's)
+    "E",      # float64[K, B] indirect irradiance (W/m²)
+    "se",     # float64[K] its standard error (band mean), from the spread over the texel's points
+    "rays",   # int64[K]  gather rays per point and lit side that the texel got
+])
+
+
+class _Texels:
+    """The packed texel items of one bake (mesh, primitive and CSG) and the
+    kernel inputs they share; run() is one gather pass over them."""
+
+    def __init__(self, cs, lightmap_ids, csg_leaves, points, mode, seed):
+        self.cs, self.points = cs, int(points)
+        self.fixed = _inputs(cs) + (int(mode),)
+        self.mesh = self.prim = self.csg = None
+        ids = sorted({int(l) for l in lightmap_ids})
+        if ids:
+            mesh, prim = TG._collect_texels(cs, TG._lightmap_owners(cs), ids, seed, with_sides=True)
+            self.mesh, self.prim = mesh.packed(), prim.packed()
+        if csg_leaves:
+            self.csg = csg_texel_items(cs, list(csg_leaves), seed)
+
+    def item_rows(self):
+        """Per part, the texel row that each item's error is judged by (for a
+        CSG texel cut into regions: the region rows too, see csg_rows)."""
+        rows = []
+        if self.mesh is not None:
+            rows.append(self.mesh["texel"])
+        if self.prim is not None:
+            rows.append(self.prim[0]["texel"])
+        if self.csg is not None:
+            rows.append(self.csg[1]["row"])
+        return rows
+
+    def run(self, item_rays, stream):
+        """One pass, item_rays[part][item] rays per point -> (ids, E, var, rays) per texel row.
+        Also sets self.seconds, the time its kernels took."""
+        nb = self.cs.n_bands
+        parts, i = [], 0
+        t0 = time.perf_counter()
+        if self.mesh is not None:
+            cat, r = self.mesh, item_rays[i]
+            out, var = np.zeros((cat["texel"].size, nb)), np.zeros(cat["texel"].size)
+            _indirect_mesh(*self.fixed, cat["inst"], cat["lid"], cat["side"], cat["key"], cat["local"],
+                           cat["start"], cat["tri"], cat["area"], cat["nv"], cat["bary"], self.points, r,
+                           _order(r), stream, out, var)
+            parts.append((cat["texel"], out, var, r))
+            i += 1
+        if self.prim is not None:
+            (cat, per_lm), r = self.prim, item_rays[i]
+            out, var = np.zeros((cat["texel"].size, nb)), np.zeros(cat["texel"].size)
+            _indirect_prim(*self.fixed, cat["lm"], cat["lid"], cat["face"], cat["x"], cat["y"], cat["key"],
+                           cat["local"], *per_lm, self.points, r, _order(r), stream, out, var)
+            parts.append((cat["texel"], out, var, r))
+            i += 1
+        if self.csg is not None:
+            (buf, cat, per_lm), r = self.csg, item_rays[i]
+            n_rows = self.cs.lightmaps.area.shape[0]
+            acc, wsum, q = np.zeros((n_rows, nb)), np.zeros(n_rows), np.zeros((n_rows, 3))
+            _indirect_csg(*self.fixed, buf, cat["lm"], cat["lid"], cat["face"], cat["x"], cat["y"], cat["row"],
+                          cat["key"], cat["local"], *per_lm, self.points, r, _order(r), stream, acc, wsum, q)
+            rows = np.flatnonzero(wsum > 0.0).astype(np.int64)
+            var = np.array([_variance(q[j], wsum[j], acc[j]) for j in rows])
+            # a row's rays: those of the item (texel) it belongs to
+            row_rays = np.zeros(n_rows, np.int64)
+            for it_row, k in zip(*csg_rows(self.cs.lightmaps, cat["row"])):
+                row_rays[it_row] = r[k]
+            parts.append((rows, acc[rows] / wsum[rows][:, None], var, row_rays[rows]))
+        self.seconds = time.perf_counter() - t0
+        return parts
+
+
+def _order(item_rays):
+    """A fixed shuffle of the items: a texel's rays differ in an adaptive pass, and
+    neighbours (one object's texels) differ in cost, so contiguous chunks would not."""
+    return np.random.default_rng(0x5EED).permutation(item_rays.size).astype(np.int64)
+
+
+def csg_rows(lm, cell_rows):
+    """(rows, item index) pairs: each CSG item's texel row and its split regions' rows."""
+    rows, owner = [cell_rows], [np.arange(cell_rows.size)]
+    k = lm.split[cell_rows]
+    for it in np.flatnonzero(k >= 0):
+        n_reg = int(lm.split_cell[k[it]].max())
+        if n_reg > 0:
+            rows.append(lm.split_first[k[it]] + np.arange(n_reg))
+            owner.append(np.full(n_reg, it))
+    return np.concatenate(rows), np.concatenate(owner)
+
+
+def _joined(parts, nb):
+    if not parts:
+        return Gathered(np.zeros(0, np.int64), np.zeros((0, nb)), np.zeros(0), np.zeros(0, np.int64))
+    cat = [np.concatenate([p[j] for p in parts]) for j in range(4)]
+    order = np.argsort(cat[0], kind="stable")
+    return Gathered(cat[0][order], cat[1][order], np.sqrt(cat[2][order]), cat[3][order].astype(np.int64))
+
+
 def gathered_indirect(cs, lightmap_ids=(), csg_leaves=(), points=TG.DEFAULT_SAMPLES, rays=4,
-                      mode=LM.MODE_BILINEAR, seed=0):
+                      mode=LM.MODE_BILINEAR, seed=0, target_error=0.0, max_rays=None, direct=None,
+                      time_budget=None):
     """Indirect irradiance (gather + caustics) of the measured texels of the given
-    instance lightmaps and CSG leaves -> (texel ids int64[K], E float64[K, n_bands]),
-    the same texels as texel_gather.direct_texel_irradiance / csg_bake.direct_csg_texels
-    return. `rays` gather rays per point and lit side. Nothing in `cs` changes."""
+    instance lightmaps and CSG leaves -> Gathered(ids, E, se, rays) over the same
+    texels as texel_gather.direct_texel_irradiance / csg_bake.direct_csg_texels
+    return. `rays` gather rays per point and lit side. Nothing in `cs` changes.
+
+    Adaptive, after a first pass with `rays` everywhere (a second pass adds rays,
+    at most max_rays per point in all, 16 x rays if None):
+    - target_error > 0: a texel whose standard error exceeds target_error × its
+      total irradiance (the direct part, a (ids, E) pair, plus the gathered one)
+      gets as many rays as should bring it to the target;
+    - time_budget (seconds for this call): the rays the first pass's speed allows
+      in the time left go to the texels in proportion to their relative error
+      (which minimises the summed squared relative error), capped by the target's
+      need if both are given.
+    A texel's error is judged against at least a tenth of the median texel's
+    irradiance, so black texels do not take every ray."""
     points, rays = int(points), int(rays)
     if points < 1 or rays < 1:
         raise ValueError(f"points and rays must be >= 1, got {points}, {rays}")
     t0 = time.perf_counter()
-    fixed = _inputs(cs) + (int(mode),)
-    nb = cs.n_bands
-    parts = []
-    ids = sorted({int(l) for l in lightmap_ids})
-    if ids:
-        mesh, prim = TG._collect_texels(cs, TG._lightmap_owners(cs), ids, seed, with_sides=True)
-        cat = mesh.packed()
-        if cat is not None:
-            out = np.zeros((cat["texel"].size, nb))
-            _indirect_mesh(*fixed, cat["inst"], cat["lid"], cat["side"], cat["key"], cat["local"],
-                           cat["start"], cat["tri"], cat["area"], cat["nv"], cat["bary"], points, rays, out)
-            parts.append((cat["texel"], out))
-        got = prim.packed()
-        if got is not None:
-            cat, per_lm = got
-            out = np.zeros((cat["texel"].size, nb))
-            _indirect_prim(*fixed, cat["lm"], cat["lid"], cat["face"], cat["x"], cat["y"], cat["key"],
-                           cat["local"], *per_lm, points, rays, out)
-            parts.append((cat["texel"], out))
-    if csg_leaves:
-        got = csg_texel_items(cs, list(csg_leaves), seed)
-        if got is not None:
-            buf, cat, per_lm = got
-            n_rows = cs.lightmaps.area.shape[0]
-            acc = np.zeros((n_rows, nb))
-            wsum = np.zeros(n_rows)
-            _indirect_csg(*fixed, buf, cat["lm"], cat["lid"], cat["face"], cat["x"], cat["y"], cat["row"],
-                          cat["key"], cat["local"], *per_lm, points, rays, acc, wsum)
-            rows = np.flatnonzero(wsum > 0.0).astype(np.int64)
-            parts.append((rows, acc[rows] / wsum[rows][:, None]))
-    got = TG._by_texel(parts, nb)
+    tex = _Texels(cs, lightmap_ids, csg_leaves, points, mode, seed)
+    item_rows = tex.item_rows()
+    first = _joined(tex.run([np.full(r.size, rays, np.int64) for r in item_rows], STREAM_XOR), cs.n_bands)
+    t_first = tex.seconds
+    got = first
+    adaptive = target_error > 0.0 or time_budget is not None
+    if adaptive and first.ids.size:
+        cap = max(rays, int(max_rays) if max_rays else 16 * rays)
+        budget = None
+        if time_budget is not None:
+            # rays (per point, summed over texels) the time left allows at the first pass's
+            # kernel speed (its texel collection is not repeated)
+            left = float(time_budget) - (time.perf_counter() - t0)
+            budget = int(max(left, 0.0) / max(t_first, 1e-9) * rays * first.ids.size)
+        need = _extra_need(first, direct, float(target_error), rays, cap, budget)
+        extra = _by_item(cs.lightmaps, tex, first.ids, need, item_rows)
+        if any(e.any() for e in extra):
+            second = _joined(tex.run(extra, STREAM_XOR_2), cs.n_bands)
+            got = _combined(first, second)
     cs.timings["bake_gather"] = time.perf_counter() - t0
     return got
+
+
+def _extra_need(first, direct, target, rays, cap, budget):
+    """Per texel of `first`, the rays per point to add (see gathered_indirect)."""
+    total = _total_mean(first.ids, first.E, direct)
+    median = float(np.median(total)) if total.size else 0.0
+    rel = first.se / np.maximum(total, max(0.1 * median, 1e-300))
+    room = cap - rays
+    need = np.full(rel.size, room, np.int64)
+    if target > 0.0:
+        need = (np.ceil(rays * (rel / target) ** 2).clip(rays, cap) - rays).astype(np.int64)
+    if budget is not None:
+        # for the time budget, error relative to the median texel's light below it: the summed
+        # squared error of the map (its RMSE) is what the rays should cut, not dark texels' ratios
+        weight = first.se / np.maximum(total, max(median, 1e-300))
+        need = np.minimum(need, _share(weight, rays, room, budget))
+    return need
+
+
+def _share(rel, rays, room, budget):
+    """Extra rays per texel, at most `room` each and `budget` in all, so that every
+    texel's rays in total are as near as possible to proportional to its relative
+    error (water-filling by bisection on the proportionality constant)."""
+    if budget <= 0 or not np.any(rel > 0):
+        return np.zeros(rel.size, np.int64)
+
+    def extra(lam):
+        return np.clip(np.floor(lam * rel) - rays, 0, room)
+
+    if extra(1e300).sum() <= budget:
+        return np.full(rel.size, room, np.int64)
+    lo, hi = 0.0, (rays + room) / rel[rel > 0].min()
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if extra(mid).sum() > budget:
+            hi = mid
+        else:
+            lo = mid
+    return extra(lo).astype(np.int64)
+
+
+def _by_item(lm, tex, ids, need, item_rows):
+    """Per-texel-row rays -> per part and item (a CSG texel: the most any of its regions needs)."""
+    by_row = np.zeros(lm.area.shape[0], np.int64)
+    by_row[ids] = need
+    extra = []
+    for k, rows in enumerate(item_rows):
+        if tex.csg is not None and k == len(item_rows) - 1:
+            all_rows, owner = csg_rows(lm, rows)
+            e = np.zeros(rows.size, np.int64)
+            np.maximum.at(e, owner, by_row[all_rows])
+            extra.append(e)
+        else:
+            extra.append(by_row[rows])
+    return extra
+
+
+def _total_mean(ids, E, direct):
+    """Band-mean total irradiance per texel row of `ids`: E plus the direct part."""
+    total = E.mean(axis=1).copy()
+    if direct is not None and len(direct[0]):
+        d_ids = np.asarray(direct[0], np.int64)
+        pos = np.searchsorted(d_ids, ids).clip(0, d_ids.size - 1)
+        hit = d_ids[pos] == ids
+        total[hit] += np.asarray(direct[1])[pos[hit]].mean(axis=1)
+    return total
+
+
+def _combined(a, b):
+    """Two passes over the same texels, weighted by their rays: E, its error and the rays."""
+    nb = a.E.shape[1]
+    pos = np.searchsorted(a.ids, b.ids)
+    E, var, n = a.E.copy(), a.se ** 2, a.rays.astype(np.float64)
+    ra, rb = n[pos], b.rays.astype(np.float64)
+    tot = np.maximum(ra + rb, 1.0)
+    E[pos] = (ra[:, None] * a.E[pos] + rb[:, None] * b.E) / tot[:, None]
+    var[pos] = (ra ** 2 * var[pos] + rb ** 2 * b.se ** 2) / tot ** 2
+    n[pos] = ra + rb
+    return Gathered(a.ids, E.reshape(-1, nb), np.sqrt(var), n.astype(np.int64))
 
 
 def set_gathered(lm, direct, indirect):
@@ -238,7 +467,7 @@ def set_gathered(lm, direct, indirect):
     as the bake's lightmap: flux = E·area, the photon flux of those texels replaced,
     then finalize() (dilation into empty texels as usual)."""
     ids_d, E_d = direct
-    ids_i, E_i = indirect
+    ids_i, E_i = indirect[0], indirect[1]
     nb = lm.flux.shape[1]
     ids = np.union1d(np.asarray(ids_d, np.int64), np.asarray(ids_i, np.int64))
     E = np.zeros((ids.size, nb))

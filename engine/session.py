@@ -29,6 +29,9 @@ class Settings:
     indirect: str = "GATHER"        # renders and bakes: "GATHER" (final gather) or "LOOKUP" (the thesis's)
     gather_rays: int = 8            # final-gather rays per camera sample
     bake_gather_rays: int = 256     # final-gather rays per baked texel and lit side
+    bake_target_error: float = 0.0  # > 0: texels above this relative error get more gather rays
+    bake_max_rays: int = 4096       # the most gather rays per texel and lit side, adaptive included
+    bake_time: float = 0.0          # > 0: seconds a bake should take; the gather spends what is left
     denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/denoise.py)
 
     @classmethod
@@ -112,13 +115,15 @@ def compile_and_trace_bake(scene, settings, *, progress=None):
     return cs, photon_pass(cs, settings, record_direct=True, progress=progress, caustics=True)
 
 
-def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True):
+def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline=None):
     """A bake's texel values into cs.lightmaps -> seconds per part.
 
     Direct light per texel (unless direct=False), plus either the photons' own
     indirect light (lookup) or the final gather over the photon lightmaps
     (engine/bake_gather.py). lightmap_ids: instance lightmaps; csg_leaves:
-    (instance, leaf) pairs of CSG solids (csg_bake.solid_leaves)."""
+    (instance, leaf) pairs of CSG solids (csg_bake.solid_leaves). deadline: the
+    time.perf_counter() by which the bake should end (settings.bake_time); the
+    gather gives the time left to the texels with the highest error."""
     from . import texel_gather as TG
     lightmap_ids, csg_leaves = list(lightmap_ids), list(csg_leaves)
     seconds = {}
@@ -135,11 +140,26 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True):
         return seconds
     from . import bake_gather as BG
     t1 = time.perf_counter()
+    direct_E = TG._by_texel(parts, cs.n_bands)
     indirect = BG.gathered_indirect(cs, lightmap_ids, csg_leaves, DIRECT_SAMPLES, settings.bake_rays_per_point,
-                                    settings.mode, seed=int(settings.seed))
-    BG.set_gathered(cs.lightmaps, TG._by_texel(parts, cs.n_bands), indirect)
+                                    settings.mode, seed=int(settings.seed),
+                                    target_error=float(settings.bake_target_error),
+                                    max_rays=max(1, int(settings.bake_max_rays) // DIRECT_SAMPLES),
+                                    direct=direct_E,
+                                    time_budget=None if deadline is None else deadline - time.perf_counter())
+    BG.set_gathered(cs.lightmaps, direct_E, indirect)
+    cs.bake_error = texel_error(cs.lightmaps, direct_E, indirect)
     seconds["gather"] = time.perf_counter() - t1
     return seconds
+
+
+def texel_error(lm, direct, indirect):
+    """Per baked texel row: (ids, relative standard error of E, gather rays per texel)."""
+    import numpy as np
+    ids = np.asarray(indirect.ids, np.int64)
+    E = lm.flux[ids].mean(axis=1) / np.maximum(lm.area[ids], 1e-300)
+    rel = np.where(E > 0.0, indirect.se / np.maximum(E, 1e-300), 0.0)
+    return ids, rel, indirect.rays * DIRECT_SAMPLES
 
 
 def gather_direct(cs, lightmap_ids, settings):

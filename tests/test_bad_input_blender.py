@@ -150,7 +150,8 @@ def test_cli_missing_file_no_camera_and_bad_options(tmp_path, capsys):
     assert "no camera" in one_error_line(capsys.readouterr().err)
     assert cli.main(["render", str(blend), "--out", str(tmp_path / "x.jpg")]) == 2
     assert one_error_line(capsys.readouterr().err).startswith("error: --out ")
-    for bad in (["--photons", "-5"], ["--photons", "many"], ["--resolution", "0"]):
+    for bad in (["--photons", "-5"], ["--photons", "many"], ["--resolution", "0"], ["--target-error", "2"],
+                ["--time", "0"]):
         with pytest.raises(SystemExit) as e:
             cli.main(["bake", str(blend), "--out", str(tmp_path / "lm"), *bad])
         assert e.value.code == 2

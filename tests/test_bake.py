@@ -469,7 +469,7 @@ def test_cli_bake_writes_exr_and_report(tmp_path):
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), check_existing=False)
     out, report = tmp_path / "maps", tmp_path / "report.json"
     assert cli.main(["bake", str(blend), "--out", str(out), "--photons", "100000", "--seed", "2",
-                     "--resolution", "24", "--json", str(report)]) == 0
+                     "--resolution", "24", "--target-error", "0.03", "--json", str(report)]) == 0
     rep = json.loads(report.read_text())
     assert {"photons", "rays", "seconds", "objects", "memory"} <= set(rep)
     assert rep["photons"] == 100_000 and rep["rays"] >= 100_000
@@ -479,7 +479,11 @@ def test_cli_bake_writes_exr_and_report(tmp_path):
     assert set(rep["objects"]) == meshes
     assert sorted(os.listdir(out)) == sorted(f"{n}.exr" for n in meshes)
     for name, info in rep["objects"].items():
-        assert {"path", "width", "height", "bytes", "mean"} <= set(info)
+        assert {"path", "width", "height", "bytes", "mean", "error"} <= set(info)
+        # error bars: every texel got the base 256 rays, the noisier ones more
+        err = info["error"]
+        assert 0.0 < err["rel_error_mean"] <= err["rel_error_p95"] <= err["rel_error_max"]
+        assert 256 <= err["rays_mean"] <= 4096
         path = out / f"{name}.exr"
         assert info["path"] == str(path) and info["bytes"] == path.stat().st_size
         assert (info["width"], info["height"]) == (24, 24)

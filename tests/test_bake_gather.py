@@ -88,6 +88,50 @@ def test_gather_noise_falls_as_one_over_sqrt_rays():
     assert d1 / d16 > 3.5
 
 
+def _room_gather(seed, rays=2, **kw):
+    cs = compile_scene(demo_scenes.cornell_box(n_bands=1, with_primitives=False))
+    trace_photons(cs, 200_000, seed=0, max_bounces=64, record_direct=True)
+    lids = all_lightmaps(cs)
+    direct = TG.direct_texel_irradiance(cs, lids, 16, seed=0)
+    return cs, direct, BG.gathered_indirect(cs, lids, points=16, rays=rays, seed=seed, direct=direct, **kw)
+
+
+def test_error_estimate_matches_the_spread_over_seeds():
+    """Per texel, the estimated standard error against the spread of E over 8 gather seeds
+    (same photons). The estimate treats the texel's stratified points as independent, so it
+    may only err high: never more than 20 % below the spread, and not wildly above it."""
+    runs = [_room_gather(seed) for seed in range(8)]
+    E = np.stack([g.E[:, 0] for _, _, g in runs])
+    spread = E.std(axis=0, ddof=1)
+    se = np.sqrt(np.mean([g.se ** 2 for _, _, g in runs], axis=0))
+    ok = spread > 0
+    ratio = np.sqrt(np.mean(se[ok] ** 2) / np.mean(spread[ok] ** 2))
+    assert 0.8 < ratio < 3.0, ratio
+
+
+def test_adaptive_gather_spends_rays_where_the_error_is():
+    """target_error: texels above it after the first pass get more rays (at most max_rays),
+    the others none; their estimated error then meets the target about; the room's
+    mean stays the uniform pass's (the extra rays are a second, independent estimate)."""
+    target = 0.02
+    cs, direct, uni = _room_gather(3, rays=2)
+    _, _, ada = _room_gather(3, rays=2, target_error=target, max_rays=64)
+    assert np.array_equal(uni.ids, ada.ids)
+    total = uni.E[:, 0] + direct[1][:, 0]
+    rel0 = uni.se / np.maximum(total, 0.1 * np.median(total))
+    more = ada.rays > 2
+    assert np.array_equal(more, rel0 > target)         # exactly the noisy texels
+    assert 0 < more.sum() < more.size and ada.rays.max() <= 64
+    uncapped = more & (ada.rays < 64)
+    rel1 = ada.se / np.maximum(total, 0.1 * np.median(total))
+    assert np.median(rel1[uncapped]) < 1.5 * target < np.median(rel0[uncapped])
+    a = cs.lightmaps.area[uni.ids]
+    np.testing.assert_allclose((ada.E[:, 0] * a).sum(), (uni.E[:, 0] * a).sum(), rtol=0.01)
+    # same seed, same texels, same rays: deterministic
+    _, _, again = _room_gather(3, rays=2, target_error=target, max_rays=64)
+    assert np.array_equal(again.E, ada.E) and np.array_equal(again.rays, ada.rays)
+
+
 def test_same_seed_same_result_on_any_thread_count():
     n = numba.get_num_threads()
     try:
@@ -154,3 +198,19 @@ def test_gather_needs_recorded_direct_light():
     trace_photons(cs, 10_000, seed=0, record_direct=False)
     with pytest.raises(ValueError, match="recorded direct light"):
         BG.gathered_indirect(cs, all_lightmaps(cs))
+
+
+def test_time_budget_shares_rays_by_relative_error():
+    """The rays a time budget buys go out so that texels' total rays follow their
+    relative error (Neyman allocation), each within its room, the sum within the budget."""
+    rel = np.array([0.0, 0.005, 0.01, 0.02, 0.04, 0.08])
+    e = BG._share(rel, rays=4, room=60, budget=80)
+    assert 75 <= e.sum() <= 80 and e.max() <= 60
+    assert e[0] == 0 and np.all(np.diff(e) >= 0)
+    total = 4 + e
+    got = e > 0
+    # uncapped texels with extra rays: totals proportional to rel (within rounding)
+    lam = total[got & (e < 60)] / rel[got & (e < 60)]
+    assert lam.max() / lam.min() < 1.15
+    assert np.array_equal(BG._share(rel, 4, 60, 10 ** 9), np.full(rel.size, 60))
+    assert not BG._share(rel, 4, 60, 0).any()

@@ -103,6 +103,19 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         name="Bake Gather Rays", default=_D.bake_gather_rays, min=1, soft_max=4096,
         description="Final-gather rays per baked texel and lit side: its indirect noise falls "
                     "as one over the square root of this")
+    bake_target_error: FloatProperty(
+        name="Bake Target Error", default=_D.bake_target_error, min=0.0, max=0.5, soft_max=0.1,
+        subtype='FACTOR', precision=3,
+        description="Adaptive bake gather: texels whose estimated relative error is above this "
+                    "get more gather rays, up to Bake Max Rays (0: every texel gets Bake Gather Rays)")
+    bake_max_rays: IntProperty(
+        name="Bake Max Rays", default=_D.bake_max_rays, min=1, soft_max=65536,
+        description="The most final-gather rays a texel and lit side can get with a target error")
+    bake_time: FloatProperty(
+        name="Bake Time", default=_D.bake_time, min=0.0, soft_max=3600.0, subtype='TIME_ABSOLUTE',
+        unit='TIME_ABSOLUTE',
+        description="Bake in about this many seconds: after one pass of Bake Gather Rays, the time "
+                    "left goes to the texels with the highest estimated error (0: no time limit)")
     denoise: BoolProperty(
         name="Denoise", default=_D.denoise,
         description="Run Intel Open Image Denoise (the pyoidn package) over renders, guided by "

@@ -41,25 +41,23 @@ def _count(least, most=2 ** 31 - 1):
     return parse
 
 
-def _fraction(text):
-    """A relative error: a number above 0 and below 1 (0.01 is 1 %)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be a fraction above 0 and below 1 (0.01 is 1 %), got '{text}'")
-    return value
+def _open_interval(below, above, what):
+    """A float strictly between `below` and `above`; `what` says so in the error."""
+    def parse(text):
+        try:
+            value = float(text)
+        except ValueError:
+            value = float("nan")            # fails the range test below, NaN included
+        if not below < value < above:
+            raise argparse.ArgumentTypeError(f"must be {what}, got '{text}'")
+        return value
+    parse.__name__ = what
+    return parse
 
 
-def _seconds(text):
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0.0 < value < 1e6:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds above 0, got '{text}'")
-    return value
+# a relative error (0.01 is 1 %) and a time budget
+_fraction = _open_interval(0.0, 1.0, "a fraction above 0 and below 1 (0.01 is 1 %)")
+_seconds = _open_interval(0.0, 1e6, "a number of seconds above 0")
 
 
 def _size(text):
@@ -127,6 +125,9 @@ def build_parser():
     b.add_argument("--time", type=_seconds, default=None, metavar="S",
                    help="bake in about S seconds: after one pass of gather rays everywhere, the time "
                         "left goes to the texels with the highest estimated error")
+    b.add_argument("--error-images", action="store_true",
+                   help="also write DIR/<object>_error.exr: each texel's estimated relative error "
+                        "(gathered bakes)")
     _add_denoise(b)
     b.set_defaults(func=bake_main)
 
@@ -318,7 +319,8 @@ def bake_main(args):
                        indirect_only=args.indirect_only, progress=progress, save_dir=out_dir,
                        overwrite=True, denoise=settings.denoise, indirect=settings.indirect,
                        bake_gather_rays=settings.bake_gather_rays,
-                       bake_target_error=settings.bake_target_error, bake_time=settings.bake_time)
+                       bake_target_error=settings.bake_target_error, bake_time=settings.bake_time,
+                       error_images=args.error_images or None)
     print(file=sys.stderr)
     stats = res.stats
     report = {
@@ -338,7 +340,8 @@ def bake_main(args):
         "time_budget": float(settings.bake_time) if settings.bake_gathers else 0.0,
         "objects": {name: {"path": res.paths[name], "width": bm.width, "height": bm.height,
                            "bytes": os.path.getsize(res.paths[name]), "mean": bm.mean(),
-                           **({"error": res.error[name]} if name in res.error else {})}
+                           **({"error": res.error[name]} if name in res.error else {}),
+                           **({"error_image": res.error_paths[name]} if name in res.error_paths else {})}
                     for name, bm in res.maps.items()},
         "skipped": res.skipped,
         "warnings": res.warnings,

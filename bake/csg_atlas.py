@@ -64,8 +64,17 @@ def solid_leaves(cs, job, name):
     return out
 
 
-def atlas(cs, job, name, leaves):
-    """One image for CSG solid `name`: its leaves' lightmaps packed into one atlas (or None)."""
+def atlas(cs, job, name, leaves, lightmaps=None):
+    """One image for CSG solid `name`: its leaves' lightmaps packed into one atlas (or None).
+
+    lightmaps: other per-texel values in cs.lightmaps' layout (the error image) to lay out
+    the same way; job.result is then left alone."""
+    if lightmaps is not None:
+        if not leaves:
+            return None
+        blocks = [csg_bake.leaf_rgba(lightmaps, d["lightmap"], csg_bake.full_primitive_areas(
+            cs, job.targets[name], d["row"], int(lightmaps.height[d["lightmap"]]))) for d in leaves]
+        return _packed(name, leaves, blocks)
     lm = cs.lightmaps
     inst = job.targets[name]
     skipped = {k: v for k, v in job.csg[name].items() if v is not None}
@@ -86,13 +95,19 @@ def atlas(cs, job, name, leaves):
         info["split_texels"] += int(np.count_nonzero(lm.split[sl] >= 0))
         info["boundary_texels"] += int(np.count_nonzero((lm.area[sl] < full.reshape(-1) * (1 - 1e-9))
                                                         & (lm.area[sl] > 0)))
+    bm = _packed(name, leaves, blocks)
+    info["atlas"] = (bm.width, bm.height)
+    return bm
+
+
+def _packed(name, leaves, blocks):
+    # pack_atlas is deterministic in the block sizes: the error image gets the same tiles
     W, H, origins = csg_bake.pack_atlas([(b.shape[1], b.shape[0]) for b in blocks])
     img = np.zeros((H, W, 4), np.float32)
     tiles = {}
     for d, b, o in zip(leaves, blocks, origins):
         csg_bake.blit(img, b, o)
         tiles[d["name"]] = (o[0], o[1], b.shape[1], b.shape[0])
-    info["atlas"] = (W, H)
     return BakedMap(name, img, leaves[0]["lightmap"], tiles)
 
 

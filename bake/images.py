@@ -25,6 +25,10 @@ from ..messages import InputError
 
 IMAGE_SUFFIX = "_Lightmap"
 OWNER_PROP = "photon_lightmaps_object"
+# the bake's error image: its own name and owner tag, so it never takes the lightmap's place
+ERROR = "error"
+ERROR_FILE_SUFFIX = "_error"
+_KINDS = {"": (IMAGE_SUFFIX, OWNER_PROP), ERROR: ("_LightmapError", "photon_lightmaps_error_of")}
 LIGHTMAP_DIR = "lightmaps"
 
 
@@ -70,10 +74,11 @@ def file_name(name):
     return re.sub(r'[\\/:*?"<>|\x00-\x1f]', "_", name).strip() or "object"
 
 
-def our_image(ob):
+def our_image(ob, kind=""):
     import bpy
-    base = ob.name + IMAGE_SUFFIX
-    ours = [im for im in bpy.data.images if im.library is None and im.get(OWNER_PROP) == ob.name]
+    suffix, owner = _KINDS[kind]
+    base = ob.name + suffix
+    ours = [im for im in bpy.data.images if im.library is None and im.get(owner) == ob.name]
     ours.sort(key=lambda im: (im.name != base, im.name))
     return ours[0] if ours else None
 
@@ -87,11 +92,13 @@ def _new_image(name, w, h):
     return img
 
 
-def target_image(ob, w, h, overwrite, warnings):
-    """The image to write object `ob`'s lightmap into, following the module's policy."""
+def target_image(ob, w, h, overwrite, warnings, kind=""):
+    """The image to write object `ob`'s lightmap (kind ERROR: its error image) into,
+    following the module's policy."""
     import bpy
-    base = ob.name + IMAGE_SUFFIX
-    img = our_image(ob)
+    suffix, owner = _KINDS[kind]
+    base = ob.name + suffix
+    img = our_image(ob, kind)
     if img is None:
         existing = bpy.data.images.get(base)
         if existing is None:
@@ -114,7 +121,7 @@ def target_image(ob, w, h, overwrite, warnings):
         img = fresh
     img.alpha_mode = "CHANNEL_PACKED"
     img.use_half_precision = False
-    img[OWNER_PROP] = ob.name
+    img[owner] = ob.name
     return img
 
 

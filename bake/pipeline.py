@@ -5,6 +5,7 @@ the scene; compute_bake runs engine/session.py (photon pass, direct gather) and
 turns lightmaps into RGBA arrays; commit_bake writes images, files and hooks.
 A failed or cancelled compute or commit is undone by rollback_bake.
 """
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -30,6 +31,7 @@ class BakeSettings(session.Settings):
     save_dir: str = ""
     pack: bool = False
     hook_materials: bool = False
+    bake_error_images: bool = False  # also an image of each texel's estimated relative error
 
 
 def bscene_props(bscene):
@@ -57,6 +59,11 @@ class BakeResult:
     # object name -> {"rel_error_mean", "rel_error_p95", "rel_error_max", "rays_mean"}: the gathered
     # texels' estimated relative standard error (engine/session.texel_error) and rays they got
     error: dict = field(default_factory=dict)
+    # object name -> BakedMap of that estimate per texel (RGB = relative error, A = coverage),
+    # with bake_error_images; images "<object>_LightmapError", files "<object>_error.exr"
+    error_maps: dict = field(default_factory=dict)
+    error_images: dict = field(default_factory=dict)   # object name -> bpy image name
+    error_paths: dict = field(default_factory=dict)    # object name -> saved file
 
 
 @dataclass
@@ -124,7 +131,7 @@ def _covering_ol(router, ob):
 
 def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None,
-                 bake_target_error=None, bake_time=None):
+                 bake_target_error=None, bake_time=None, error_images=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
@@ -170,7 +177,8 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     job.uv_undo = uv_undo
     job.settings = BakeSettings.read(props, photons=photons, seed=seed, resolution=resolution,
                                      indirect_only=indirect_only, denoise=denoise, indirect=indirect,
-                                     bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error, bake_time=bake_time)
+                                     bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error,
+                                     bake_time=bake_time, bake_error_images=error_images)
     if job.settings.bake_gathers:
         for inst, rec in zip(job.scene.instances, job.recording):
             inst.lightmap = inst.lightmap or rec
@@ -332,6 +340,28 @@ def _error_stats(cs, job, solids):
     return out
 
 
+def _error_maps(cs, job, solids):
+    """Per baked object: the estimated relative error of each texel as an image (BakeResult.error_maps).
+
+    The values go through the lightmap's own image layout (lightmap_rgba, the CSG atlas),
+    so error pixel and lightmap pixel are the same texel; texels without an estimate are 0."""
+    ids, rel, _ = cs.bake_error
+    lm = cs.lightmaps
+    values = np.zeros_like(lm.irradiance)
+    values[ids] = (math.pi * rel)[:, None]     # the layouts store E/pi
+    err = lm._replace(irradiance=values)
+    out = {}
+    for name, i in job.targets.items():
+        if name in job.csg:
+            bm = csg_atlas.atlas(cs, job, name, solids[name], lightmaps=err)
+        else:
+            lm_id = cs.instance_lightmaps[i][0]
+            bm = BakedMap(name, images.lightmap_rgba(err, lm_id), lm_id)
+        if bm is not None and name in job.result.maps:
+            out[name] = bm
+    return out
+
+
 def compute_bake(job, progress=None):
     """Any thread: photon pass and per-object RGBA arrays. Raises Cancelled."""
     result = job.result
@@ -369,6 +399,8 @@ def compute_bake(job, progress=None):
             continue
         lm_id = cs.instance_lightmaps[i][0]
         result.maps[name] = BakedMap(name, images.lightmap_rgba(cs.lightmaps, lm_id), lm_id)
+    if job.settings.bake_error_images and getattr(cs, "bake_error", None) is not None:
+        result.error_maps = _error_maps(cs, job, solids)
     result.seconds["extract"] = time.perf_counter() - t1
     if job.settings.denoise:
         t2 = time.perf_counter()
@@ -409,6 +441,15 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
         elif name in job.primitives:
             csg_atlas.place_leaf_uvs(name, BakedMap(name, bm.rgba, bm.lightmap_id, {name: None}),
                                      result.warnings)
+    for name, bm in result.error_maps.items():
+        if name not in result.maps:
+            continue                      # deleted during the bake (the operator dropped its map)
+        img = images.target_image(bpy.data.objects[name], bm.width, bm.height, overwrite,
+                                  result.warnings, kind=images.ERROR)
+        images.write_pixels(img, bm.rgba)
+        result.error_images[name] = img.name
+        result.error_paths[name] = images.store(img, name + images.ERROR_FILE_SUFFIX,
+                                                save_dir=save_dir, pack=pack)
     if result.maps and images.in_memory_only(save_dir, pack):
         result.warnings.append("the .blend is not saved yet: the lightmap images live only in memory "
                                "(save the .blend and bake again, or pack them)")
@@ -428,7 +469,7 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
 def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, progress=None, overwrite=False, save_dir=None, pack=False,
                  hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None,
-                 bake_target_error=None, bake_time=None):
+                 bake_target_error=None, bake_time=None, error_images=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
@@ -436,7 +477,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     lightmaps or from the texel's own photons (`indirect` "GATHER" / "LOOKUP",
     `bake_gather_rays` per texel, more where a texel's error is above
     `bake_target_error` or in the time left of `bake_time` seconds; None: the
-    scene's settings). `resolution` forces
+    scene's settings; `error_images` also writes each texel's estimated relative
+    error as an image, BakeResult.error_maps). `resolution` forces
     R x R texels per object; otherwise the object's own setting or the scene's
     texel density decides. `denoise` (None: the scene's setting) runs OIDN over
     each map (engine/denoise.py). `progress(done, total)`
@@ -446,7 +488,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     job = prepare_bake(context_or_depsgraph, objects, photons=photons, seed=seed,
                        resolution=resolution, indirect_only=indirect_only, denoise=denoise,
                        indirect=indirect, bake_gather_rays=bake_gather_rays,
-                       bake_target_error=bake_target_error, bake_time=bake_time)
+                       bake_target_error=bake_target_error, bake_time=bake_time,
+                       error_images=error_images)
     try:
         compute_bake(job, progress)
     except BaseException:

@@ -469,7 +469,8 @@ def test_cli_bake_writes_exr_and_report(tmp_path):
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), check_existing=False)
     out, report = tmp_path / "maps", tmp_path / "report.json"
     assert cli.main(["bake", str(blend), "--out", str(out), "--photons", "100000", "--seed", "2",
-                     "--resolution", "24", "--target-error", "0.03", "--json", str(report)]) == 0
+                     "--resolution", "24", "--target-error", "0.03", "--error-images",
+                     "--json", str(report)]) == 0
     rep = json.loads(report.read_text())
     assert {"photons", "rays", "seconds", "objects", "memory"} <= set(rep)
     assert rep["photons"] == 100_000 and rep["rays"] >= 100_000
@@ -477,7 +478,7 @@ def test_cli_bake_writes_exr_and_report(tmp_path):
     assert {"lightmap_bytes", "peak_rss_bytes"} <= set(rep["memory"])
     meshes = {"floor", "back", "left", "right", "tall_box"}                 # ceiling excluded
     assert set(rep["objects"]) == meshes
-    assert sorted(os.listdir(out)) == sorted(f"{n}.exr" for n in meshes)
+    assert sorted(os.listdir(out)) == sorted(f"{n}{s}.exr" for n in meshes for s in ("", "_error"))
     for name, info in rep["objects"].items():
         assert {"path", "width", "height", "bytes", "mean", "error"} <= set(info)
         # error bars: every texel got the base 256 rays, the noisier ones more
@@ -499,3 +500,15 @@ def test_cli_bake_writes_exr_and_report(tmp_path):
     assert px[..., :3][a > 0].mean() > 0
     assert np.mean(px[..., :3][a > 0] * a[a > 0, None]) / a[a > 0].mean() == pytest.approx(
         np.mean(rep["objects"]["tall_box"]["mean"]), rel=1e-4)
+    # The error image: the same texels (alpha) holding the error bars the JSON summarises.
+    info = rep["objects"]["tall_box"]
+    assert info["error_image"] == str(out / "tall_box_error.exr")
+    eimg = bpy.data.images.load(info["error_image"])
+    eimg.alpha_mode = "CHANNEL_PACKED"
+    ex = pixels(eimg)
+    assert np.array_equal(ex[..., 3], a)
+    assert np.array_equal(ex[..., 0], ex[..., 1]) and np.array_equal(ex[..., 0], ex[..., 2])
+    rel = ex[..., 0][a > 0]
+    assert np.all(ex[..., 0][a == 0] == 0) and rel.min() >= 0
+    assert rel.max() == pytest.approx(info["error"]["rel_error_max"], rel=1e-5)
+    assert rel.mean() == pytest.approx(info["error"]["rel_error_mean"], rel=1e-3)

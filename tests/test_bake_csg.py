@@ -96,7 +96,7 @@ def baked():
     slab, slot = slotted_slab()
     point_light()
     objs = [cyl, sph, slab, slot]
-    job = B.prepare_bake(bpy.context, objs, photons=200_000, seed=5, resolution=RES)
+    job = B.prepare_bake(bpy.context, objs, photons=200_000, seed=5, resolution=RES, error_images=True)
     B.compute_bake(job)
     res = B.commit_bake(job, hook_materials=True)
     return job, res
@@ -122,6 +122,21 @@ def test_one_image_per_solid_and_operands_are_part_of_it(baked):
     # hooked: the base's material and the cutter's (which the Boolean result carries over)
     assert {"CylMat", "SphMat", "SlabMat"} <= set(res.hooked)
     print(f"\nCSG bake: {res.csg}; seconds {res.seconds}")
+
+
+def test_error_image_has_the_atlas_layout_and_the_error_bars(baked):
+    job, res = baked
+    assert set(res.error_maps) == set(res.maps)
+    for name, bm in res.maps.items():
+        em = res.error_maps[name]
+        assert em.tiles == bm.tiles
+        assert np.array_equal(em.rgba[..., 3], bm.rgba[..., 3])     # the same texels
+        rel = em.rgba[..., 0][bm.rgba[..., 3] > 0]
+        assert rel.max() == pytest.approx(res.error[name]["rel_error_max"], rel=1e-5)
+        assert 0.0 < rel.mean() < 1.0
+        img = bpy.data.images[res.error_images[name]]
+        assert img.name == f"{name}_LightmapError" and img.name != res.images[name]
+        assert np.array_equal(pixels(img), em.rgba)
 
 
 def test_visible_texels_lie_exactly_in_their_leaf_blocks(baked):

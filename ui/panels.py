@@ -69,6 +69,7 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         row.active = s.bake_target_error > 0.0 or s.bake_time > 0.0
         row.prop(s, "bake_max_rays")
         sub.prop(s, "bake_time")
+        sub.prop(s, "bake_error_images")
         col.prop(s, "denoise")
         if s.denoise and not _denoiser_available():
             col.label(text="Denoise needs the pyoidn package (not installed)", icon='ERROR')

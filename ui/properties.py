@@ -116,6 +116,10 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         unit='TIME_ABSOLUTE',
         description="Bake in about this many seconds: after one pass of Bake Gather Rays, the time "
                     "left goes to the texels with the highest estimated error (0: no time limit)")
+    bake_error_images: BoolProperty(
+        name="Bake Error Images", default=False,
+        description="Gathered bakes also write each texel's estimated relative error to an "
+                    "image \"<object>_LightmapError\" (and <object>_error.exr beside the lightmap)")
     denoise: BoolProperty(
         name="Denoise", default=_D.denoise,
         description="Run Intel Open Image Denoise (the pyoidn package) over renders, guided by "

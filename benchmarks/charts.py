@@ -19,6 +19,8 @@ STYLE = {
     "ours_render_bilinear": dict(color="C1", marker="D", label="ours, bilinear lookup"),
     "ours_render_gather": dict(color="C4", marker="P", label="ours, final gather"),
     "cycles_render": dict(color="C3", marker="^", label="Cycles render"),
+    "luxcore_path": dict(color="C5", marker="v", label="LuxCore path"),
+    "luxcore_photongi": dict(color="C6", marker="X", label="LuxCore path + PhotonGI"),
     "ours_bake_oidn": dict(color="C0", marker="o", ls=":", mfc="none", label="photon lightmap + OIDN"),
     "ours_render_gather_oidn": dict(color="C4", marker="P", ls=":", mfc="none", label="final gather + OIDN"),
     "ours_floor_constant": dict(color="C0", marker="o", ls="--", label="constant lookup"),
@@ -59,7 +61,7 @@ def error_vs_time(result, out, files):
                  info["bake_noise_floor"]),
                 (axes[1], "renders, pixel by pixel",
                  ("ours_render_constant", "ours_render_bilinear", "ours_render_gather", "ours_render_gather_oidn",
-                  "cycles_render"), info["render_noise_floor"])):
+                  "cycles_render", "luxcore_path", "luxcore_photongi"), info["render_noise_floor"])):
             for m in methods:
                 xs, ys, c = _curve(pts, sc, m)
                 if not xs:

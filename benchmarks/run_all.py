@@ -5,6 +5,9 @@ Usage (from the repository root):
     .venv/bin/python -m benchmarks.run_all --quick    # tiny knobs, cornell only (about a minute)
 Options: --scenes cornell,window  --out DIR  --charts DIR  --no-charts
          --csg (then also benchmarks/bench_csg.py: exact CSG, its own JSON and charts)
+With pyluxcore installed (benchmarks/requirements.txt), also luxcore_path and
+luxcore_photongi: LuxCore's path tracer without and with its PhotonGI cache
+(luxcore_peer.py), renders scored like Cycles'.
 With pyoidn installed, also ours_bake_oidn and ours_render_gather_oidn: the
 same runs denoised (engine/denoise.py), scored the same way, so a denoiser's
 bias shows as an error floor and in mean_error.
@@ -39,6 +42,7 @@ from photon_lightmaps.engine import lightmap as LM  # noqa: E402
 from photon_lightmaps.engine.compile import compile_scene  # noqa: E402
 from photon_lightmaps.engine.photon_tracer import trace_photons  # noqa: E402
 
+from benchmarks import luxcore_peer as LX  # noqa: E402
 from benchmarks import methods as M  # noqa: E402
 from benchmarks import photon_map as PM  # noqa: E402
 from benchmarks import references as R  # noqa: E402
@@ -52,6 +56,8 @@ DEFAULT_RES = 32
 RENDER_SPP = 16       # our camera samples: direct light and anti-aliasing only
 # The *_oidn curves (the same bakes and renders plus OIDN, its time added) need pyoidn.
 OIDN = DN.available()
+# The luxcore_* render curves need pyluxcore (benchmarks/requirements.txt).
+LUXCORE = LX.available()
 
 
 def pm_k(n_photons):
@@ -71,6 +77,11 @@ FULL = dict(
     pm_photons=[10_000, 30_000, 100_000, 300_000, 1_000_000, 3_000_000],
     cycles_bake_spp=[1, 4, 16, 64, 256, 1024],
     cycles_render_spp=[1, 4, 16, 64, 256],
+    # LuxCore PATHCPU over spp, and with PhotonGI over spp on one cache: LuxCore
+    # traces cache photons in steps of 2M (a smaller photon.maxcount still traces
+    # 2M, about 6 s on cornell), so the cache's cost is fixed and spp is the knob.
+    luxcore_path_spp=[4, 16, 64, 256],
+    luxcore_photongi=[(2_000_000, 4), (2_000_000, 16), (2_000_000, 64), (2_000_000, 256)],
     fine_res=[16, 32, 64, 128], fine_photons=4_000_000,
 )
 QUICK = dict(
@@ -81,6 +92,8 @@ QUICK = dict(
     pm_photons=[3_000, 30_000, 300_000],
     cycles_bake_spp=[1, 4, 32],
     cycles_render_spp=[1, 8],
+    luxcore_path_spp=[4, 16],
+    luxcore_photongi=[(2_000_000, 4)],
     fine_res=[16, 32], fine_photons=300_000,
 )
 
@@ -236,10 +249,30 @@ def run_scene(name, cfg, log):
             img, t = M.cycles_render(spp, 11)
         add("render", "cycles_render", "samples", spp, t, render_score(img))
         images.setdefault("cycles_render", {})[spp] = (t, img)
+    if LUXCORE:
+        luxcore_renders(cfg, render_score, add)
 
     if name == R.FINE_SCENE:
         images["fine"] = fine_study(cfg, ref, add)
     return points, info, images
+
+
+def luxcore_renders(cfg, render_score, add):
+    """LuxCore's path tracer, plain and with PhotonGI, in a worker process per render.
+
+    seconds is the worker's LuxCore time (scene build + PhotonGI cache + rendering),
+    like Cycles' render call; the process start and pyluxcore's import are kept
+    apart in seconds_wall."""
+    spec, arrays = LX.export_scene(bpy.context.evaluated_depsgraph_get())
+    LX.render_spec(spec, arrays, "path", spp=1, seed=0)   # warm-up: file cache, libraries
+    runs = [("luxcore_path", spp, None) for spp in cfg["luxcore_path_spp"]]
+    runs += [("luxcore_photongi", spp, {"photon.maxcount": int(n)}) for n, spp in cfg["luxcore_photongi"]]
+    for meth, spp, pgi in runs:
+        img, st = LX.render_spec(spec, arrays, meth.split("_")[1], spp=spp, seed=11, photongi=pgi)
+        extra = {"cache_photons_max": pgi["photon.maxcount"]} if pgi else {}
+        add("render", meth, "samples", spp, st["seconds"], render_score(img), samples=st["spp"],
+            seconds_wall=st["seconds_wall"], seconds_cache=st["seconds_cache"],
+            seconds_luxcore_render=st["seconds_render"], **extra)
 
 
 def fine_study(cfg, ref, add):
@@ -297,6 +330,19 @@ def fit_floor(photons, errs):
     return slope, math.sqrt(b), (a / b if b > 0 else math.inf)
 
 
+# Render curves compared with Cycles' render: ours (gather, bilinear) and the LuxCore peer.
+RENDER_PEERS = ("ours_render_gather", "ours_render_bilinear", "luxcore_path", "luxcore_photongi")
+
+
+def render_ratio(p, cyc):
+    """Cycles' render time to reach point p's error (log-log interpolated over its spp
+    sweep) over p's time: above 1, p is faster at that accuracy."""
+    t_cyc, extra = loglog_interp([q["seconds"] for q in cyc], [q["rel_rmse"] for q in cyc], p["rel_rmse"])
+    return dict(knob_name=p["knob_name"], knob=p["knob"], samples=p.get("samples"), seconds=p["seconds"],
+                rel_rmse=p["rel_rmse"], mean_error=p["mean_error"], cycles_seconds_at_equal_error=t_cyc,
+                extrapolated=extra, ratio=t_cyc / p["seconds"])
+
+
 def headlines(points):
     out = {}
     for scene in sorted({p["scene"] for p in points}):
@@ -337,12 +383,21 @@ def headlines(points):
                 photon_map_best_rel_rmse=min(errs),
                 photon_map_best_bytes_measured=pm[int(np.argmin(errs))]["memory_bytes"],
                 photon_map_best_bytes_20B=pm[int(np.argmin(errs))]["memory_compact_bytes"])
+        cyc_r = curve("cycles_render")
+        rr = {m: [render_ratio(p, cyc_r) for p in curve(m)] for m in RENDER_PEERS} if cyc_r else {}
+        rr = {m: v for m, v in rr.items() if v}
+        if rr:
+            h["render_speedup_vs_cycles"] = rr
         if len(ours) >= 3:
             slope, floor, n_cross = fit_floor([p["knob"] for p in ours], [p["rel_rmse"] for p in ours])
             h["error_vs_photons"] = dict(slope_low_photons=slope, floor_rel_rmse=floor,
                                          floor_reached_at_photons=n_cross)
         out[scene] = h
     return out
+
+
+def _spp_note(r):
+    return "" if r["knob_name"] == "samples" else f" {r['samples']} spp"
 
 
 def print_headlines(h, log):
@@ -368,6 +423,11 @@ def print_headlines(h, log):
                 f"{m['photon_map_bytes_measured'] / 1e6:.1f} MB measured ({m['ratio_measured']:.1f}x), "
                 f"{m['photon_map_bytes_20B'] / 1e6:.1f} MB at 20 B/photon ({m['ratio_20B_vs_12B']:.1f}x vs 12 B/texel)"
                 "")
+        for m, pts in v.get("render_speedup_vs_cycles", {}).items():
+            log(f"[{scene}] (d) render {m}: Cycles' time at equal relRMSE / its time: " + "; ".join(
+                f"{r['knob']:,} {r['knob_name']}{_spp_note(r)}"
+                f" {r['rel_rmse']:.4f} in {r['seconds']:.1f} s -> {r['ratio']:.2f}x"
+                f"{' (extrap.)' if r['extrapolated'] else ''}" for r in pts))
         e = v.get("error_vs_photons")
         if e:
             log(f"[{scene}] (c) error vs photons: log-log slope {e['slope_low_photons']:.2f} at low counts; "
@@ -396,6 +456,8 @@ def main(argv=None):
 
     if not registration.is_registered():
         photon_lightmaps.register()
+    if not LUXCORE:
+        log("pyluxcore not importable: the luxcore_* renders are skipped (pip install -r benchmarks/requirements.txt)")
     t0 = time.perf_counter()
     points, infos, images = [], [], {}
     for name in cfg["scenes"]:

@@ -15,8 +15,8 @@ src/slg/lights/*.cpp, and checked numerically by tests/test_luxcore_peer.py):
 * spot, P W: LuxCore's spot radiates gain * color * falloff W/sr (no 1 / (4 pi)),
   so gain = P / (4 pi);
   its falloff ((cos - cos_total) / (cos_start - cos_total))^4 is not Blender's
-  smoothstep, so the blend ring only roughly matches (coneangle = spot_size / 2,
-  conedelta = the blend ring's angular width);
+  smoothstep, so coneangle = spot_size / 2 and the ring is made 5/8 as wide in
+  cos as Blender's: same cone edge and same power, a different profile;
 * sun, S W/m^2 (irradiance on a surface facing it): a `distant` light of
   half-angle theta = angle / 2 has radiance gain * color over its cone, so
   gain = S / (2 pi (1 - cos theta)) (`sharpdistant`, gain = S, for angle 0);
@@ -143,8 +143,11 @@ def export_scene(depsgraph, warn=lambda m: print("luxcore_peer:", m, file=sys.st
             elif lt.type == "SPOT":
                 half = 0.5 * float(lt.spot_size)
                 cos_half = math.cos(half)
-                # Blender's ring: cos from cos_half to cos_half + (1 - cos_half) * blend.
-                cos_in = min(cos_half + (1.0 - cos_half) * float(lt.spot_blend), 1.0)
+                # Blender's ring, cos_half .. cos_half + smooth with smooth = (1 - cos_half)
+                # * blend, averages 1/2 (smoothstep); LuxCore's delta^4 averages 1/5 over
+                # its ring. A ring 5/8 as wide in cos keeps the cone edge and the power.
+                smooth = (1.0 - cos_half) * min(max(float(lt.spot_blend), 0.0), 1.0)
+                cos_in = min(cos_half + 0.625 * smooth, 1.0)
                 spec["lights"].append(dict(
                     type="spot", position=pos, target=(M[:3, 3] + down).tolist(), color=color.tolist(),
                     gain=power / (4.0 * math.pi), coneangle=math.degrees(half),

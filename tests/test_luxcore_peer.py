@@ -68,10 +68,12 @@ def _mean(spec_arrays, spp=4):
     return float(img.mean()), st
 
 
-def test_point_light_irradiance(plane_scene):
-    """Point light of P W at height h: E = P / (4 pi h^2) (Cycles' convention)."""
+@pytest.mark.parametrize("kind", ["POINT", "SPOT"])
+def test_point_light_irradiance(plane_scene, kind):
+    """Point light of P W at height h: E = P / (4 pi h^2) (Cycles' convention); a spot
+    of P W on its axis likewise (Blender's spot is the point light, masked)."""
     P = 100.0
-    got, _ = _mean(plane_scene("POINT", power=P, location=(0.0, 0.0, H), radius=0.0))
+    got, _ = _mean(plane_scene(kind, power=P, location=(0.0, 0.0, H), radius=0.0, spot_size=math.radians(60.0)))
     want = RHO / math.pi * P / (4.0 * math.pi * H * H)
     assert got == pytest.approx(want, rel=TOL)
 

@@ -41,9 +41,9 @@ import time
 import numpy as np
 
 MAX_BOUNCES = 8   # methods.MAX_BOUNCES; not imported so the worker needs no bpy
-# Cycles' max_bounces counts bounces after the first hit (0 = direct light only);
-# LuxCore's path depth counts vertices with their direct light (1 = direct only).
-LUX_DEPTH = MAX_BOUNCES + 1
+# Measured on cornell (image means within 0.2 %): LuxCore's path depth d gives
+# Cycles' max_bounces = d - 2 (depths 1 and 2 both give direct light only).
+LUX_DEPTH = MAX_BOUNCES + 2
 MODES = ("path", "photongi")
 SCREEN_SHIFT_Y = -1.0   # pixels; see _scene_props
 

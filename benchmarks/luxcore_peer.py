@@ -311,6 +311,7 @@ def _scene_props(spec):
         ax = spec["width"] / spec["height"]
         bx, by = (ax, 1.0) if ax >= 1.0 else (1.0, 1.0 / ax)
         P["scene.camera.screenwindow"] = [-bx, bx, -by + sy, by + sy]
+    # Raw LuxCore scene properties for experiments (e.g. the transparency checks).
     for k, v in spec.get("extra", {}).items():
         P[k] = v
     return P

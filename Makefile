@@ -15,7 +15,7 @@ demo: setup
 test: test-unit test-boundscheck
 
 test-unit: setup
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q --durations=25 tests
 
 test-boundscheck: setup
 	NUMBA_BOUNDSCHECK=1 $(PY) -m pytest -q -p no:cacheprovider tests/test_bad_input.py tests/test_bad_input_blender.py tests/test_fuzz.py

@@ -169,6 +169,28 @@ class _LineTracker:
         return getattr(self._stream, name)
 
 
+def progress_line(label, stream=None, clock=time.perf_counter):
+    """A progress(done, total) callback that redraws one line of `stream` (stderr):
+    "photons 131,072/1,000,000  13 %  210,000/s  ETA 4 s", rewritten with a carriage
+    return so a run's log holds one line per phase, not one per update."""
+    t0 = clock()
+    width = [0]
+
+    def progress(done, total):
+        out = stream or sys.stderr
+        dt = max(clock() - t0, 1e-9)
+        rate = done / dt
+        eta = f"ETA {(total - done) / rate:,.0f} s" if 0 < done < total else f"{dt:,.1f} s"
+        pct = 100.0 * done / total if total > 0 else 100.0
+        text = f"{label} {done:,}/{total:,}  {pct:3.0f} %  {rate:,.0f}/s  {eta}"
+        # spaces over what a longer previous line left (no terminal escapes: logs stay plain)
+        out.write("\r" + text.ljust(width[0]))
+        width[0] = len(text)
+        out.flush()
+        return True
+    return progress
+
+
 # --------------------------------------------------------------------------------------
 # Commands
 # --------------------------------------------------------------------------------------
@@ -311,9 +333,7 @@ def bake_main(args):
     out_dir = os.path.abspath(args.out)
     check_writable(out_dir)
 
-    def progress(done, total):
-        print(f"\rphotons {done}/{total}", end="", file=sys.stderr, flush=True)
-        return True
+    progress = progress_line("photons")
 
     res = bake_objects(context, objects, photons=photons, seed=seed, resolution=args.resolution,
                        indirect_only=args.indirect_only, progress=progress, save_dir=out_dir,

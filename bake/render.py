@@ -148,20 +148,27 @@ def _photons(cs, scene, settings, run, report, stats, progress, should_stop, lm_
 
 
 def _render(cs, settings, run, stats, progress, on_tile, should_stop, lm_text):
-    """Phase 4: the render pass, tile by tile."""
+    """Phase 4: the render pass, progressive: the whole frame at 1 sample, then 2, 4, ...
+    (each tile shown as it refines); the last pass gives the same image as one pass would."""
+    from ..engine.renderer import progressive_passes
+    passes = progressive_passes(settings.samples)
     n_tiles = max(1, -(-run.width // TILE) * -(-run.height // TILE))
-    done_tiles = [0]
+    done = dict(tiles=0, samples=0, pass_=0)
 
     def tile_progress(x0, y0, tile, img):
-        done_tiles[0] += 1
+        done["tiles"] += 1
+        if done["tiles"] > n_tiles:          # the next pass starts
+            done["tiles"], done["pass_"] = 1, done["pass_"] + 1
+            done["samples"] += passes[done["pass_"] - 1]
+        k, n = done["pass_"], passes[done["pass_"]]
         if on_tile is not None:
             on_tile(x0, y0, tile)
-        progress(0.5 + 0.5 * done_tiles[0] / n_tiles)
-        stats(f"Rendering tile {done_tiles[0]}/{n_tiles} | {run.samples} samples | "
-              f"{run.photons:,} photons | {lm_text}")
+        progress(0.5 + 0.5 * (done["samples"] + n * done["tiles"] / n_tiles) / max(settings.samples, 1))
+        stats(f"Pass {k + 1}/{len(passes)}, {done['samples'] + n}/{settings.samples} samples | "
+              f"tile {done['tiles']}/{n_tiles} | {run.photons:,} photons | {lm_text}")
         return not should_stop()
 
-    return session.render(cs, settings, tile=TILE, progress=tile_progress)
+    return session.render(cs, settings, tile=TILE, progress=tile_progress, passes=passes)
 
 
 def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=None, should_stop=None,

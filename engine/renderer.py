@@ -147,8 +147,10 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
 
 
 @njit(cache=True, parallel=True)
-def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, seed, mode, max_depth,
-                 indirect, gather, out):
+def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed, mode,
+                 max_depth, indirect, gather, out):
+    # Samples s0 <= s < s1 of the pixel's spp, each weighted 1/spp: the passes of a
+    # progressive render add up to the one-pass image (the same streams).
     nb = out.shape[2]
     # a pixel's ray cone: its width grows by this per metre travelled (texture filtering)
     spread = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 0 else 0.0
@@ -178,7 +180,7 @@ def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw,
         px_i = x0 + idx % tw
         py_i = y0 + idx // tw
         pixel = py_i * cam.width + px_i
-        for s in range(spp):
+        for s in range(s0, s1):
             state = stream_state(seed, pixel * spp + s)
             state, jx = next_float(state)
             state, jy = next_float(state)
@@ -275,18 +277,40 @@ def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw,
             out[idx // tw, idx % tw, b] = acc[b]
 
 
+def progressive_passes(samples):
+    """Samples per pass of a progressive render: 1, 1, 2, 4, ... (the first image comes
+    after one sample per pixel, then each pass doubles what is shown), the last pass what is left."""
+    samples, out, done = int(samples), [], 0
+    while done < samples:
+        n = min(max(done, 1), samples - done)
+        if samples - done - n < n / 2:
+            n = samples - done           # no tiny last pass
+        out.append(n)
+        done += n
+    return out
+
+
 def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
-           indirect=True, gather=0, progress=None):
+           indirect=True, gather=0, progress=None, passes=None):
     """Renders cs.camera to a (height, width, n_bands) float array of radiance.
 
     gather: final-gather rays per sample at the first diffuse hit (0: read the
     hit's own lightmap, the thesis's way). It needs lightmaps that hold direct
     light too (trace_photons(record_direct=True)); the lookup needs ones that do not.
 
-    progress(x0, y0, tile_image, image) is called after each tile; returning
-    False cancels (raises Cancelled).
+    passes: samples per pass (summing to `samples`; None: one pass), e.g.
+    progressive_passes(samples). Every pass covers the whole frame, and the image
+    after the last equals the one-pass image (up to rounding): pass k adds the
+    samples the one-pass render takes from the same random streams.
+
+    progress(x0, y0, tile_image, image) is called after each tile, with both
+    scaled to the samples done so far; returning False cancels (raises Cancelled).
     """
     gather = int(gather)
+    samples = int(samples)
+    passes = [samples] if passes is None else [int(n) for n in passes]
+    if sum(passes) != samples or min(passes, default=0) < 1:
+        raise ValueError(f"passes {passes} must be positive and add up to {samples} samples")
     holds_direct = getattr(cs, "lightmaps_hold_direct", False)
     # (lightmaps nothing was traced into are right for either: zero)
     if indirect and gather > 0 and not holds_direct and np.any(cs.lightmaps.flux):
@@ -298,17 +322,25 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
     # photons the caustic lightmaps hold are in no other lightmap (photon_tracer)
     lmc = cs.caustics if getattr(cs, "caustics_traced", False) else cs.lightmaps
     t0 = time.perf_counter()
-    for y0 in range(0, cam.height, tile):
-        for x0 in range(0, cam.width, tile):
-            tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
-            out = np.zeros((th, tw, cs.n_bands))
-            _render_tile(cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights, cs.lightmaps,
-                         lmc, lmc is not cs.lightmaps, ol, cam, env,
-                         x0, y0, tw, th, int(samples), np.uint64(seed), int(mode), int(max_depth),
-                         bool(indirect), max(gather, 0), out)
-            img[y0:y0 + th, x0:x0 + tw] = out
-            if progress is not None and progress(x0, y0, out, img) is False:
-                raise Cancelled("render cancelled")
+    s0 = 0
+    shown = img if len(passes) == 1 else np.zeros_like(img)
+    for n in passes:
+        scale = samples / (s0 + n)      # sums of 1/spp-weighted samples -> the mean so far
+        for y0 in range(0, cam.height, tile):
+            for x0 in range(0, cam.width, tile):
+                tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
+                out = np.zeros((th, tw, cs.n_bands))
+                _render_tile(cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights, cs.lightmaps,
+                             lmc, lmc is not cs.lightmaps, ol, cam, env,
+                             x0, y0, tw, th, samples, s0, s0 + n, np.uint64(seed), int(mode),
+                             int(max_depth), bool(indirect), max(gather, 0), out)
+                img[y0:y0 + th, x0:x0 + tw] += out
+                if shown is not img:
+                    shown[y0:y0 + th, x0:x0 + tw] = img[y0:y0 + th, x0:x0 + tw] * scale
+                if progress is not None and progress(x0, y0, shown[y0:y0 + th, x0:x0 + tw],
+                                                     shown) is False:
+                    raise Cancelled("render cancelled")
+        s0 += n
     cs.timings["render"] = time.perf_counter() - t0
     return img
 
@@ -329,7 +361,7 @@ def _aux_tile(g, ms, ts, cam, x0, y0, tw, th, spp, seed, albedo, normal):
         py_i = y0 + idx // tw
         pixel = py_i * cam.width + px_i
         iy, ix = idx // tw, idx % tw
-        for s in range(spp):
+        for s in range(s0, s1):
             state = stream_state(seed, pixel * spp + s)
             state, jx = next_float(state)
             state, jy = next_float(state)

@@ -180,15 +180,18 @@ def add_direct(lightmaps, gathered):
     TG.add_direct(lightmaps, *gathered)
 
 
-def render(cs, settings, *, tile=64, progress=None):
-    """The render pass over a traced compiled scene -> (H, W, n_bands) radiance."""
+def render(cs, settings, *, tile=64, progress=None, passes=None):
+    """The render pass over a traced compiled scene -> (H, W, n_bands) radiance.
+
+    passes: samples per progressive pass (renderer.render; None: one pass)."""
     from .renderer import render as render_image
     gather = int(settings.gather_rays) if settings.gathers else 0
     if settings.denoise:
         from . import denoise
         denoise.require()
     img = render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
-                       max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress)
+                       max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress,
+                       passes=passes)
     if settings.denoise:
         t0 = time.perf_counter()
         img = denoise_render(cs, img, settings)

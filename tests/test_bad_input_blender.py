@@ -183,6 +183,33 @@ def test_cli_bug_is_an_internal_error_and_errors_start_a_fresh_line(tmp_path, ca
     assert "\rphotons " in err and err.endswith("\nerror: texel density: too high\n")
 
 
+def test_cli_progress_is_one_carriage_return_line_with_rate_and_eta():
+    import io
+    out, now = io.StringIO(), [10.0]
+    progress = cli.progress_line("photons", stream=out, clock=lambda: now[0])
+    now[0] = 12.0
+    assert progress(131_072, 1_000_000) is True
+    now[0] = 20.0
+    progress(1_000_000, 1_000_000)
+    first, second = out.getvalue().split("\r")[1:]
+    # 65,536 photons/s over 2 s; 868,928 to go at that rate: 13 s
+    assert first == "photons 131,072/1,000,000   13 %  65,536/s  ETA 13 s"
+    # done: the rate over the whole phase and its time, padded over the longer line before
+    assert second.rstrip() == "photons 1,000,000/1,000,000  100 %  100,000/s  10.0 s"
+    assert "\n" not in out.getvalue()
+    # a shorter line after a longer one is padded over it
+    out, now = io.StringIO(), [0.0]
+    progress = cli.progress_line("texels", stream=out, clock=lambda: now[0])
+    now[0] = 1.0
+    progress(4_000, 5_000)
+    now[0] = 100.0
+    progress(4_001, 5_000)
+    first, second = out.getvalue().split("\r")[1:]
+    assert first == "texels 4,000/5,000   80 %  4,000/s  ETA 0 s"
+    assert second == "texels 4,001/5,000   80 %  40/s  ETA 25 s".ljust(len(first))
+    assert len(second.rstrip()) < len(first)
+
+
 def test_cli_json_reports_carry_warnings(tmp_path, capsys):
     from photon_lightmaps.operators.orientation_lightmaps import add_orientation_lightmap
     sc = build_scene()

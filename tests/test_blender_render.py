@@ -160,6 +160,23 @@ def test_cancel_stops_cleanly():
     assert run.cancelled and run.image is None and max(progress) <= 0.5
 
 
+def test_render_refines_progressively_and_ends_on_the_full_image():
+    """F12 shows the whole frame after 1 sample, then 2, 4, ... (each pass's tiles
+    replace the last ones); the last tiles are the finished image."""
+    demo_blend.build_cornell_blend(width=70, height=40, photons=20_000, samples=4)
+    dg = bpy.context.evaluated_depsgraph_get()
+    tiles, texts = [], []
+    run = render_engine.run_render(dg, on_tile=lambda x, y, t: tiles.append((x, y, t.copy())),
+                                   stats=texts.append)
+    assert not run.cancelled
+    assert len(tiles) == 3 * 2                       # passes of 1, 1, 2 samples over 2 tiles
+    assert [(x, y) for x, y, _ in tiles] == [(0, 0), (64, 0)] * 3
+    last = np.concatenate([tiles[-2][2], tiles[-1][2]], axis=1)
+    np.testing.assert_array_equal(last, run.image)
+    assert not np.array_equal(tiles[0][2], tiles[-2][2])      # 1 sample, then 4
+    assert any(t.startswith("Pass 3/3, 4/4 samples") for t in texts)
+
+
 def test_registration_round_trip():
     fmt = bpy.types.RENDER_PT_format
     assert ENGINE in fmt.COMPAT_ENGINES and registration.engine_registered()

@@ -86,6 +86,43 @@ def _many(cs_g, ms, bt, ts, ls, lm, ol, env, p, f, n_rays, n_trials, mode, out):
             out[k, b] = e[b]
 
 
+def test_progressive_passes_add_up_to_the_one_pass_image_and_cancel_between_tiles():
+    """A progressive render (1, 1, 2, 4 samples, each pass over the whole frame)
+    ends on the one-pass image; what it shows after each pass is the mean so far;
+    a cancel in the second pass raises before the frame is finished."""
+    assert renderer.progressive_passes(8) == [1, 1, 2, 4]
+    assert renderer.progressive_passes(17) == [1, 1, 2, 4, 9] and renderer.progressive_passes(1) == [1]
+    for n in range(1, 70):
+        ps = renderer.progressive_passes(n)
+        assert sum(ps) == n and min(ps) >= 1
+    cs = compile_scene(demo_scenes.cornell_box(width=20, height=20))
+    trace_photons(cs, 20_000, seed=3, record_direct=True, caustics=True)
+    one = renderer.render(cs, samples=8, seed=4, gather=4, tile=8)
+    shown = []
+    prog = renderer.render(cs, samples=8, seed=4, gather=4, tile=8, passes=[1, 1, 2, 4],
+                           progress=lambda x0, y0, t, img: shown.append(img.copy()))
+    np.testing.assert_allclose(prog, one, rtol=1e-12, atol=1e-15)
+    assert not np.array_equal(shown[8], shown[-1])        # the first pass's image, 1 sample
+    np.testing.assert_array_equal(shown[-1], prog)
+    # pass 1 shows sample 0 of every pixel whatever the schedule after it
+    shown2 = []
+    other = renderer.render(cs, samples=8, seed=4, gather=4, tile=8, passes=[1, 7],
+                            progress=lambda x0, y0, t, img: shown2.append(img.copy()))
+    np.testing.assert_array_equal(shown2[8], shown[8])
+    np.testing.assert_allclose(other, one, rtol=1e-12, atol=1e-15)
+    calls = []
+
+    def stop(x0, y0, t, img):
+        calls.append(1)
+        return len(calls) < 12                  # 9 tiles per pass: stop in pass 2
+    from photon_lightmaps.engine.photon_tracer import Cancelled
+    with pytest.raises(Cancelled):
+        renderer.render(cs, samples=8, seed=4, gather=4, tile=8, passes=[1, 1, 2, 4], progress=stop)
+    assert len(calls) == 12
+    with pytest.raises(ValueError, match="add up"):
+        renderer.render(cs, samples=8, passes=[4, 3])
+
+
 def test_gather_noise_falls_as_one_over_sqrt_rays():
     """At one floor point of the Cornell box, over a fixed photon pass: the gather's
     standard deviation at 4x the rays is at most half (1/sqrt(rays); the stratified

@@ -361,7 +361,7 @@ def _aux_tile(g, ms, ts, cam, x0, y0, tw, th, spp, seed, albedo, normal):
         py_i = y0 + idx // tw
         pixel = py_i * cam.width + px_i
         iy, ix = idx // tw, idx % tw
-        for s in range(s0, s1):
+        for s in range(spp):
             state = stream_state(seed, pixel * spp + s)
             state, jx = next_float(state)
             state, jy = next_float(state)

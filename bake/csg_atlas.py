@@ -72,9 +72,7 @@ def atlas(cs, job, name, leaves, lightmaps=None):
     if lightmaps is not None:
         if not leaves:
             return None
-        blocks = [csg_bake.leaf_rgba(lightmaps, d["lightmap"], csg_bake.full_primitive_areas(
-            cs, job.targets[name], d["row"], int(lightmaps.height[d["lightmap"]]))) for d in leaves]
-        return _packed(name, leaves, blocks)
+        return _packed(name, leaves, [b for b, _ in _leaf_blocks(cs, job.targets[name], leaves, lightmaps)])
     lm = cs.lightmaps
     inst = job.targets[name]
     skipped = {k: v for k, v in job.csg[name].items() if v is not None}
@@ -85,19 +83,25 @@ def atlas(cs, job, name, leaves, lightmaps=None):
         job.result.skipped[name] = ("a CSG solid none of whose operands can be baked "
                                     "(see the warnings)")
         return None
-    blocks = []
-    for d in leaves:
-        lid = d["lightmap"]
-        R = int(lm.height[lid])
-        full = csg_bake.full_primitive_areas(cs, inst, d["row"], R)
-        blocks.append(csg_bake.leaf_rgba(lm, lid, full))
-        sl = LM.texel_slice(lm, lid)
+    pairs = _leaf_blocks(cs, inst, leaves, lm)
+    for d, (_, full) in zip(leaves, pairs):
+        sl = LM.texel_slice(lm, d["lightmap"])
         info["split_texels"] += int(np.count_nonzero(lm.split[sl] >= 0))
         info["boundary_texels"] += int(np.count_nonzero((lm.area[sl] < full.reshape(-1) * (1 - 1e-9))
                                                         & (lm.area[sl] > 0)))
-    bm = _packed(name, leaves, blocks)
+    bm = _packed(name, leaves, [b for b, _ in pairs])
     info["atlas"] = (bm.width, bm.height)
     return bm
+
+
+def _leaf_blocks(cs, inst, leaves, values):
+    """Per leaf: (its image block from per-texel `values` in cs.lightmaps' layout,
+    its texels' areas before CSG)."""
+    out = []
+    for d in leaves:
+        full = csg_bake.full_primitive_areas(cs, inst, d["row"], int(values.height[d["lightmap"]]))
+        out.append((csg_bake.leaf_rgba(values, d["lightmap"], full), full))
+    return out
 
 
 def _packed(name, leaves, blocks):

@@ -152,20 +152,18 @@ def _render(cs, settings, run, stats, progress, on_tile, should_stop, lm_text):
     (each tile shown as it refines); the last pass gives the same image as one pass would."""
     from ..engine.renderer import progressive_passes
     passes = progressive_passes(settings.samples)
+    starts = np.cumsum([0] + passes)        # samples done before each pass
     n_tiles = max(1, -(-run.width // TILE) * -(-run.height // TILE))
-    done = dict(tiles=0, samples=0, pass_=0)
+    calls = [0]
 
     def tile_progress(x0, y0, tile, img):
-        done["tiles"] += 1
-        if done["tiles"] > n_tiles:          # the next pass starts
-            done["tiles"], done["pass_"] = 1, done["pass_"] + 1
-            done["samples"] += passes[done["pass_"] - 1]
-        k, n = done["pass_"], passes[done["pass_"]]
+        k, t = divmod(calls[0], n_tiles)      # pass k, its tile t + 1 (every pass covers the frame)
+        calls[0] += 1
         if on_tile is not None:
             on_tile(x0, y0, tile)
-        progress(0.5 + 0.5 * (done["samples"] + n * done["tiles"] / n_tiles) / max(settings.samples, 1))
-        stats(f"Pass {k + 1}/{len(passes)}, {done['samples'] + n}/{settings.samples} samples | "
-              f"tile {done['tiles']}/{n_tiles} | {run.photons:,} photons | {lm_text}")
+        progress(0.5 + 0.5 * (starts[k] + passes[k] * (t + 1) / n_tiles) / max(settings.samples, 1))
+        stats(f"Pass {k + 1}/{len(passes)}, {starts[k + 1]}/{settings.samples} samples | "
+              f"tile {t + 1}/{n_tiles} | {run.photons:,} photons | {lm_text}")
         return not should_stop()
 
     return session.render(cs, settings, tile=TILE, progress=tile_progress, passes=passes)

@@ -136,7 +136,7 @@ def check_closed_mesh(vertices, triangles, what):
     t = np.asarray(triangles, np.int64).reshape(-1, 3)
     if t.shape[0] < 4:
         raise SceneError(f"{what}: a CSG operand mesh must be closed (it has only {t.shape[0]} triangles)")
-    _, weld = np.unique(v, axis=0, return_inverse=True)
+    welded, weld = np.unique(v, axis=0, return_inverse=True)
     t = weld.reshape(-1)[t]
     e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
     e = e[e[:, 0] != e[:, 1]]
@@ -150,7 +150,9 @@ def check_closed_mesh(vertices, triangles, what):
     if np.any(dcnt != 1):
         raise SceneError(f"{what}: a CSG operand mesh must be consistently oriented "
                          f"({int(np.sum(dcnt != 1))} edges run the same way in both triangles)")
-    p = v[t]
+    # t now indexes the welded vertices. Taken about their centroid, so a mesh far
+    # from the origin keeps the signed volume's precision.
+    p = welded[t] - welded.mean(axis=0)
     vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0
     return 1 if vol >= 0.0 else -1
 

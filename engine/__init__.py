@@ -2,6 +2,7 @@
 import hashlib
 import os
 import pathlib
+import sys
 
 
 def _source_digest():
@@ -21,6 +22,14 @@ def _source_digest():
 _base = os.environ.get("PHOTON_LIGHTMAPS_NUMBA_CACHE") or str(
     pathlib.Path.home() / ".cache" / "photon_lightmaps" / "numba")
 # Bounds-checked kernels (NUMBA_BOUNDSCHECK=1, `make test-boundscheck`) are
-# different machine code under the same cache key: keep them in their own folder.
+# different machine code under the same cache key (numba's key ignores the
+# flag): keep them in their own folder, also below a NUMBA_CACHE_DIR set by hand,
+# so a checked run can never load unchecked code.
 _flavour = "-boundscheck" if os.environ.get("NUMBA_BOUNDSCHECK", "0") not in ("", "0") else ""
-os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(_base, _source_digest() + _flavour))
+if os.environ.get("NUMBA_CACHE_DIR"):
+    if _flavour and os.path.basename(os.environ["NUMBA_CACHE_DIR"]) != "boundscheck":
+        os.environ["NUMBA_CACHE_DIR"] = os.path.join(os.environ["NUMBA_CACHE_DIR"], "boundscheck")
+else:
+    os.environ["NUMBA_CACHE_DIR"] = os.path.join(_base, _source_digest() + _flavour)
+if _flavour and "numba" in sys.modules:      # numba read the variable when it was imported
+    sys.modules["numba"].config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]

@@ -312,7 +312,7 @@ def build_light_test_blend(light_type, path=None, *, width=32, height=32, albedo
     return _finish(scene, path, width, height, engine, photons, samples)
 
 
-# The material scene of issue 13: rough gold, glossy blue plastic and clear glass
+# The material scene: rough gold, glossy blue plastic and clear glass
 # over a floor and a back wall, under one area light, in a dim grey world.
 SPHERES = (("gold_ball", (-0.75, 0.0, 0.3), 0.3), ("plastic_ball", (0.0, 0.0, 0.3), 0.3),
            ("glass_ball", (0.75, 0.0, 0.3), 0.3))

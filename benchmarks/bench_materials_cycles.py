@@ -1,4 +1,4 @@
-"""Error against time next to Cycles on textured, mixed-material scenes (issue 13).
+"""Error against time next to Cycles on textured, mixed-material scenes.
 
 Usage (from the repository root):
     .venv/bin/python -m benchmarks.bench_materials_cycles            # ~10 minutes on 2 cores

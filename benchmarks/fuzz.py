@@ -1,4 +1,4 @@
-"""Fuzz harness for the engine (issue 10, item 7): generated broken scenes must
+"""Fuzz harness for the engine: generated broken scenes must
 either run cleanly or be refused with a SceneError, never crash, hang, produce
 NaN/inf or create energy.
 

@@ -1,4 +1,4 @@
-"""Baking exact CSG solids (issue 5, item 4): one atlas image per solid, split texels
+"""Baking exact CSG solids: one atlas image per solid, split texels
 written with their dominant sub-texel, operand Lightmap layers moved into their
 atlas blocks (so Blender's Boolean result shows the image), nothing of the user's
 rewritten, re-baking idempotent, and the light itself right (analytic direct light).

@@ -1,4 +1,4 @@
-"""Fuzz sample (issue 10, item 7): generated broken scenes either run cleanly or
+"""Fuzz sample: generated broken scenes either run cleanly or
 raise SceneError; no crash, hang, NaN/inf, energy-audit failure or flux above
 what was emitted. Meaningful under NUMBA_BOUNDSCHECK=1 too: an out-of-bounds
 index then raises IndexError in a kernel, which the runner counts as a failure.

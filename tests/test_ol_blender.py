@@ -1,4 +1,4 @@
-"""Orientation lightmaps in Blender (thesis ch. 6, issue 6): collections and
+"""Orientation lightmaps in Blender (thesis ch. 6): collections and
 their OL empties -> export routing, the operators, the bake and its EEVEE
 node lookup, and renders.
 

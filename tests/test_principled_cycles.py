@@ -1,4 +1,4 @@
-"""Principled BSDF lobes and caustics against Cycles (issue 13).
+"""Principled BSDF lobes and caustics against Cycles.
 
 Scene (demo_blend.build_spheres_blend): rough gold (metallic 1, roughness 0.3), glossy blue
 plastic (roughness 0.2, Specular IOR Level 0.5) and clear glass (transmission 1, roughness 0,

@@ -7,8 +7,11 @@ setup: .venv/.stamp
 .venv/.stamp: requirements.txt scripts/setup_venv.sh
 	sh scripts/setup_venv.sh
 
+# DEMO_ARGS: extra demo options (the test of this command passes tiny sizes).
+DEMO_OUT ?= out/demo
+DEMO_ARGS ?=
 demo: setup
-	$(PY) -m photon_lightmaps demo --out out/demo
+	$(PY) -m photon_lightmaps demo --out $(DEMO_OUT) $(DEMO_ARGS)
 
 # The whole suite, then the bad-input and fuzz corpora again with numba's
 # bounds checking (kernels compiled into their own cache folder).

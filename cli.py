@@ -95,7 +95,8 @@ def build_parser():
     d = sub.add_parser("demo", help="render and bake the built-in demo scene")
     d.add_argument("--out", default="out/demo", help="output folder")
     _add_common(d)
-    d.add_argument("--samples", type=_count(1), default=None)
+    d.add_argument("--samples", type=_count(1), default=None, help="pixel samples of the render")
+    d.add_argument("--size", type=_size, default=(256, 256), metavar="WxH", help="render size")
     d.set_defaults(func=demo_main)
 
     r = sub.add_parser("render", help="render a .blend with the Photon Lightmaps engine")
@@ -416,17 +417,24 @@ def demo_main(args):
     t0 = time.perf_counter()
     ensure_registered()
     blend = os.path.join(out, "demo.blend")
-    demo_blend.build_cornell_blend(blend, width=256, height=256, spheres=True, csg=True, ol=True)
-    common = dict(blend=blend, photons=args.photons, seed=args.seed)
+    width, height = args.size
+    demo_blend.build_cornell_blend(blend, width=width, height=height, spheres=True, csg=True, ol=True)
+    common = [f"--{name}={getattr(args, name)}" for name in ("photons", "seed")
+              if getattr(args, name) is not None]
     render_json = os.path.join(out, "render.json")
     bake_json = os.path.join(out, "bake.json")
-    # A failing step raises; cli.main turns that into the one "error: ..." line.
-    render_main(argparse.Namespace(out=os.path.join(out, "render.png"),
-                                            samples=args.samples, json=render_json, **common))
-    bake_main(argparse.Namespace(out=os.path.join(out, "lightmaps"), resolution=None,
-                                      indirect_only=False, json=bake_json, **common))
     ol_json = os.path.join(out, "orientation_lightmaps.json")
-    ol_bake_main(argparse.Namespace(out=os.path.join(out, "lightmaps"), json=ol_json, **common))
+    lightmaps = os.path.join(out, "lightmaps")
+    samples = [f"--samples={args.samples}"] if args.samples is not None else []
+    # Each step goes through the same parser as on the command line, so it gets
+    # every option's default; a failing step raises, and cli.main turns that
+    # into the one "error: ..." line.
+    for argv in (["render", blend, "--out", os.path.join(out, "render.png"), "--json", render_json,
+                  *samples, *common],
+                 ["bake", blend, "--out", lightmaps, "--json", bake_json, *common],
+                 ["bake-ol", blend, "--out", lightmaps, "--json", ol_json, *common]):
+        step = build_parser().parse_args(argv)
+        step.func(step)
     with open(render_json) as f:
         render_report = json.load(f)
     with open(bake_json) as f:

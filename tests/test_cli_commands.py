@@ -1,0 +1,125 @@
+"""Every CLI command end to end, at tiny sizes, as a user runs it: the README's
+`make demo` (through make, so the Makefile's command line is tested too), then
+`render`, `bake` and `bake-ol` on the file the demo wrote, and `lsystem`.
+Each checks its exit code, the files it wrote and the keys of its report."""
+import json
+import os
+import pathlib
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+TINY = ("--photons", "20000", "--seed", "1")
+
+
+def run(*argv, timeout=900):
+    r = subprocess.run([sys.executable, "-m", "photon_lightmaps", *map(str, argv)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=timeout)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "Traceback" not in r.stderr
+    return r
+
+
+def read_png(path):
+    import bpy
+    img = bpy.data.images.load(str(path))
+    try:
+        return tuple(img.size)
+    finally:
+        bpy.data.images.remove(img)
+
+
+def exr_names(folder):
+    return sorted(p.stem for p in pathlib.Path(folder).glob("*.exr"))
+
+
+def test_readme_commands_are_the_makefile_targets_ci_runs():
+    """The README's fresh-machine block is `make demo` and `make test`; CI runs exactly
+    the second, and the demo fixture below runs the first."""
+    readme = (ROOT / "README.md").read_text()
+    block = re.search(r"## Two commands on a fresh machine\s+```sh\n(.*?)```", readme, re.S).group(1)
+    commands = [ln.split("#")[0].strip() for ln in block.splitlines() if ln.strip()]
+    assert commands == ["make demo", "make test"]
+    ci = [ln.strip() for ln in (ROOT / ".ci" / "run").read_text().splitlines()
+          if ln.strip() and not ln.startswith("#")]
+    assert ci[-1] == "make test"
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    """`make demo` with tiny sizes, into a temporary folder."""
+    out = tmp_path_factory.mktemp("demo")
+    env = dict(os.environ, DEMO_OUT=str(out),
+               DEMO_ARGS=" ".join([*TINY, "--samples", "1", "--size", "24x16", "--json", str(out / "demo.json")]))
+    r = subprocess.run(["make", "-s", "-C", str(ROOT), "demo"], env=env, capture_output=True, text=True,
+                       timeout=1800)
+    assert r.returncode == 0, (r.stdout[-2000:], r.stderr[-3000:])
+    return out, r
+
+
+def test_make_demo_renders_and_bakes(demo):
+    out, r = demo
+    assert re.search(r"^demo: .*render\.png and \d+ baked lightmaps", r.stdout, re.M), r.stdout[-2000:]
+    assert (out / "demo.blend").is_file()
+    assert read_png(out / "render.png") == (24, 16)
+    report = json.loads((out / "demo.json").read_text())
+    assert set(report) >= {"blend", "render", "bake", "orientation_lightmaps", "seconds"}
+    assert report["render"]["photons"] > 0 and report["render"]["width"] == 24
+    assert report["bake"]["indirect"] == "gather" and report["bake"]["photons"] > 0
+    baked = report["bake"]["objects"]
+    assert {"floor", "back", "left", "right"} <= set(baked)
+    for name, row in baked.items():
+        assert os.path.isfile(row["path"]) and row["bytes"] > 0 and np.all(np.isfinite(row["mean"])), name
+    ols = report["orientation_lightmaps"]["orientation_lightmaps"]
+    assert len(ols) == 1
+    assert set(exr_names(out / "lightmaps")) == set(baked) | set(ols)
+
+
+def test_render(demo, tmp_path):
+    out, _ = demo
+    rep = tmp_path / "r.json"
+    r = run("render", out / "demo.blend", "--out", tmp_path / "r.exr", "--json", rep, *TINY,
+            "--samples", "1", "--indirect", "lookup")
+    report = json.loads(rep.read_text())
+    assert (tmp_path / "r.exr").stat().st_size > 0 and "r.exr" in r.stdout
+    assert report["settings"]["indirect"] == "LOOKUP" and report["settings"]["samples"] == 1
+    assert set(report["seconds"]) >= {"load", "pipeline", "total", "photon_pass", "render"}
+    assert (report["width"], report["height"]) == (24, 16)
+
+
+def test_bake(demo, tmp_path):
+    out, _ = demo
+    rep = tmp_path / "b.json"
+    run("bake", out / "demo.blend", "--out", tmp_path / "maps", "--json", rep, *TINY,
+        "--resolution", "8", "--bake-gather-rays", "2", "--error-images")
+    report = json.loads(rep.read_text())
+    assert report["bake_gather_rays"] == 2
+    assert set(report) >= {"photons", "rays", "seconds", "objects", "skipped", "warnings", "memory"}
+    for name, row in report["objects"].items():
+        assert (row["width"], row["height"]) == (8, 8) or name.startswith("csg"), name
+        assert os.path.isfile(row["path"]) and os.path.isfile(row["error_image"]), name
+
+
+def test_bake_ol(demo, tmp_path):
+    out, _ = demo
+    rep = tmp_path / "o.json"
+    run("bake-ol", out / "demo.blend", "--out", tmp_path / "ol", "--json", rep, *TINY)
+    report = json.loads(rep.read_text())
+    (name, row), = report["orientation_lightmaps"].items()
+    assert os.path.isfile(row["path"]) and row["resolution"] > 0 and row["objects"]
+    assert exr_names(tmp_path / "ol") == [name]
+
+
+def test_lsystem(tmp_path):
+    grammar = tmp_path / "tree.lsys"
+    grammar.write_text("axiom: F\nderivation length: 3\nangle: 25.7\nproduction:\nF --> F[+F]F[-F]F\n")
+    rep = tmp_path / "l.json"
+    run("lsystem", grammar, "--json", rep, "--render", tmp_path / "l.png", "--photons", "20000",
+        "--samples", "1", "--size", "16x16")
+    report = json.loads(rep.read_text())
+    assert report["segments"] == 5 ** 3 and report["primitives"] == 5 ** 3
+    assert read_png(tmp_path / "l.png") == (16, 16)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine import session
+from ..engine import session, uv_atlas
 from ..engine.photon_tracer import Cancelled
 from ..export import export_scene
 from ..messages import describe, is_user_error, record
@@ -41,6 +41,8 @@ class RenderRun:
     orientation_lightmaps: list = field(default_factory=list)   # ol_bake.summarize rows
     environment: dict = None    # the world's map: name, width, height, bytes, bake_seconds
     denoised: bool = False      # image is OIDN's output (the tiles shown while rendering were not)
+    layouts: list = field(default_factory=list)   # per unwrapped mesh: the layout chosen and why
+    xatlas_workers: int = 0     # xatlas child processes this render started
 
     def as_dict(self):
         return {"scene": self.scene, "width": self.width, "height": self.height,
@@ -52,6 +54,7 @@ class RenderRun:
                 "warnings": list(self.warnings), "cancelled": self.cancelled,
                 "orientation_lightmaps": [dict(r) for r in self.orientation_lightmaps],
                 "denoised": self.denoised,
+                "layouts": [dict(r) for r in self.layouts], "xatlas_workers": self.xatlas_workers,
                 "environment": dict(self.environment) if self.environment else None}
 
 
@@ -107,9 +110,17 @@ def _export(depsgraph, run, report, camera_override, resolution):
 
 def _compile(scene, run, report):
     """Phase 2: the compiled scene, its warnings and lightmap numbers."""
+    launches = uv_atlas.worker_launches
     cs = session.compile(scene)
+    run.xatlas_workers = uv_atlas.worker_launches - launches
     for text in cs.info.get("warnings", ()):   # dropped triangles, unwrap fallbacks, clamped UVs
         report("WARNING", f"Photon Lightmaps: {text}")
+    run.layouts = list(cs.info.get("layouts", ()))
+    for row in run.layouts:
+        if row["layout"] == "orientation lightmap" and "unwrap limit" in row["reason"]:
+            report("INFO", f"Photon Lightmaps: mesh '{row['mesh']}' is lit through an automatic "
+                           f"orientation lightmap: {row['reason']} (raise Unwrap Limit, or add a "
+                           "'Lightmap' UV layer, for per-texel detail)")
     run.lightmap_bytes = cs.lightmap_bytes()
     if cs.info.get("csg_ties"):
         report("WARNING", f"Photon Lightmaps: coincident CSG operand faces ({cs.info['csg_ties']:,} ties on "

@@ -275,16 +275,19 @@ def _csg_with_uvs(node, uvs):
     return node
 
 
-def unwrap_meshes(scene, warnings, progress=None):
+def unwrap_meshes(scene, warnings, progress=None, layouts=None):
     """Gives lightmap UVs to the meshes that record photons but have none.
 
     Only prototypes with an instance that keeps its own lightmaps are
     unwrapped (objects under an orientation lightmap need no UVs), all in one
-    batch through the contained xatlas worker (engine/uv_atlas.py). Where
-    xatlas fails on a mesh, that prototype's instances fall back to an
-    orientation lightmap of their own (or the one they are already under),
-    with a warning naming the mesh. Returns a new Scene; the input is not
-    modified."""
+    batch through the contained xatlas worker (engine/uv_atlas.py). A mesh
+    above scene.unwrap_limit triangles whose unwrap is not cached is not
+    unwrapped: an xatlas run would take minutes, and with the final gather an
+    object's own lightmap is read only one bounce away, so its prototype is lit
+    through an automatic orientation lightmap instead. Where xatlas fails on a
+    mesh, the prototype falls back the same way, with a warning naming the
+    mesh. layouts (a list) gets one row per unwrapped or skipped mesh: which
+    layout it got and why. Returns a new Scene; the input is not modified."""
     from . import uv_atlas as UA   # late: xatlas is only needed for such meshes
     n_mat = len(scene.materials)
     recording = np.zeros(len(scene.prototypes), np.bool_)
@@ -292,7 +295,10 @@ def unwrap_meshes(scene, warnings, progress=None):
         p = inst.prototype
         if inst.lightmap and isinstance(p, (int, np.integer)) and 0 <= p < recording.size:
             recording[p] = True
+    layouts = [] if layouts is None else layouts
+    limit = int(getattr(scene, "unwrap_limit", 0) or 0)
     jobs, owners = [], []          # owners[j]: (prototype, mesh) of job j
+    too_big = {}                   # prototype -> (mesh, triangles) over the limit
     for pi, proto in enumerate(scene.prototypes):
         if not recording[pi]:
             continue
@@ -302,16 +308,29 @@ def unwrap_meshes(scene, warnings, progress=None):
                 continue
             v, tri, _ = check_mesh_arrays(mesh, f"mesh '{mesh.name}' in prototype '{proto.name}'", n_mat)
             keep = nondegenerate(v[tri])
+            n = int(keep.sum())
+            if limit and n > limit and not UA.is_cached(v, tri[keep]):
+                too_big.setdefault(pi, (mesh, n))
+                continue
             jobs.append((v, tri[keep]))
             owners.append((pi, mesh, keep))
-    if not jobs:
+    owners_jobs = [(o, j) for o, j in zip(owners, jobs) if o[0] not in too_big]
+    owners, jobs = [o for o, _ in owners_jobs], [j for _, j in owners_jobs]
+    if not jobs and not too_big:
         return scene
-    results = UA.unwrap_many(jobs, progress=progress)
+    results = UA.unwrap_many(jobs, progress=progress) if jobs else []
     uvs_by_proto, failed = {}, {}
+    for pi, (mesh, n) in too_big.items():
+        failed[pi] = (mesh, None)
+        layouts.append({"mesh": mesh.name, "triangles": n, "layout": "orientation lightmap",
+                        "reason": f"{n:,} triangles without a 'Lightmap' UV layer is above the "
+                                  f"unwrap limit of {limit:,}"})
     for (pi, mesh, keep), res in zip(owners, results):
         if isinstance(res, Exception):
             failed.setdefault(pi, (mesh, res))
             continue
+        layouts.append({"mesh": mesh.name, "triangles": int(keep.sum()), "layout": "xatlas",
+                        "reason": "no 'Lightmap' UV layer"})
         uv = np.zeros((keep.shape[0], 3, 2))
         uv[keep] = res.uv
         uvs_by_proto.setdefault(pi, {})[id(mesh)] = uv
@@ -331,8 +350,12 @@ def unwrap_meshes(scene, warnings, progress=None):
         alone = [i for i in mine if i not in covered]
         if alone:
             ols.append(OrientationLightmap(name=f"{mesh.name} (automatic)", instances=alone))
+        if err is None:            # over the limit: a choice, reported in layouts, not a warning
+            continue
         n = getattr(err, "triangles", None)
         what = getattr(err, "reason", str(err)) + (f" unwrapping {n:,} triangles" if n else "")
+        layouts.append({"mesh": mesh.name, "triangles": n, "layout": "orientation lightmap",
+                        "reason": what})
         warnings.append(f"mesh '{mesh.name}': {what}; its objects are lit through an orientation "
                         "lightmap instead (per-object shading detail is averaged by normal; add a "
                         "UV layer named 'Lightmap' to keep it)")
@@ -490,7 +513,8 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     scene = _lsystem_orientation(scene)
     scene, ol_maps = _plan_orientation(scene)
     n_ols = len(scene.orientation_lightmaps)
-    scene = unwrap_meshes(scene, warnings)
+    layouts = []
+    scene = unwrap_meshes(scene, warnings, layouts=layouts)
     if len(scene.orientation_lightmaps) != n_ols:    # unwrap fallbacks added OLs
         scene, ol_maps = _plan_orientation(scene)
     t_unwrap = time.perf_counter()
@@ -513,6 +537,7 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     t_geo = time.perf_counter()
     info = dict(info)
     info["warnings"] = warnings + compile_warnings(info)
+    info["layouts"] = layouts
     lightmaps, per_instance, ol_maps = allocate_lightmaps(scene, geom, density, max_resolution,
                                                           csg, csg_split, info, ol_maps, dcsg)
     caustics = _caustic_lightmaps(scene, geom, density, max_resolution, csg, csg_split, dcsg, info)

@@ -273,6 +273,10 @@ class Scene:
     # Caustic lightmaps (renders): photons that reached a surface only through sharp
     # mirrors and glass are stored at this many times the texel density (1: off).
     caustic_resolution: float = 4.0
+    # Renders: a mesh without lightmap UVs and above this many triangles is lit through
+    # an automatic orientation lightmap instead of waiting on an xatlas unwrap
+    # (~0.6 ms per triangle on 2 cores; 0: always unwrap). Cached unwraps are still used.
+    unwrap_limit: int = 20_000
     name: str = "scene"
     orientation_lightmaps: list = field(default_factory=list)  # OrientationLightmap
     textures: list = field(default_factory=list)   # Texture, indexed by Material.textures

@@ -24,6 +24,7 @@ class Settings:
     seed: int = 0
     texel_density: float = 16.0
     caustic_resolution: float = 4.0
+    unwrap_limit: int = 20_000      # renders: larger meshes without lightmap UVs get an automatic OL
     samples: int = 16
     reconstruction: str = "BILINEAR"
     indirect: str = "GATHER"        # renders and bakes: "GATHER" (final gather) or "LOOKUP" (the thesis's)

@@ -444,6 +444,15 @@ def unwrap_many(jobs, progress=None, should_stop=None):
     return results
 
 
+def is_cached(vertices, triangles, resolution=None, texels_per_unit=None, padding=2):
+    """True when unwrap_many would answer this mesh from the cache (no child process)."""
+    try:
+        v, t, res, tpu, pad, _ = _prepare(vertices, triangles, resolution, texels_per_unit, padding)
+    except UnwrapError:
+        return False
+    return t.shape[0] == 0 or _lookup(_key(v, t, res, tpu, pad), t.shape[0]) is not None
+
+
 def unwrap_atlas(vertices, triangles, resolution=None, texels_per_unit=None, padding=2,
                  use_cache=True):
     """xatlas unwrap of a mesh -> AtlasResult (see the namedtuple fields); raises UnwrapError.

@@ -39,6 +39,7 @@ def _run(ctx, camera_override, resolution):
     if settings is not None:
         ctx.scene.texel_density = float(settings.texel_density)
         ctx.scene.caustic_resolution = float(getattr(settings, "caustic_resolution", 4.0))
+        ctx.scene.unwrap_limit = int(getattr(settings, "unwrap_limit", ctx.scene.unwrap_limit))
     operands = csg.find_operands(dg)
     ctx.map.csg_operands = {o.name: solid for o, solid in operands.items()}
     router = OLRouter(bscene, ctx.report) if ctx.use_ols else None

@@ -55,6 +55,7 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         col = layout.column(heading="Lightmaps")
         col.prop(s, "texel_density")
         col.prop(s, "caustic_resolution")
+        col.prop(s, "unwrap_limit")
         col.prop(s, "reconstruction")
         col = layout.column(heading="Render")
         col.prop(s, "samples")

@@ -81,6 +81,12 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         name="Caustic Resolution", default=_D.caustic_resolution, min=1.0, soft_max=16.0,
         description="Renders keep photons that arrive only through sharp glass or mirrors in "
                     "lightmaps of their own, this many times finer, so caustics stay sharp")
+    unwrap_limit: IntProperty(
+        name="Unwrap Limit", default=_D.unwrap_limit, min=0, soft_max=1_000_000,
+        description="Renders give meshes without a 'Lightmap' UV layer an xatlas unwrap up to this "
+                    "many triangles (about 0.6 ms each); larger ones are lit through an automatic "
+                    "orientation lightmap instead of waiting minutes. 0: always unwrap. Bakes "
+                    "always unwrap what they bake")
     reconstruction: EnumProperty(
         name="Reconstruction", default=_D.reconstruction,
         items=(('BILINEAR', "Bilinear", "Interpolate irradiance between texel centres"),

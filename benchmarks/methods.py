@@ -184,7 +184,7 @@ def ours_render_gather(photons, samples, seed, gather_rays=16, denoise=False):
     scene, _ = export_scene(bpy.context.evaluated_depsgraph_get())
     cs = compile_scene(scene)
     trace_photons(cs, max(int(photons), 1), seed=seed, max_bounces=MAX_BOUNCES, record_direct=True,
-                  caustics=True)
+                  caustics=True, gather=gather_rays > 0)
     img = render_image(cs, samples=samples, seed=seed, mode=LM.MODE_BILINEAR, max_depth=MAX_BOUNCES,
                        gather=gather_rays)
     t = time.perf_counter() - t0

@@ -77,23 +77,27 @@ def compile(scene):
     return compile_scene(scene)
 
 
-def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=None, caustics=False):
+def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=None, caustics=False,
+                gather=False):
     """Traces the photons into cs.lightmaps -> PhotonStats. Raises Cancelled.
 
     record_direct=False keeps first hits out (the direct part is gathered per
     texel instead, see gather_direct); orientation-lightmap bakes record them.
     caustics=True (renders): caustic photons go to the finer cs.caustics.
+    gather=True: final-gather rays read the lightmaps, so they keep one bounce
+    less (trace_photons).
     """
     from .photon_tracer import trace_photons
     n = settings.photons if photons is None else photons
     return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
-                         record_direct=record_direct, progress=progress, caustics=caustics)
+                         record_direct=record_direct, progress=progress, caustics=caustics, gather=gather)
 
 
 def render_photon_pass(cs, settings, *, progress=None):
     """The photon pass a render needs: caustics apart, and direct hits recorded
     when the render gathers (the gather reads total irradiance one bounce away)."""
-    return photon_pass(cs, settings, record_direct=settings.gathers, progress=progress, caustics=True)
+    return photon_pass(cs, settings, record_direct=settings.gathers, progress=progress, caustics=True,
+                       gather=settings.gathers)
 
 
 def compile_and_trace(scene, settings, *, record_direct=False, progress=None):
@@ -113,7 +117,7 @@ def compile_and_trace_bake(scene, settings, *, progress=None):
     if not settings.bake_gathers:
         return compile_and_trace(scene, settings, progress=progress)
     cs = compile(replace(scene, caustic_resolution=1.0))
-    return cs, photon_pass(cs, settings, record_direct=True, progress=progress, caustics=True)
+    return cs, photon_pass(cs, settings, record_direct=True, progress=progress, caustics=True, gather=True)
 
 
 def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline=None):

@@ -214,3 +214,21 @@ def test_time_budget_shares_rays_by_relative_error():
     assert lam.max() / lam.min() < 1.15
     assert np.array_equal(BG._share(rel, 4, 60, 10 ** 9), np.full(rel.size, 60))
     assert not BG._share(rel, 4, 60, 0).any()
+
+
+@pytest.mark.parametrize("indirect", ["GATHER", "LOOKUP"])
+@pytest.mark.parametrize("bounces", [1, 2])
+def test_bake_keeps_the_bounce_limit(indirect, bounces):
+    """A furnace baked at max_bounces K holds light of 0..K bounces, Φ/A Σ_{k≤K} ρ^k,
+    whether indirect light is gathered or looked up. Gather rays add a bounce of
+    their own, so the lightmaps they read keep K - 1; with K they would hold one
+    bounce too many (here 7-14 % too bright)."""
+    from photon_lightmaps.engine import session
+    settings = session.Settings(photons=400_000, seed=5, max_bounces=bounces, indirect=indirect)
+    cs, _ = session.compile_and_trace_bake(demo_scenes.furnace_sphere(RHO, FLUX, source=(0.3, -0.2, 0.1),
+                                                                      resolution=12), settings)
+    session.bake_texels(cs, all_lightmaps(cs), [], settings)
+    lm = cs.lightmaps
+    rows = np.flatnonzero(lm.area > 0)
+    expected = FLUX / lm.area[rows].sum() * sum(RHO ** k for k in range(bounces + 1))
+    np.testing.assert_allclose(area_mean(lm, rows), expected, rtol=0.01)

@@ -138,6 +138,12 @@ def build_parser():
     _add_common(o)
     o.set_defaults(func=ol_bake_main)
 
+    w = sub.add_parser("warmup", help="compile the kernels renders and bakes need, so the first one "
+                                      "starts at once (takes minutes once; cached afterwards)")
+    w.add_argument("--json", metavar="REPORT", default=None, help="write a JSON report here")
+    w.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    w.set_defaults(func=warmup_main)
+
     ls = sub.add_parser("lsystem", help="count an L-system grammar file through its scene graph (JSON)")
     ls.add_argument("grammar", metavar="FILE", help="grammar text (see the README's L-system section)")
     ls.add_argument("--json", metavar="REPORT", nargs="?", const="-", default="-",
@@ -160,11 +166,20 @@ class _LineTracker:
     def __init__(self, stream):
         self._stream = stream
         self.at_line_start = True
+        self.transient = False      # the last line is the compile line: end it before other output
 
     def write(self, s):
+        if s and self.transient:
+            self._stream.write("\n")
+            self.transient = False
         if s:
             self.at_line_start = s.endswith("\n")
         return self._stream.write(s)
+
+    def write_transient(self, s):
+        self._stream.write(s)
+        self._stream.flush()
+        self.transient, self.at_line_start = True, False
 
     def __getattr__(self, name):
         return getattr(self._stream, name)
@@ -301,6 +316,7 @@ def render_main(args):
                                                               "gather_rays", "denoise")})
     # "total" is the whole command (load, render, save); "pipeline" is export to last tile.
     report["seconds"].update(load=t_load - t0, pipeline=run.seconds["total"], total=t_end - t0)
+    report["kernels"] = kernels_report()
     print(f"{out}: {run.width}x{run.height}, {run.photons:,} photons in {run.seconds['photon_pass']:.2f} s, "
           f"render {run.seconds['render']:.2f} s, total {t_end - t0:.2f} s")
     for ol in run.orientation_lightmaps:
@@ -367,6 +383,7 @@ def bake_main(args):
         "skipped": res.skipped,
         "warnings": res.warnings,
         "memory": {"lightmap_bytes": res.lightmap_bytes, "peak_rss_bytes": peak_rss_bytes()},
+        "kernels": kernels_report(),
     }
     text = json.dumps(report, indent=2)
     print(text)
@@ -397,6 +414,7 @@ def ol_bake_main(args):
                          **next((r for r in res.rows if r["name"] == name), {})}
                   for name, rgba in res.maps.items()},
               "warnings": res.warnings,
+              "kernels": kernels_report(),
               "seconds": {"photon_pass": res.seconds.get("photon_pass", 0.0),
                           "total": time.perf_counter() - t0}}
     text = json.dumps(report, indent=2)
@@ -511,6 +529,7 @@ def lsystem_main(args):
         report["render"] = _render_lsystem(grammar, args, report)
     report["timings"]["total"] = time.perf_counter() - t0
     report["memory"]["peak_rss_bytes"] = peak_rss_bytes()
+    report["kernels"] = kernels_report()
     text = json.dumps(report, indent=2)
     if args.json == "-":
         print(text)
@@ -521,12 +540,108 @@ def lsystem_main(args):
     return 0
 
 
+WARMUP_GRAMMAR = "axiom: F\nderivation length: 2\nangle: 25.7\nproduction:\nF --> F[+F]F[-F]F\n"
+
+
+def _warmup_steps(folder):
+    """(name, argv lists) of the kernel families, each through the command line users run."""
+    import bpy  # noqa: F401  (bmesh and friends need bpy loaded first)
+
+    from . import demo_blend
+    tiny = ["--photons=2000", "--seed=1"]
+    textured = os.path.join(folder, "textured.blend")
+    grammar = os.path.join(folder, "tree.lsys")
+    pathlib.Path(grammar).write_text(WARMUP_GRAMMAR)
+
+    def build_textured():
+        demo_blend.build_spheres_blend(textured, width=8, height=8, textures=True)
+    return [
+        ("meshes, spheres, exact CSG and orientation lightmaps: render, bake, bake-ol", None,
+         [["demo", "--out", os.path.join(folder, "demo"), "--samples=1", "--size=8x8", *tiny]]),
+        ("textures and glossy materials: render", build_textured,
+         [["render", textured, "--out", os.path.join(folder, "textured.png"), "--samples=1", *tiny]]),
+        ("L-systems through their scene graph: render", None,
+         [["lsystem", grammar, "--json", os.path.join(folder, "tree.json"),
+           "--render", os.path.join(folder, "tree.png"), "--photons=2000", "--samples=1", "--size=8x8"]]),
+    ]
+
+
+def warmup_main(args):
+    """CLI: runs each kernel family once at a tiny size, so its kernels compile
+    (and land in the cache) now rather than in the first real render."""
+    import contextlib
+    import tempfile
+    t0 = time.perf_counter()
+    ensure_registered()
+    watch = _WATCH[-1] if _WATCH else None
+    families = []
+    with tempfile.TemporaryDirectory(prefix="photon_lightmaps_warmup_") as folder:
+        steps = _warmup_steps(folder)
+        for k, (name, build, argvs) in enumerate(steps, 1):
+            before = watch.compiled if watch else 0
+            seen = dict(watch.by_kernel) if watch else {}
+            t1 = time.perf_counter()
+            sys.stderr.write(f"warmup {k}/{len(steps)}: {name}\n")
+            with open(os.devnull, "w") as quiet, contextlib.redirect_stdout(quiet):
+                if build is not None:
+                    build()
+                for argv in argvs:
+                    step = build_parser().parse_args(argv)
+                    step.func(step)
+            spent = {k: round(v - seen.get(k, 0.0), 2) for k, v in (watch.by_kernel if watch else {}).items()
+                     if v > seen.get(k, 0.0)}
+            families.append({"family": name, "seconds": round(time.perf_counter() - t1, 2),
+                             "compiled": (watch.compiled if watch else 0) - before,
+                             "kernel_seconds": dict(sorted(spent.items(), key=lambda kv: -kv[1]))})
+            sys.stderr.write(f"warmup {k}/{len(steps)}: done in {families[-1]['seconds']:.0f} s, "
+                             f"{families[-1]['compiled']} kernels compiled "
+                             f"({time.perf_counter() - t0:.0f} s in all)\n")
+    report = {"families": families, "kernels": kernels_report(), "seconds": time.perf_counter() - t0}
+    if args.json:
+        path = pathlib.Path(args.json)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(report, indent=2) + os.linesep)
+    print(f"warmup: {report['kernels']['compiled']} kernels compiled in {report['seconds']:.0f} s; "
+          "renders and bakes now start without compiling")
+    return 0
+
+
+def compile_line(tracker, clock=time.perf_counter):
+    """An on_compile callback (engine/kernel_watch.py) that redraws one stderr line
+    while kernels compile, so a first run says why it waits."""
+    t0 = []
+
+    def on_compile(watch, name):
+        t0 or t0.append(clock())
+        tracker.write_transient(f"\rcompiling kernels (first run; cached for later runs): "
+                                f"{watch.started} so far, {clock() - t0[0]:.0f} s ")
+    return on_compile
+
+
+def kernels_report():
+    """The running command's kernel compiles, for its JSON report."""
+    return _WATCH[-1].summary() if _WATCH else {"compiled": 0, "seconds": 0.0}
+
+
+_WATCH = []
+
+
 def main(argv=None):
+    from .engine import kernel_watch
     args = build_parser().parse_args(argv)
     stderr = sys.stderr
     sys.stderr = tracker = _LineTracker(stderr)
     try:
-        return args.func(args)
+        with kernel_watch.watching(compile_line(tracker)) as watch:
+            _WATCH.append(watch)
+            try:
+                return args.func(args)
+            finally:
+                _WATCH.pop()
+                if watch.compiled:
+                    tracker.write(("" if tracker.at_line_start or tracker.transient else "\n")
+                                  + f"compiled {watch.compiled} kernels in {watch.seconds:.0f} s "
+                                  "(cached: later runs start at once)\n")
     except Exception as exc:  # noqa: BLE001  (the one place a command's failure reaches the user)
         from .messages import describe, is_user_error
         user = is_user_error(exc)

@@ -43,6 +43,7 @@ class RenderRun:
     denoised: bool = False      # image is OIDN's output (the tiles shown while rendering were not)
     layouts: list = field(default_factory=list)   # per unwrapped mesh: the layout chosen and why
     xatlas_workers: int = 0     # xatlas child processes this render started
+    kernels: dict = field(default_factory=dict)   # kernel compiles during the render (first runs)
 
     def as_dict(self):
         return {"scene": self.scene, "width": self.width, "height": self.height,
@@ -55,6 +56,7 @@ class RenderRun:
                 "orientation_lightmaps": [dict(r) for r in self.orientation_lightmaps],
                 "denoised": self.denoised,
                 "layouts": [dict(r) for r in self.layouts], "xatlas_workers": self.xatlas_workers,
+                "kernels": dict(self.kernels),
                 "environment": dict(self.environment) if self.environment else None}
 
 
@@ -182,6 +184,27 @@ def _render(cs, settings, run, stats, progress, on_tile, should_stop, lm_text):
 
 def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=None, should_stop=None,
                camera_override=None, resolution=None):
+    """_run_render, with the stats line saying so while kernels compile (a first
+    run compiles for minutes; later runs load them from the cache)."""
+    from ..engine import kernel_watch
+    stats = stats or (lambda text: None)
+    t0 = []
+
+    def on_compile(watch, name):
+        t0 or t0.append(time.perf_counter())
+        stats(f"Compiling kernels (first run, cached afterwards): {watch.started} so far, "
+              f"{time.perf_counter() - t0[0]:.0f} s")
+
+    with kernel_watch.watching(on_compile) as watch:
+        run = _run_render(depsgraph, report=report, stats=stats, progress=progress, on_tile=on_tile,
+                          should_stop=should_stop, camera_override=camera_override,
+                          resolution=resolution)
+    run.kernels = watch.summary()
+    return run
+
+
+def _run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=None, should_stop=None,
+                camera_override=None, resolution=None):
     """Renders the evaluated depsgraph with the scene's Photon Lightmaps settings.
 
     report(level, msg); stats(text); progress(fraction in [0, 1]);

@@ -123,3 +123,39 @@ def test_lsystem(tmp_path):
     report = json.loads(rep.read_text())
     assert report["segments"] == 5 ** 3 and report["primitives"] == 5 ** 3
     assert read_png(tmp_path / "l.png") == (16, 16)
+
+
+def test_warmup_then_render_compiles_nothing(demo, tmp_path):
+    """`warmup` runs every kernel family; a render after it compiles no kernel, even of
+    a family the demo does not have (textures, glossy lobes)."""
+    rep = tmp_path / "w.json"
+    r = run("warmup", "--json", rep)
+    report = json.loads(rep.read_text())
+    assert len(report["families"]) == 3 and all(f["seconds"] > 0 for f in report["families"])
+    assert [ln for ln in r.stderr.splitlines() if ln.startswith("warmup 3/3: done")]
+    import bpy  # noqa: F401
+    from photon_lightmaps import demo_blend, registration
+    if not registration.is_registered():
+        registration.register()
+    blend = tmp_path / "textured.blend"
+    demo_blend.build_spheres_blend(str(blend), width=12, height=8, textures=True)
+    rr = tmp_path / "r.json"
+    run("render", blend, "--out", tmp_path / "t.png", "--json", rr, *TINY, "--samples", "2")
+    assert json.loads(rr.read_text())["kernels"] == {"compiled": 0, "seconds": 0.0}
+
+
+def test_compile_line_is_ended_before_other_output():
+    import io
+
+    from photon_lightmaps import cli
+    from photon_lightmaps.engine.kernel_watch import KernelWatch
+    out = io.StringIO()
+    tracker = cli._LineTracker(out)
+    watch = KernelWatch(cli.compile_line(tracker, clock=iter(range(100)).__next__))
+    for _ in range(2):
+        watch.started += 1
+        watch.on_compile(watch, "k")
+    tracker.write("\rphotons 10/10")
+    text = out.getvalue()
+    assert text.count("compiling kernels (first run") == 2
+    assert "2 so far" in text and text.endswith("s \n\rphotons 10/10")

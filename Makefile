@@ -13,9 +13,12 @@ DEMO_ARGS ?=
 demo: setup
 	$(PY) -m photon_lightmaps demo --out $(DEMO_OUT) $(DEMO_ARGS)
 
-# The whole suite, then the bad-input and fuzz corpora again with numba's
-# bounds checking (kernels compiled into their own cache folder).
-test: test-unit test-boundscheck
+# The whole suite, and beside it the bad-input and fuzz corpora again with
+# numba's bounds checking (kernels compiled into their own cache folder). They
+# run side by side: the checked pass is mostly compiling, which is one core's
+# work, so together they take little longer than the suite alone.
+test: setup
+	$(MAKE) -j2 --output-sync=target test-unit test-boundscheck
 
 test-unit: setup
 	$(PY) -m pytest -q --durations=25 tests

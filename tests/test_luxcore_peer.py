@@ -16,10 +16,11 @@ bpy = pytest.importorskip("bpy")
 from photon_lightmaps import demo_blend as D  # noqa: E402
 from benchmarks import luxcore_peer as L  # noqa: E402
 
-# Not importorskip: importing pyluxcore next to bpy aborts the process (their
+# Not imported here: importing pyluxcore next to bpy aborts the process (their
 # bundled libraries clash), which is one more reason the renders run in a worker.
-pytestmark = pytest.mark.skipif(not L.available(), reason="pyluxcore not installed "
-                                                           "(benchmarks/requirements.txt)")
+# The test setup installs it (requirements.txt), so a missing one is an error, not a skip.
+if not L.available():
+    pytest.fail("pyluxcore is not installed: run `make setup` (requirements.txt)", pytrace=False)
 
 RHO = 0.8
 H = 1.5

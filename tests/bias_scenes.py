@@ -131,37 +131,7 @@ def bake_objects():
 
 def cycles_bake(samples, seed=0):
     """Cycles' Diffuse bake (Direct + Indirect, no Color) of every mesh -> {name: (RES, RES, 3)}."""
-    scene = bpy.context.scene
-    engine = scene.render.engine
-    scene.render.engine = "CYCLES"
-    cy = scene.cycles
-    cy.device = "CPU"
-    cy.samples = samples
-    cy.use_adaptive_sampling = False
-    cy.use_denoising = False
-    cy.seed = seed
-    cy.max_bounces = cy.diffuse_bounces = MAX_BOUNCES
-    cy.sample_clamp_direct = cy.sample_clamp_indirect = 0.0
-    out = {}
-    try:
-        for ob in bake_objects():
-            img = bpy.data.images.new(f"ref_{ob.name}", RES, RES, float_buffer=True, alpha=True)
-            tree = ob.material_slots[0].material.node_tree
-            node = tree.nodes.new("ShaderNodeTexImage")
-            node.image = img
-            tree.nodes.active = node
-            for o in bpy.context.view_layer.objects:
-                o.select_set(False)
-            ob.select_set(True)
-            bpy.context.view_layer.objects.active = ob
-            bpy.ops.object.bake(type="DIFFUSE", pass_filter={"DIRECT", "INDIRECT"},
-                                uv_layer=D.LIGHTMAP_UV, margin=2, use_clear=True,
-                                target="IMAGE_TEXTURES")
-            px = np.empty(RES * RES * 4, np.float32)
-            img.pixels.foreach_get(px)
-            out[ob.name] = px.reshape(RES, RES, 4)[..., :3].copy()
-            tree.nodes.remove(node)
-            bpy.data.images.remove(img)
-    finally:
-        scene.render.engine = engine
-    return out
+    from blender_session import cycles_diffuse_bake
+    return {ob.name: cycles_diffuse_bake(ob, RES, samples, seed=seed, bounces=MAX_BOUNCES, margin=2,
+                                         uv_layer=D.LIGHTMAP_UV)[..., :3].copy()
+            for ob in bake_objects()}

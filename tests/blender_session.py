@@ -41,6 +41,43 @@ def read_image(path):
     return px.reshape(h, w, 4)[::-1].astype(np.float64)
 
 
+def cycles_diffuse_bake(ob, res, samples, *, seed=0, bounces=8, margin=4, uv_layer="Lightmap"):
+    """Cycles' Diffuse bake of `ob` (Direct + Indirect, no Color) into a new res x res float
+    image -> (res, res, 4) pixels, rows bottom-up. CPU, no clamping (it would bias Cycles
+    low), no denoising, no adaptive sampling, `bounces` max and diffuse bounces. The image
+    and its node are removed again, and the render engine is put back."""
+    scene = bpy.context.scene
+    engine = scene.render.engine
+    scene.render.engine = "CYCLES"
+    cy = scene.cycles
+    cy.device = "CPU"
+    cy.samples = samples
+    cy.use_adaptive_sampling = False
+    cy.use_denoising = False
+    cy.seed = seed
+    cy.max_bounces = cy.diffuse_bounces = bounces
+    cy.sample_clamp_direct = cy.sample_clamp_indirect = 0.0
+    img = bpy.data.images.new(f"cycles_bake_{ob.name}", res, res, float_buffer=True, alpha=True)
+    tree = ob.material_slots[0].material.node_tree
+    node = tree.nodes.new("ShaderNodeTexImage")
+    node.image = img
+    tree.nodes.active = node
+    try:
+        for o in bpy.context.view_layer.objects:
+            o.select_set(False)
+        ob.select_set(True)
+        bpy.context.view_layer.objects.active = ob
+        bpy.ops.object.bake(type="DIFFUSE", pass_filter={"DIRECT", "INDIRECT"}, uv_layer=uv_layer,
+                            margin=margin, use_clear=True, target="IMAGE_TEXTURES")
+        px = np.empty(res * res * 4, np.float32)
+        img.pixels.foreach_get(px)
+    finally:
+        tree.nodes.remove(node)
+        bpy.data.images.remove(img)
+        scene.render.engine = engine
+    return px.reshape(res, res, 4)
+
+
 def render_exr(scene, engine, path, cycles_samples=128):
     scene.render.engine = engine
     if engine == "CYCLES":

@@ -26,7 +26,7 @@ from photon_lightmaps.operators.render_engine import PhotonLightmapsRenderEngine
 from photon_lightmaps.engine.photon_tracer import Cancelled  # noqa: E402
 
 
-from blender_session import addon, bake_uv_cache  # noqa: E402,F401  (session-wide registration)
+from blender_session import addon, bake_uv_cache, cycles_diffuse_bake  # noqa: E402,F401  (session-wide registration)
 
 
 @pytest.fixture(autouse=True)
@@ -137,25 +137,9 @@ def test_cycles_diffuse_bake_agreement():
     res_default = B.bake_objects(bpy.context, objs, photons=DEFAULT_PHOTONS, seed=3, resolution=RES)
     assert res_default.gathered
 
-    scene.render.engine = "CYCLES"
-    cy = scene.cycles
-    cy.device = "CPU"
-    cy.samples = CYCLES_SPP
-    cy.use_adaptive_sampling = False
-    cy.use_denoising = False
-    cy.seed = 0
-    # Same path length as ours, and no clamping (it would bias Cycles low).
-    cy.max_bounces = cy.diffuse_bounces = 8
-    cy.sample_clamp_direct = cy.sample_clamp_indirect = 0.0
     t0 = time.perf_counter()
-    ref = {}
-    for ob in objs:
-        img, node = add_bake_target(ob, RES, RES, fill=0.0)
-        select_only(ob)
-        bpy.ops.object.bake(type="DIFFUSE", pass_filter={"DIRECT", "INDIRECT"}, uv_layer="Lightmap",
-                            margin=4, use_clear=True, target="IMAGE_TEXTURES")
-        ref[ob.name] = pixels(img)
-        ob.material_slots[0].material.node_tree.nodes.remove(node)
+    # same path length as ours (8 bounces)
+    ref = {ob.name: cycles_diffuse_bake(ob, RES, CYCLES_SPP) for ob in objs}
     t_cycles = time.perf_counter() - t0
 
     def agreement(maps):

@@ -21,7 +21,7 @@ from photon_lightmaps.engine.scene import EnvironmentMap  # noqa: E402
 from photon_lightmaps.export import export_scene  # noqa: E402
 from photon_lightmaps.export import world as W  # noqa: E402
 
-from blender_session import addon, bake_uv_cache  # noqa: E402,F401  (session-wide registration)
+from blender_session import addon, bake_uv_cache, cycles_diffuse_bake  # noqa: E402,F401  (session-wide registration)
 
 
 @pytest.fixture(autouse=True)
@@ -238,35 +238,6 @@ def slab_with_block():
     return obs[0]
 
 
-def cycles_bake(ob, res, spp):
-    sc = bpy.context.scene
-    sc.render.engine = "CYCLES"
-    cy = sc.cycles
-    cy.device = "CPU"
-    cy.samples = spp
-    cy.use_adaptive_sampling = False
-    cy.use_denoising = False
-    cy.seed = 0
-    cy.max_bounces = cy.diffuse_bounces = 8
-    cy.sample_clamp_direct = cy.sample_clamp_indirect = 0.0
-    img = bpy.data.images.new("ref", res, res, float_buffer=True, alpha=True)
-    tree = ob.material_slots[0].material.node_tree
-    node = tree.nodes.new("ShaderNodeTexImage")
-    node.image = img
-    tree.nodes.active = node
-    for o in bpy.context.view_layer.objects:
-        o.select_set(False)
-    ob.select_set(True)
-    bpy.context.view_layer.objects.active = ob
-    bpy.ops.object.bake(type="DIFFUSE", pass_filter={"DIRECT", "INDIRECT"}, uv_layer="Lightmap",
-                        margin=4, use_clear=True, target="IMAGE_TEXTURES")
-    px = np.empty(res * res * 4, np.float32)
-    img.pixels.foreach_get(px)
-    tree.nodes.remove(node)
-    sc.render.engine = "PHOTON_LIGHTMAPS"
-    return px.reshape(res, res, 4)
-
-
 def erode(mask, k):
     out = mask.copy()
     p = np.pad(mask, k, constant_values=False)
@@ -319,7 +290,7 @@ def compare_with_cycles(label, max_block=0.10, mean_block=0.04, max_bias=0.02):
     res = B.bake_objects(bpy.context, [ob], photons=PHOTONS, seed=3, resolution=RES)
     t_ours = time.perf_counter() - t0
     t0 = time.perf_counter()
-    fine = cycles_bake(ob, RES * SUPER, CYCLES_SPP)
+    fine = cycles_diffuse_bake(ob, RES * SUPER, CYCLES_SPP)
     ref = fine.reshape(RES, SUPER, RES, SUPER, 4).mean(axis=(1, 3))
     t_cycles = time.perf_counter() - t0
     errs, bias, n = block_errors(res.maps["slab"].rgba, ref, top_face_texels(ob, RES))

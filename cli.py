@@ -323,9 +323,7 @@ def render_main(args):
         print(f"  orientation lightmap '{ol['name']}': {ol['photons']:,} photons, "
               f"{ol['memory_bytes'] / 1024:.1f} KiB, area {ol['area']:.4g} m², {len(ol['warnings'])} warnings")
     if args.json:
-        path = pathlib.Path(args.json)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(report, indent=2) + os.linesep)
+        write_report(args.json, json.dumps(report, indent=2))
     return 0
 
 
@@ -534,9 +532,7 @@ def lsystem_main(args):
     if args.json == "-":
         print(text)
     else:
-        path = pathlib.Path(args.json)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text + os.linesep)
+        write_report(args.json, text)
     return 0
 
 
@@ -573,13 +569,12 @@ def warmup_main(args):
     import tempfile
     t0 = time.perf_counter()
     ensure_registered()
-    watch = _WATCH[-1] if _WATCH else None
+    watch = _WATCH[-1]          # main() watches every command
     families = []
     with tempfile.TemporaryDirectory(prefix="photon_lightmaps_warmup_") as folder:
         steps = _warmup_steps(folder)
         for k, (name, build, argvs) in enumerate(steps, 1):
-            before = watch.compiled if watch else 0
-            seen = dict(watch.by_kernel) if watch else {}
+            before, seen = watch.compiled, dict(watch.by_kernel)
             t1 = time.perf_counter()
             sys.stderr.write(f"warmup {k}/{len(steps)}: {name}\n")
             with open(os.devnull, "w") as quiet, contextlib.redirect_stdout(quiet):
@@ -588,22 +583,27 @@ def warmup_main(args):
                 for argv in argvs:
                     step = build_parser().parse_args(argv)
                     step.func(step)
-            spent = {k: round(v - seen.get(k, 0.0), 2) for k, v in (watch.by_kernel if watch else {}).items()
+            spent = {k: round(v - seen.get(k, 0.0), 2) for k, v in watch.by_kernel.items()
                      if v > seen.get(k, 0.0)}
             families.append({"family": name, "seconds": round(time.perf_counter() - t1, 2),
-                             "compiled": (watch.compiled if watch else 0) - before,
+                             "compiled": watch.compiled - before,
                              "kernel_seconds": dict(sorted(spent.items(), key=lambda kv: -kv[1]))})
             sys.stderr.write(f"warmup {k}/{len(steps)}: done in {families[-1]['seconds']:.0f} s, "
                              f"{families[-1]['compiled']} kernels compiled "
                              f"({time.perf_counter() - t0:.0f} s in all)\n")
     report = {"families": families, "kernels": kernels_report(), "seconds": time.perf_counter() - t0}
     if args.json:
-        path = pathlib.Path(args.json)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(report, indent=2) + os.linesep)
+        write_report(args.json, json.dumps(report, indent=2))
     print(f"warmup: {report['kernels']['compiled']} kernels compiled in {report['seconds']:.0f} s; "
           "renders and bakes now start without compiling")
     return 0
+
+
+def write_report(path, text):
+    """A command's JSON report at `path`, its folder made if missing."""
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text + os.linesep)
 
 
 def compile_line(tracker, clock=time.perf_counter):

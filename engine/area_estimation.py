@@ -30,13 +30,14 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .affine import apply_point, apply_transposed, cross
 from . import csg as CSG
 from .primitives import _octa_encode, prim_area, prim_nfaces, prim_point
 from .raycast import STACK_WORDS, intersect_closest
 from .sampling import cosine_hemisphere, first_above, next_float, stream_state, to_world
+from . import parallel
 
 AreaEstimate = namedtuple("AreaEstimate", [
     "area",            # float64[R*R] estimated area per bin (m², row-major like a lightmap)
@@ -72,16 +73,16 @@ def _csg_side(buf, cb, roots, leaf, px, py, pz, bits):
     return 0
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _sample_kernel(g, insts, inst_cum, part_start, parts, part_acc, csg_roots_start, csg_roots,
-                   vs0, res, n_s, seed, out_bin, out_val, out_pn):
+                   vs0, res, n_s, seed, out_bin, out_val, out_pn, start, stop):
     total = inst_cum[inst_cum.shape[0] - 1]
     buf = (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)
     has_csg = csg_roots.shape[0] > 0
     cb = CSG.csg_base(buf) if has_csg else 0
     state0 = stream_state(seed, np.uint64(0xA5EA))
     state0, off = next_float(state0)
-    for k in prange(n_s):
+    for k in range(start, stop):
         bits = np.empty(3 * CSG.MAX_WORK + 8, np.int32)
         state = stream_state(seed, k)
         x = (k + off) / n_s * total
@@ -166,10 +167,10 @@ def _sample_kernel(g, insts, inst_cum, part_start, parts, part_acc, csg_roots_st
         out_pn[k, 3], out_pn[k, 4], out_pn[k, 5] = nx, ny, nz
 
 
-@njit(cache=True, parallel=True)
-def _openness_kernel(g, pn, member, n_rays, tmax, seed, out):
+@njit(cache=True, nogil=True)
+def _openness_kernel(g, pn, member, n_rays, tmax, seed, out, start, stop):
     """Fraction of cosine rays from each point that leave without hitting the group."""
-    for k in prange(pn.shape[0]):
+    for k in range(start, stop):
         stack = np.empty(STACK_WORDS, np.int32)
         state = stream_state(seed, k)
         px, py, pz = pn[k, 0], pn[k, 1], pn[k, 2]
@@ -267,8 +268,8 @@ def estimate_areas(g, instances, resolution, samples, seed=0, member=None, tmax=
     out_bin = np.empty(s, np.int64)
     out_val = np.empty(s)
     out_pn = np.zeros((s, 6))
-    _sample_kernel(g, insts, inst_cum, part_start, parts, np.ascontiguousarray(part_acc), roots_start,
-                   roots, int(vs0), R, s, np.uint64(seed), out_bin, out_val, out_pn)
+    parallel.run(_sample_kernel, s, g, insts, inst_cum, part_start, parts, np.ascontiguousarray(part_acc),
+                 roots_start, roots, int(vs0), R, s, np.uint64(seed), out_bin, out_val, out_pn, min_block=256)
     ok = out_bin >= 0
     b = out_bin[ok]
     v = out_val[ok]
@@ -295,8 +296,8 @@ def estimate_areas(g, instances, resolution, samples, seed=0, member=None, tmax=
         if tmax is None:
             tmax = float(np.linalg.norm(pn[:, :3].max(axis=0) - pn[:, :3].min(axis=0))) or 1.0
         free = np.empty(pn.shape[0])
-        _openness_kernel(g, pn, np.asarray(member, np.bool_), OPENNESS_RAYS, float(tmax),
-                         np.uint64(seed + 1), free)
+        parallel.run(_openness_kernel, pn.shape[0], g, pn, np.asarray(member, np.bool_), OPENNESS_RAYS,
+                     float(tmax), np.uint64(seed + 1), free)
         # area-weighted: a big open face counts more than a small hidden one
         w = out_val[pick]
         openness = float((free * w).sum() / max(w.sum(), 1e-300))

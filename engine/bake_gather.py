@@ -24,7 +24,7 @@ import time
 from collections import namedtuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from . import bsdf as BS
 from . import csg as CSG
@@ -35,6 +35,7 @@ from .csg_bake import csg_texel_items, csg_texel_point
 from .final_gather import gather_irradiance
 from .raycast import STACK_WORDS
 from .sampling import next_float, stream_state
+from . import parallel
 
 STREAM_XOR = np.uint64(0x5BD1E9955BD1E995)
 STREAM_XOR_2 = np.uint64(0x2545F4914F6CDD1D)  # the adaptive pass
@@ -91,14 +92,14 @@ def _variance(q, wsum, e):
     return max(q[2] - 2.0 * m * q[1] + m * m * q[0], 0.0) / (wsum * wsum)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _indirect_mesh(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_inst, item_lid, item_side,
-                   item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, item_rays, order, stream, out, var):
-    K = out.shape[0]
+                   item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, item_rays, order, stream, out, var,
+                   start, stop):
     nb = out.shape[1]
     k = TG._grid_side(n_points)
-    for i in prange(K):
-        it = order[i]     # a shuffled order: prange's static chunks get equal work
+    for i in range(start, stop):
+        it = order[i]     # a shuffled order: the blocks get equal work
         n_rays = item_rays[it]
         if n_rays <= 0:
             continue
@@ -138,15 +139,14 @@ def _indirect_mesh(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
             out[it, b] = e[b] / n_points
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _indirect_prim(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_lm, item_lid, item_face,
                    item_x, item_y, item_key, item_local, lm_kind, lm_params, lm_xf, lm_ncof, lm_res,
-                   lm_sides, n_points, item_rays, order, stream, out, var):
-    K = out.shape[0]
+                   lm_sides, n_points, item_rays, order, stream, out, var, start, stop):
     nb = out.shape[1]
     k = TG._grid_side(n_points)
-    for i in prange(K):
-        it = order[i]     # a shuffled order: prange's static chunks get equal work
+    for i in range(start, stop):
+        it = order[i]     # a shuffled order: the blocks get equal work
         n_rays = item_rays[it]
         if n_rays <= 0:
             continue
@@ -182,20 +182,19 @@ def _indirect_prim(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
             out[it, b] = ew[b] / wsum if wsum > 0.0 else 0.0
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _indirect_csg(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, buf, item_lm, item_lid, item_face,
                   item_x, item_y, item_row, item_key, item_local, lm_kind, lm_params, lm_leaf, lm_root,
                   lm_pxf, lm_pinv, lm_wxf, lm_ncof, lm_res, lm_flip, lm_eps, n_points, item_rays, order, stream,
-                  acc, wsum, q):
+                  acc, wsum, q, start, stop):
     """acc[row] += J·E_indirect, wsum[row] += J, q[row] += the error sums, like
     csg_bake._gather_csg (outside only). An item's rows are its own (its texel and
     that texel's split regions), so parallel items never write the same row."""
     cb = CSG.csg_base(buf)
-    K = item_lm.shape[0]
     nb = acc.shape[1]
     k = TG._grid_side(n_points)
-    for i in prange(K):
-        it = order[i]     # a shuffled order: prange's static chunks get equal work
+    for i in range(start, stop):
+        it = order[i]     # a shuffled order: the blocks get equal work
         n_rays = item_rays[it]
         if n_rays <= 0:
             continue
@@ -282,24 +281,26 @@ class _Texels:
         if self.mesh is not None:
             cat, r = self.mesh, item_rays[i]
             out, var = np.zeros((cat["texel"].size, nb)), np.zeros(cat["texel"].size)
-            _indirect_mesh(*self.fixed, cat["inst"], cat["lid"], cat["side"], cat["key"], cat["local"],
-                           cat["start"], cat["tri"], cat["area"], cat["nv"], cat["bary"], self.points, r,
-                           _order(r), stream, out, var)
+            parallel.run(_indirect_mesh, out.shape[0], *self.fixed, cat["inst"], cat["lid"], cat["side"],
+                         cat["key"], cat["local"], cat["start"], cat["tri"], cat["area"], cat["nv"], cat["bary"],
+                         self.points, r, _order(r), stream, out, var)
             parts.append((cat["texel"], out, var, r))
             i += 1
         if self.prim is not None:
             (cat, per_lm), r = self.prim, item_rays[i]
             out, var = np.zeros((cat["texel"].size, nb)), np.zeros(cat["texel"].size)
-            _indirect_prim(*self.fixed, cat["lm"], cat["lid"], cat["face"], cat["x"], cat["y"], cat["key"],
-                           cat["local"], *per_lm, self.points, r, _order(r), stream, out, var)
+            parallel.run(_indirect_prim, out.shape[0], *self.fixed, cat["lm"], cat["lid"], cat["face"],
+                         cat["x"], cat["y"], cat["key"], cat["local"], *per_lm, self.points, r, _order(r),
+                         stream, out, var)
             parts.append((cat["texel"], out, var, r))
             i += 1
         if self.csg is not None:
             (buf, cat, per_lm), r = self.csg, item_rays[i]
             n_rows = self.cs.lightmaps.area.shape[0]
             acc, wsum, q = np.zeros((n_rows, nb)), np.zeros(n_rows), np.zeros((n_rows, 3))
-            _indirect_csg(*self.fixed, buf, cat["lm"], cat["lid"], cat["face"], cat["x"], cat["y"], cat["row"],
-                          cat["key"], cat["local"], *per_lm, self.points, r, _order(r), stream, acc, wsum, q)
+            parallel.run(_indirect_csg, cat["lm"].shape[0], *self.fixed, buf, cat["lm"], cat["lid"],
+                         cat["face"], cat["x"], cat["y"], cat["row"], cat["key"], cat["local"], *per_lm,
+                         self.points, r, _order(r), stream, acc, wsum, q)
             rows = np.flatnonzero(wsum > 0.0).astype(np.int64)
             var = np.array([_variance(q[j], wsum[j], acc[j]) for j in rows])
             # a row's rays: those of the item (texel) it belongs to

@@ -34,6 +34,7 @@ from .raycast import STACK_WORDS
 from .texel_gather import direct_irradiance
 from .sampling import next_float, stream_state
 from .texel_gather import _grid_side, _jitter
+from . import parallel
 
 GUTTER = 1   # texels around each leaf block
 
@@ -231,18 +232,17 @@ def csg_texel_point(buf, cb, bits, split, split_first, split_cell, kind, params,
     return True, row, jac, px, py, pz, wx * f, wy * f, wz * f, s, t
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, item_x, item_y,
                 item_row, item_key, item_local, lm_kind, lm_params, lm_leaf, lm_root, lm_pxf,
-                lm_pinv, lm_wxf, lm_ncof, lm_res, lm_flip, lm_eps, n_samples, acc, wsum):
+                lm_pinv, lm_wxf, lm_ncof, lm_res, lm_flip, lm_eps, n_samples, acc, wsum, start, stop):
     """acc[row] += J·E_direct and wsum[row] += J over the samples of each item's
     texel that lie on the solid's boundary as part of the item's leaf (rows of
     a split texel by the region label of the sample's cell)."""
     cb = CSG.csg_base(buf)
-    K = item_lm.shape[0]
     nb = acc.shape[1]
     k = _grid_side(n_samples)
-    for it in prange(K):
+    for it in range(start, stop):
         stack = np.empty(STACK_WORDS, np.int32)
         bits = np.empty(3 * CSG.MAX_WORK + 8, np.int32)
         e = np.zeros(nb)
@@ -340,9 +340,9 @@ def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
     buf, cat, per_lm = got
     acc = np.zeros((lm.area.shape[0], nb))
     wsum = np.zeros(lm.area.shape[0])
-    _gather_csg(cs.geometry, cs.lights, buf, lm.split, lm.split_first, lm.split_cell,
-                cat["lm"], cat["face"], cat["x"], cat["y"], cat["row"], cat["key"], cat["local"],
-                *per_lm, int(samples_per_texel), acc, wsum)
+    parallel.run(_gather_csg, cat["lm"].shape[0], cs.geometry, cs.lights, buf, lm.split, lm.split_first,
+                 lm.split_cell, cat["lm"], cat["face"], cat["x"], cat["y"], cat["row"], cat["key"], cat["local"],
+                 *per_lm, int(samples_per_texel), acc, wsum)
     ids = np.flatnonzero(wsum > 0.0).astype(np.int64)
     return ids, acc[ids] / wsum[ids][:, None]
 

@@ -1228,8 +1228,10 @@ def dcsg_table(graphs):
 def _closest_batch(buf, origins, dirs, tmax, t_out, p_out, s_out, h_out, n_out):
     stack = np.empty(SCRATCH_WORDS + 2, np.int32)
     for i in range(origins.shape[0]):
-        t, vs = dcsg_closest_core(buf, stack, 0, 0, origins[i, 0], origins[i, 1], origins[i, 2],
-                                  dirs[i, 0], dirs[i, 1], dirs[i, 2], 0.0, tmax[i], False)
+        # typed arguments: the traversal's own call has no literals either (one compile)
+        t, vs = dcsg_closest_core(buf, stack, np.int64(0), np.int64(0), origins[i, 0], origins[i, 1],
+                                  origins[i, 2], dirs[i, 0], dirs[i, 1], dirs[i, 2], 0.0, tmax[i],
+                                  np.bool_(False))
         t_out[i] = t
         p_out[i] = vs
         s, n_out[i, 0], n_out[i, 1], n_out[i, 2], h_out[i] = dcsg_hit_surface(stack, 0)

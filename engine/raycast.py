@@ -229,7 +229,7 @@ def _blas_closest(buf, stack, fstack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tbes
                             # an L-system: the hit is reported on its terminal's virtual shape
                             t, vs = dcsg_closest_core(buf, stack, G.TRAV_WORDS + CSG_SCRATCH_WORDS,
                                                       DCSG_REF - r, ox, oy, oz, dx, dy, dz, tmin,
-                                                      tbest, False)
+                                                      tbest, np.bool_(False))
                             if t < tbest:
                                 tbest = t
                                 code = -1 - vs
@@ -317,13 +317,15 @@ def closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     fstack = stack.view(np.float32)
     items = ib + i64[G.H_TLAS_ITEMS]
     tbest = tmax
-    inst = -1
-    code = -1
+    # typed values, not literals: a call with a literal argument is a signature
+    # of its own, and each signature of a core compiles again
+    inst = np.int64(-1)
+    code = np.int64(-1)
     b1 = 0.0
     b2 = 0.0
     single = i64[G.H_SINGLE]
     if single >= 0:
-        tbest, inst, code, b1, b2 = _instance_closest(buf, stack, 0, single, ox, oy, oz,
+        tbest, inst, code, b1, b2 = _instance_closest(buf, stack, np.int64(0), single, ox, oy, oz,
                                                       dx, dy, dz, tmin, tbest, inst, code,
                                                       b1, b2)
         return _resolve(i64, i32, ib, tbest, inst, code, b1, b2)
@@ -344,7 +346,7 @@ def closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
                 a = i32[b + 24 + k]
                 for q in range(a, a + i32[b + 28 + k]):
                     tbest, inst, code, b1, b2 = _instance_closest(
-                        buf, stack, sp, i32[items + q], ox, oy, oz, dx, dy, dz,
+                        buf, stack, sp, np.int64(i32[items + q]), ox, oy, oz, dx, dy, dz,
                         tmin, tbest, inst, code, b1, b2)
             if tbest < t_in:
                 mi = _drop_far(mi, n0, n1, n2, n3, tbest)
@@ -412,7 +414,7 @@ def _blas_any(buf, stack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
                     elif r <= DCSG_REF:
                         if dcsg_closest_core(buf, stack, G.TRAV_WORDS + CSG_SCRATCH_WORDS,
                                              DCSG_REF - r, ox, oy, oz, dx, dy, dz, tmin, tmax,
-                                             True)[0] < tmax:
+                                             np.bool_(True))[0] < tmax:
                             return True
                     elif r <= G.CSG_REF:
                         if csg_closest_core(buf, stack, G.TRAV_WORDS, G.CSG_REF - r, ox, oy, oz,
@@ -435,7 +437,7 @@ def occluded_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     items = ib + i64[G.H_TLAS_ITEMS]
     single = i64[G.H_SINGLE]
     if single >= 0:
-        return _instance_any(buf, stack, 0, single, ox, oy, oz, dx, dy, dz, tmin, tmax)
+        return _instance_any(buf, stack, np.int64(0), single, ox, oy, oz, dx, dy, dz, tmin, tmax)
     ix, iy, iz, nxo, nyo, nzo = _ray_slabs(dx, dy, dz)
     node = 0
     sp = 0
@@ -449,7 +451,7 @@ def occluded_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
             ml &= ml - 1
             a = i32[b + 24 + k]
             for q in range(a, a + i32[b + 28 + k]):
-                if _instance_any(buf, stack, sp, i32[items + q], ox, oy, oz, dx, dy, dz,
+                if _instance_any(buf, stack, sp, np.int64(i32[items + q]), ox, oy, oz, dx, dy, dz,
                                  tmin, tmax):
                     return True
         node, sp = _any_next(stack, sp, 0, i32, b, m & ~lm)

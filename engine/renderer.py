@@ -19,7 +19,7 @@ import time
 from collections import namedtuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from . import lightmap as LM
 from . import orientation_lightmap as OL
@@ -28,6 +28,7 @@ from . import light_hits as LH
 from . import materials as MT
 from . import environment as ENV
 from . import final_gather as FG
+from . import parallel
 from .lights import EMISSIVE, sample_light_radiance
 from .photon_tracer import Cancelled, ray_epsilon
 from .raycast import STACK_WORDS, intersect_closest, occluded
@@ -146,9 +147,10 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
     return state
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed, mode,
-                 max_depth, indirect, gather, out):
+                 max_depth, indirect, gather, out, start, stop):
+    # Pixels start..stop-1 of the tile (parallel.run spreads them over threads).
     # Samples s0 <= s < s1 of the pixel's spp, each weighted 1/spp: the passes of a
     # progressive render add up to the one-pass image (the same streams).
     nb = out.shape[2]
@@ -157,7 +159,7 @@ def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw,
     width0 = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 1 else 0.0
     env_li = LH.environment_light(ls)
     no_sides = np.zeros(0, np.int64)      # camera hits are on the outside already
-    for idx in prange(tw * th):
+    for idx in range(start, stop):
         stack = np.empty(STACK_WORDS, np.int32)
         acc = np.zeros(nb)
         tp = np.empty(nb)
@@ -330,8 +332,8 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
             for x0 in range(0, cam.width, tile):
                 tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
                 out = np.zeros((th, tw, cs.n_bands))
-                _render_tile(cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights, cs.lightmaps,
-                             lmc, lmc is not cs.lightmaps, ol, cam, env,
+                parallel.run(_render_tile, tw * th, cs.geometry, cs.materials, cs.bsdf, cs.textures,
+                             cs.lights, cs.lightmaps, lmc, lmc is not cs.lightmaps, ol, cam, env,
                              x0, y0, tw, th, samples, s0, s0 + n, np.uint64(seed), int(mode),
                              int(max_depth), bool(indirect), max(gather, 0), out)
                 img[y0:y0 + th, x0:x0 + tw] += out
@@ -345,14 +347,15 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
     return img
 
 
-@njit(cache=True, parallel=True)
-def _aux_tile(g, ms, ts, cam, x0, y0, tw, th, spp, seed, albedo, normal):
-    """First-hit albedo and shading normal per pixel, averaged over the render's own
-    anti-aliasing jitter (same stream as _render_tile), for the denoiser."""
+@njit(cache=True, nogil=True)
+def _aux_tile(g, ms, ts, cam, x0, y0, tw, th, spp, seed, albedo, normal, start, stop):
+    """First-hit albedo and shading normal of pixels start..stop-1 of the tile,
+    averaged over the render's own anti-aliasing jitter (same stream as
+    _render_tile), for the denoiser."""
     nb = ms.emission.shape[1]
     spread = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 0 else 0.0
     width0 = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 1 else 0.0
-    for idx in prange(tw * th):
+    for idx in range(start, stop):
         stack = np.empty(STACK_WORDS, np.int32)
         kd = np.empty(nb)
         ks = np.empty(nb)
@@ -399,8 +402,8 @@ def render_aux(cs, samples=4, seed=0, tile=64):
             tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
             a = np.zeros((th, tw, 3))
             n = np.zeros((th, tw, 3))
-            _aux_tile(cs.geometry, cs.materials, cs.textures, cam, x0, y0, tw, th, int(samples),
-                      np.uint64(seed), a, n)
+            parallel.run(_aux_tile, tw * th, cs.geometry, cs.materials, cs.textures, cam, x0, y0, tw, th,
+                         int(samples), np.uint64(seed), a, n)
             albedo[y0:y0 + th, x0:x0 + tw] = a
             normal[y0:y0 + th, x0:x0 + tw] = n
     return albedo.astype(np.float32), normal.astype(np.float32)

@@ -37,7 +37,7 @@ import math
 import time
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .affine import apply_linear, apply_point, cross
 from . import lightmap as LM
@@ -48,6 +48,7 @@ from .lights import (AREA, EMISSIVE, ENVIRONMENT, POINT, SPOT, sample_environmen
 from .photon_tracer import ray_epsilon
 from .raycast import STACK_WORDS, occluded
 from .sampling import next_float, stream_state
+from . import parallel
 
 DEFAULT_SAMPLES = 16
 
@@ -227,13 +228,12 @@ def prim_texel_point(kind, params, xf, cof, face, x, y, inv_r, u1, u2):
     return True, jac, px, py, pz, nx / jac, ny / jac, nz / jac, s, t
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _gather_mesh(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pnv, pb,
-                 n_samples, out):
-    K = out.shape[0]
+                 n_samples, out, start, stop):
     nb = out.shape[1]
     k = _grid_side(n_samples)
-    for it in prange(K):
+    for it in range(start, stop):
         stack = np.empty(STACK_WORDS, np.int32)
         e = np.zeros(nb)
         p0 = pstart[it]
@@ -263,13 +263,12 @@ def _gather_mesh(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pn
             out[it, b] = e[b] * inv
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _gather_prim(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local,
-                 lm_kind, lm_params, lm_xf, lm_ncof, lm_res, lm_sides, n_samples, out):
-    K = out.shape[0]
+                 lm_kind, lm_params, lm_xf, lm_ncof, lm_res, lm_sides, n_samples, out, start, stop):
     nb = out.shape[1]
     k = _grid_side(n_samples)
-    for it in prange(K):
+    for it in range(start, stop):
         stack = np.empty(STACK_WORDS, np.int32)
         e = np.zeros(nb)
         ew = np.zeros(nb)
@@ -401,8 +400,8 @@ class _MeshTexels:
         if cat is None:
             return None
         out = np.zeros((cat["texel"].size, cs.n_bands))
-        _gather_mesh(cs.geometry, cs.lights, cat["inst"], cat["key"], cat["local"], cat["start"],
-                     cat["tri"], cat["area"], cat["nv"], cat["bary"], n, out)
+        parallel.run(_gather_mesh, out.shape[0], cs.geometry, cs.lights, cat["inst"], cat["key"],
+                     cat["local"], cat["start"], cat["tri"], cat["area"], cat["nv"], cat["bary"], n, out)
         return cat["texel"], out
 
 
@@ -458,8 +457,8 @@ class _PrimTexels:
             return None
         cat, per_lm = got
         out = np.zeros((cat["texel"].size, cs.n_bands))
-        _gather_prim(cs.geometry, cs.lights, cat["lm"], cat["face"], cat["x"], cat["y"], cat["key"],
-                     cat["local"], *per_lm, n, out)
+        parallel.run(_gather_prim, out.shape[0], cs.geometry, cs.lights, cat["lm"], cat["face"], cat["x"],
+                     cat["y"], cat["key"], cat["local"], *per_lm, n, out)
         return cat["texel"], out
 
 

@@ -77,7 +77,7 @@ def _csg_side(buf, cb, roots, leaf, px, py, pz, bits):
 def _sample_kernel(g, insts, inst_cum, part_start, parts, part_acc, csg_roots_start, csg_roots,
                    vs0, res, n_s, seed, out_bin, out_val, out_pn, start, stop):
     total = inst_cum[inst_cum.shape[0] - 1]
-    buf = (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)
+    buf = (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)
     has_csg = csg_roots.shape[0] > 0
     cb = CSG.csg_base(buf) if has_csg else 0
     state0 = stream_state(seed, np.uint64(0xA5EA))
@@ -264,7 +264,7 @@ def estimate_areas(g, instances, resolution, samples, seed=0, member=None, tmax=
         nbin = R * R
         return AreaEstimate(np.zeros(nbin), np.full(nbin, np.inf), 0.0, math.inf, s, m, 1.0,
                             time.perf_counter() - t0)
-    vs0 = CSG.csg_vs0((g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)) if roots.size else 0
+    vs0 = CSG.csg_vs0((g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)) if roots.size else 0
     out_bin = np.empty(s, np.int64)
     out_val = np.empty(s)
     out_pn = np.zeros((s, 6))

@@ -428,7 +428,7 @@ def _lsystem_areas(ols, maps, geom, dcsg):
     OL owns: a stub its subtree, an instance's OL the rest, nested stubs left to
     their own OLs."""
     from . import dcsg as D
-    views = (geom.trace_i64, geom.trace_f32, geom.trace_i32, geom.trace_f64)
+    views = (geom.trace_i64, geom.trace_f32, geom.trace_i32, geom.trace_f64, geom.trace_features)
     out = {}
 
     def add(k, start, h, rot, i, graph):

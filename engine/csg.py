@@ -43,6 +43,7 @@ Every such event is counted (``ties``); interval lists have room for
 counted (``overflow``) instead of writing out of bounds.
 """
 import math
+from . import features
 from collections import namedtuple
 
 import numpy as np
@@ -99,12 +100,14 @@ CSGFlat = namedtuple("CSGFlat", [
 ])
 
 # what the kernels see of a stand-alone table (a Geometry has the same fields)
-CSGTrace = namedtuple("CSGTrace", ["trace_i64", "trace_f32", "trace_i32", "trace_f64"])
+CSGTrace = namedtuple("CSGTrace", ["trace_i64", "trace_f32", "trace_i32", "trace_f64", "trace_features"])
 
 
 def trace_views(buf):
-    """The typed views (i64, f32, i32, f64) of a trace byte buffer, as the kernels take it."""
-    return (buf.view(np.int64), buf.view(np.float32), buf.view(np.int32), buf.view(np.float64))
+    """The typed views (i64, f32, i32, f64) of a trace byte buffer and a features
+    marker (every core: a stand-alone table), as the kernels take them."""
+    return (buf.view(np.int64), buf.view(np.float32), buf.view(np.int32), buf.view(np.float64),
+            features.marker(features.ALL))
 
 
 class CSGTable:
@@ -443,7 +446,7 @@ def csg_table(roots, n_materials=0):
 
 @njit(**INLINE)
 def csg_base(buf):
-    """Byte offset of the CSG blob in a trace buffer (views (i64, f32, i32, f64))."""
+    """Byte offset of the CSG blob in a trace buffer (views (i64, f32, i32, f64, features))."""
     i64 = buf[0]
     return i64[H_F64] + 8 * i64[H_CSG]
 
@@ -497,7 +500,7 @@ def _emit(sf, sc, s0, L, n, t, owner, sub):
 @njit(**INLINE)
 def _prim_leaf(buf, cb, sf, sc, s0, L, k, ox, oy, oz, dx, dy, dz, tlo, thi):
     """Intervals of primitive leaf k into list L; returns the boundary count."""
-    i64, _f32, i32, f64 = buf
+    i64, _f32, i32, f64 = buf[:4]
     h = cb >> 3
     c32 = cb >> 2
     kind = i32[c32 + i64[h + B_LEAF_KIND] + k]
@@ -521,7 +524,7 @@ def _prim_leaf(buf, cb, sf, sc, s0, L, k, ox, oy, oz, dx, dy, dz, tlo, thi):
 def _mesh_leaf(buf, cb, sf, sc, s0, L, k, ox, oy, oz, dx, dy, dz, tol):
     """Intervals of closed-mesh leaf k into list L from all crossings of the
     line (mesh BVH walk), by winding number of the oriented crossings."""
-    i64, _f32, i32, f64 = buf
+    i64, _f32, i32, f64 = buf[:4]
     h = cb >> 3
     c32 = cb >> 2
     node0 = i32[c32 + i64[h + B_LEAF_NODE0] + k]
@@ -689,7 +692,7 @@ def _evaluate(buf, cb, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
     returns (boundary count, tol). Subtrees whose box the ray misses there are
     empty; a difference or intersection with an empty first operand skips the
     other one."""
-    i64, _f32, i32, f64 = buf
+    i64, _f32, i32, f64 = buf[:4]
     sf = sc.view(np.float64)
     h = cb >> 3
     c32 = cb >> 2
@@ -761,7 +764,7 @@ def leaf_surface(buf, cb, leaf, sub, ox, oy, oz, dx, dy, dz, t, entering):
     """(face, u, v, nx, ny, nz) of a boundary point of the solid owned by
     `leaf` (mesh leaves: triangle `sub`, face = sub, (u, v) barycentrics).
     Prototype-space unit normal, outward of the solid."""
-    i64, _f32, i32, f64 = buf
+    i64, _f32, i32, f64 = buf[:4]
     h = cb >> 3
     c32 = cb >> 2
     kind = i32[c32 + i64[h + B_LEAF_KIND] + leaf]
@@ -807,7 +810,7 @@ def csg_first_boundary(buf, cb, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax
 @njit(**INLINE)
 def csg_vshape(buf, cb, leaf, sub):
     """Virtual shape id of a hit owned by (leaf, sub)."""
-    i64, _f32, i32, _f64 = buf
+    i64, _f32, i32, _f64 = buf[:4]
     h = cb >> 3
     c32 = cb >> 2
     v = i32[c32 + i64[h + B_LEAF_VSHAPE] + leaf]
@@ -819,7 +822,7 @@ def csg_vshape(buf, cb, leaf, sub):
 @njit(**INLINE)
 def csg_vshape_leaf(buf, cb, vshape):
     """(leaf, sub) of a virtual shape id (inverse of csg_vshape)."""
-    i64, _f32, i32, _f64 = buf
+    i64, _f32, i32, _f64 = buf[:4]
     h = cb >> 3
     c32 = cb >> 2
     j = vshape - i64[h + B_VS0]
@@ -890,7 +893,7 @@ def csg_first_hit(g, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
     the traversal passes its own)."""
     sc = np.empty(CSG_SCRATCH_WORDS + 2, np.int32)
     sc[:4] = 0
-    return csg_first_hit_core((g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64), sc, 0, root,
+    return csg_first_hit_core((g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features), sc, 0, root,
                               ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
@@ -925,7 +928,7 @@ def csg_all_intervals(table, root, o, d, tmin=-math.inf, tmax=math.inf):
 @njit(**INLINE)
 def _mesh_winding(buf, cb, k, px, py, pz):
     """Signed crossings of a fixed skew ray from p with leaf k's triangles (brute force)."""
-    i64, _f32, i32, f64 = buf
+    i64, _f32, i32, f64 = buf[:4]
     h = cb >> 3
     c32 = cb >> 2
     t0 = i32[c32 + i64[h + B_LEAF_TRI0] + k]
@@ -954,7 +957,7 @@ def _mesh_winding(buf, cb, k, px, py, pz):
 @njit(**INLINE)
 def _leaf_ntri(buf, cb, k):
     """Triangles of mesh leaf k: its virtual shapes are one per triangle."""
-    i64, _f32, i32, _f64 = buf
+    i64, _f32, i32, _f64 = buf[:4]
     h = cb >> 3
     c32 = cb >> 2
     v0 = i32[c32 + i64[h + B_LEAF_VSHAPE] + k]
@@ -968,7 +971,7 @@ def _inside(buf, cb, root, px, py, pz, bits, force_leaf=-1, force_val=False):
     """Membership of p in solid `root` (strict for primitives: boundary is outside).
     `bits` is an int32 work array of at least 3*MAX_WORK + 8 entries. Leaf
     `force_leaf` (if >= 0) is taken as `force_val` instead of tested."""
-    i64, _f32, i32, f64 = buf
+    i64, _f32, i32, f64 = buf[:4]
     h = cb >> 3
     c32 = cb >> 2
     n_op = c32 + i64[h + B_NODE_OP]

@@ -146,7 +146,7 @@ def _leaf_of_shape(buf, vshape):
 @njit(cache=True)
 def _root_eps(buf, root):
     """The membership probe's step off the surface (as csg.leaf_visibility takes it)."""
-    i64, _f32, _i32, f64 = buf
+    i64, _f32, _i32, f64 = buf[:4]
     cb = CSG.csg_base(buf)
     h = cb >> 3
     b = h + i64[h + CSG.B_NODE_BOX] + 6 * root
@@ -157,7 +157,7 @@ def _root_eps(buf, root):
 
 
 def _trace(g):
-    return (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)
+    return (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)
 
 
 def solid_leaves(cs, inst):
@@ -349,7 +349,7 @@ def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
 
 @njit(cache=True)
 def _leaf_flips_kernel(buf, out):
-    i64, _f32, i32, _f64 = buf
+    i64, _f32, i32, _f64 = buf[:4]
     cb = CSG.csg_base(buf)
     h = cb >> 3
     c32 = cb >> 2

@@ -49,9 +49,10 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
+from . import features
 from . import lsystem as LS
 from .affine import apply_transposed, cross, normal_through, unit, xform_ray
-from .jit import CORE, INLINE, as_float32, as_float64, as_uint64
+from .jit import CORE, INLINE, as_float32, as_float64, as_uint64, typed
 from .primitives import KIND_IDS, _octa_encode, prim_hits, prim_nfaces, prim_point, prim_surface
 from .sampling import next_float, stream_state
 from .scene import SceneError
@@ -1011,7 +1012,7 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
     child is entered (its ray transformed, pushed) only when the ray meets its box;
     the nearest child is expanded first. Entries carry only the ray: the hit's
     normal is rotated to the object by the edge path, once per ray."""
-    i64, f32, i32, f64 = buf
+    i64, f32, i32, f64 = buf[:4]
     w, iw = dcsg_base(buf)
     (o_alt0, o_nalt, o_prim, o_stub, o_ac0, o_anc, o_chn, o_chj, o_pk,
      o_box, o_cum, o_cinv, o_crot, o_cbox, o_pp, o_pinv) = _tables(i64, w, iw)
@@ -1220,7 +1221,8 @@ def dcsg_table(graphs):
     raw = aligned_empty(hdr.nbytes + blob.nbytes, np.uint8)      # the records' vector loads
     raw[:hdr.nbytes] = hdr.view(np.uint8)
     raw[hdr.nbytes:] = blob.view(np.uint8)
-    views = (raw.view(np.int64), raw.view(np.float32), raw.view(np.int32), raw.view(np.float64))
+    views = (raw.view(np.int64), raw.view(np.float32), raw.view(np.int32), raw.view(np.float64),
+             features.marker(features.DCSG))
     return views, prim_graph, stubs
 
 
@@ -1228,10 +1230,10 @@ def dcsg_table(graphs):
 def _closest_batch(buf, origins, dirs, tmax, t_out, p_out, s_out, h_out, n_out):
     stack = np.empty(SCRATCH_WORDS + 2, np.int32)
     for i in range(origins.shape[0]):
-        # typed arguments: the traversal's own call has no literals either (one compile)
-        t, vs = dcsg_closest_core(buf, stack, np.int64(0), np.int64(0), origins[i, 0], origins[i, 1],
+        # typed, not literal, arguments: the traversal's signature (jit.typed)
+        t, vs = dcsg_closest_core(buf, stack, typed(0), typed(0), origins[i, 0], origins[i, 1],
                                   origins[i, 2], dirs[i, 0], dirs[i, 1], dirs[i, 2], 0.0, tmax[i],
-                                  np.bool_(False))
+                                  typed(False))
         t_out[i] = t
         p_out[i] = vs
         s, n_out[i, 0], n_out[i, 1], n_out[i, 2], h_out[i] = dcsg_hit_surface(stack, 0)
@@ -1301,7 +1303,7 @@ def _area_samples(buf, node_area, start, start_hash, rot0, inst_inv, det_inst, e
     rot0 (3, 3)): the sample's world area element, divided by s and its probability,
     into the octahedral bin of its normal. exclude_stubs: a sample that enters a
     nested stub counts 0 there (that stub is an OL of its own)."""
-    i64, f32, i32, f64 = buf
+    i64, f32, i32, f64 = buf[:4]
     w, iw = dcsg_base(buf)
     (o_alt0, o_nalt, o_prim, o_stub, o_ac0, o_anc, o_chn, o_chj, o_pk,
      _o_box, o_cum, _o_cinv, o_crot, _o_cbox, o_pp, o_pinv) = _tables(i64, w, iw)

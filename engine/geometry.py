@@ -27,6 +27,7 @@ from numba import njit
 
 from .bvh import REC_WORDS, STACK_BUDGET, aligned_empty, build_bvh, pack_bvh
 from . import dcsg as D
+from . import features
 from .csg import CSG, CSG_SCRATCH_WORDS, H_CSG, MESH, flatten_csg, pack_blob
 from .primitives import check_primitive, prim_local_bounds
 from .scene import SceneError, _affine
@@ -50,6 +51,7 @@ Geometry = namedtuple("Geometry", [
     "tlas_pf", "tlas_pi",            # packed records (views into trace); the root is record 0
     "trace",                         # uint8 buffer read by engine/raycast.py (layout: TRACE_*)
     "trace_i64", "trace_f32", "trace_i32", "trace_f64",   # typed views of the same bytes
+    "trace_features",                # features.marker: which traversal cores the scene needs
 ])
 
 # Count flag of a packed BLAS leaf made only of triangles: its ref is then the
@@ -863,7 +865,7 @@ def _pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob):
         extra=[(H_SINGLE, int(items[0]) if len(items) == 1 else -1)])
 
 
-def _geometry_tuple(sa, blas, inst, tlas, trace):
+def _geometry_tuple(sa, blas, inst, tlas, trace, feature_mask):
     """The Geometry: the phases' arrays and the record views into the trace."""
     t_arr = trace_arrays_raw(trace)
     tl = tlas.bvh
@@ -877,6 +879,7 @@ def _geometry_tuple(sa, blas, inst, tlas, trace):
         # for a view made inside a kernel on every call
         trace_i64=trace.view(np.int64), trace_f32=trace.view(np.float32),
         trace_i32=trace.view(np.int32), trace_f64=trace.view(np.float64),
+        trace_features=features.marker(feature_mask),
     )
 
 
@@ -912,7 +915,7 @@ def _geometry_info(scene, parts, csg, blas, inst, tlas, g, t0, dcsg=None, notes=
         # for compile.py (lightmaps of the leaves); not plain data, popped there
         info["csg_layout"] = {"flat": csg, "prim_row_leaf": parts.prim_row_leaf,
                               "leaf_root": parts.leaf_root, "vs0": parts.vs0,
-                              "trace": (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)}
+                              "trace": trace_buf(g)}
     return info
 
 
@@ -940,10 +943,16 @@ def compile_geometry(scene):
     inst = _Instances(*_place_instances(scene, parts.proto_root, sa.proto_n_surfaces,
                                         sa.blas_min, sa.blas_max))
     tlas = _build_tlas(inst)
-    g = _geometry_tuple(sa, blas, inst, tlas, _pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob))
+    mask = (features.CSG if csg.leaf_kind.shape[0] else 0) | (features.DCSG if graphs else 0)
+    g = _geometry_tuple(sa, blas, inst, tlas, _pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob), mask)
     if (g.trace.ctypes.data + int(g.trace_i64[H_F64]) + 8 * int(g.trace_i64[D.H_DCSG])) % 16:
         raise SceneError("internal: the L-system blob is not 16-byte aligned")   # the vector loads
     return g, _geometry_info(scene, parts, csg, blas, inst, tlas, g, t0, dcsg, notes)
+
+
+def trace_buf(g):
+    """What the traversal cores take of a Geometry: its four trace views and its features marker."""
+    return (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)
 
 
 def new_stack():

@@ -56,3 +56,16 @@ def _reinterpret_as(dtype):
 as_float32 = _reinterpret_as(types.float32)
 as_float64 = _reinterpret_as(types.float64)
 as_uint64 = _reinterpret_as(types.uint64)
+
+
+# ------------------------------------------------------------- typed constants
+@intrinsic
+def typed(typingctx, x):
+    """x with its plain type: int64 for the literal 0, bool for True. numba types a
+    constant argument as a literal, and a call with a literal is a signature of its
+    own, so a core called with `0` here and an int64 there compiles twice."""
+    out = types.unliteral(x)
+
+    def codegen(context, builder, sig, args):
+        return context.cast(builder, args[0], sig.args[0], out)
+    return out(x), codegen

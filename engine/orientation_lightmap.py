@@ -194,7 +194,7 @@ def hit_ol(g, ol, inst, shape, face):
     """Innermost OL a hit records into and reads from: an L-system hit's stub
     (its face is the stub index, engine/dcsg.py) or the instance's OL (-1: none)."""
     if face >= 0 and ol.inst_stub0[inst] >= 0 and \
-            shape >= dcsg_vs0((g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)):
+            shape >= dcsg_vs0((g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)):
         return ol.inst_stub0[inst] + face
     return ol.inst_ol[inst]
 

@@ -21,7 +21,8 @@ meshes always hit.
 
 Calling convention: the kernels read only the trace buffer of engine/
 geometry.py, as the tuple `buf` of its four typed views (g.trace_i64,
-g.trace_f32, g.trace_i32, g.trace_f64), so a call passes a few dozen machine
+g.trace_f32, g.trace_i32, g.trace_f64) and its features marker (see the gates
+below and engine/features.py), so a call passes a few dozen machine
 words instead of the ~300 of the Geometry namedtuple, which measurably cost
 ~100 ns per call. The public entry points (`intersect_closest`, `occluded`,
 `closest_hit`, `hit_surface`) are inlined wrappers that forward these views
@@ -34,12 +35,13 @@ import math
 import numpy as np
 from llvmlite import ir
 from numba import njit, prange, types
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 
 from . import geometry as G
 from .affine import normal_through, unit, xform_ray
-from .jit import CORE, INLINE
+from .jit import CORE, INLINE, typed
 from .geometry import STACK_WORDS, TRI_LEAF, new_stack  # noqa: F401  (re-exported)
+from . import features
 from .csg import CSG_SCRATCH_WORDS
 from .csg import csg_closest_core, csg_surface_core, csg_vs0
 from .dcsg import DCSG_REF, dcsg_closest_core, dcsg_hit_surface, dcsg_vs0
@@ -133,7 +135,7 @@ def _lane_test(f64, base, q, kx, ky, kz, sx, sy, sz, okx, oky, okz, tmin, tmax):
 def _layout(buf):
     """The trace views (see geometry.trace_views) and the element offsets of
     the records, int32 and float64 sections."""
-    i64, f32, i32, f64 = buf
+    i64, f32, i32, f64 = buf[:4]
     return (i64, f32, i32, f64, i64[G.H_REC] >> 2, i64[G.H_I32] >> 2, i64[G.H_F64] >> 3)
 
 
@@ -155,6 +157,80 @@ def _prim_first(i32, f64, ib, fb, i64, j, ox, oy, oz, dx, dy, dz, tmin, tmax):
     if n > 3 and t3 > tmin and t3 < tmax:
         return t3
     return math.inf
+
+
+# ---------------------------------------------------------------------- gates
+# The CSG and L-system cores through gates: for a scene without such solids
+# (its features marker says so, engine/features.py) a gate compiles to a miss,
+# and the core is never compiled.
+
+def _csg_closest(buf, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """csg.csg_closest_core, or a miss for a scene without CSG solids."""
+
+
+def _csg_surface(buf, vshape, ox, oy, oz, dx, dy, dz, t):
+    """csg.csg_surface_core (a scene without CSG solids never calls it)."""
+
+
+def _is_csg_shape(buf, shape):
+    """True if `shape` is a CSG leaf's virtual shape."""
+
+
+def _dcsg_closest(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
+    """dcsg.dcsg_closest_core, or a miss for a scene without L-systems."""
+
+
+def _dcsg_surface(buf, stack, s0):
+    """dcsg.dcsg_hit_surface (a scene without L-systems never calls it)."""
+
+
+def _is_dcsg_shape(buf, shape):
+    """True if `shape` is an L-system terminal's virtual shape."""
+
+
+@overload(_csg_closest, jit_options=dict(error_model="numpy"))
+def _csg_closest_gate(buf, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    if features.has(buf.types[4], features.CSG):
+        return lambda buf, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax: csg_closest_core(
+            buf, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    return lambda buf, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax: (math.inf, np.int64(-1))
+
+
+@overload(_csg_surface, jit_options=dict(error_model="numpy"))
+def _csg_surface_gate(buf, vshape, ox, oy, oz, dx, dy, dz, t):
+    if features.has(buf.types[4], features.CSG):
+        return lambda buf, vshape, ox, oy, oz, dx, dy, dz, t: csg_surface_core(
+            buf, vshape, ox, oy, oz, dx, dy, dz, t)
+    return lambda buf, vshape, ox, oy, oz, dx, dy, dz, t: (np.int64(0), 0.0, 0.0, 0.0, 0.0, 1.0)
+
+
+@overload(_is_csg_shape)
+def _is_csg_shape_gate(buf, shape):
+    if features.has(buf.types[4], features.CSG):
+        return lambda buf, shape: shape >= csg_vs0(buf)
+    return lambda buf, shape: False
+
+
+@overload(_dcsg_closest, jit_options=dict(error_model="numpy"))
+def _dcsg_closest_gate(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
+    if features.has(buf.types[4], features.DCSG):
+        return lambda buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit: dcsg_closest_core(
+            buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit)
+    return lambda buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit: (math.inf, np.int64(-1))
+
+
+@overload(_dcsg_surface)
+def _dcsg_surface_gate(buf, stack, s0):
+    if features.has(buf.types[4], features.DCSG):
+        return lambda buf, stack, s0: dcsg_hit_surface(stack, s0)
+    return lambda buf, stack, s0: (np.int64(-1), 0.0, 0.0, 1.0, np.int64(0))
+
+
+@overload(_is_dcsg_shape)
+def _is_dcsg_shape_gate(buf, shape):
+    if features.has(buf.types[4], features.DCSG):
+        return lambda buf, shape: shape >= dcsg_vs0(buf)
+    return lambda buf, shape: False
 
 
 # ------------------------------------------------------------------ traversal
@@ -227,16 +303,16 @@ def _blas_closest(buf, stack, fstack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tbes
                                 code = r
                         elif r <= DCSG_REF:
                             # an L-system: the hit is reported on its terminal's virtual shape
-                            t, vs = dcsg_closest_core(buf, stack, G.TRAV_WORDS + CSG_SCRATCH_WORDS,
+                            t, vs = _dcsg_closest(buf, stack, G.TRAV_WORDS + CSG_SCRATCH_WORDS,
                                                       DCSG_REF - r, ox, oy, oz, dx, dy, dz, tmin,
-                                                      tbest, np.bool_(False))
+                                                      tbest, typed(False))
                             if t < tbest:
                                 tbest = t
                                 code = -1 - vs
                         elif r <= G.CSG_REF:
                             # a CSG solid: the hit is reported on the owning
                             # leaf's virtual shape
-                            t, vs = csg_closest_core(buf, stack, G.TRAV_WORDS, G.CSG_REF - r,
+                            t, vs = _csg_closest(buf, stack, G.TRAV_WORDS, G.CSG_REF - r,
                                                      ox, oy, oz, dx, dy, dz, tmin, tbest)
                             if t < tbest:
                                 tbest = t
@@ -317,15 +393,13 @@ def closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     fstack = stack.view(np.float32)
     items = ib + i64[G.H_TLAS_ITEMS]
     tbest = tmax
-    # typed values, not literals: a call with a literal argument is a signature
-    # of its own, and each signature of a core compiles again
-    inst = np.int64(-1)
-    code = np.int64(-1)
+    inst = typed(-1)        # not literals: one signature per core (jit.typed)
+    code = typed(-1)
     b1 = 0.0
     b2 = 0.0
     single = i64[G.H_SINGLE]
     if single >= 0:
-        tbest, inst, code, b1, b2 = _instance_closest(buf, stack, np.int64(0), single, ox, oy, oz,
+        tbest, inst, code, b1, b2 = _instance_closest(buf, stack, typed(0), single, ox, oy, oz,
                                                       dx, dy, dz, tmin, tbest, inst, code,
                                                       b1, b2)
         return _resolve(i64, i32, ib, tbest, inst, code, b1, b2)
@@ -412,12 +486,12 @@ def _blas_any(buf, stack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
                         if h:
                             return True
                     elif r <= DCSG_REF:
-                        if dcsg_closest_core(buf, stack, G.TRAV_WORDS + CSG_SCRATCH_WORDS,
+                        if _dcsg_closest(buf, stack, G.TRAV_WORDS + CSG_SCRATCH_WORDS,
                                              DCSG_REF - r, ox, oy, oz, dx, dy, dz, tmin, tmax,
-                                             np.bool_(True))[0] < tmax:
+                                             typed(True))[0] < tmax:
                             return True
                     elif r <= G.CSG_REF:
-                        if csg_closest_core(buf, stack, G.TRAV_WORDS, G.CSG_REF - r, ox, oy, oz,
+                        if _csg_closest(buf, stack, G.TRAV_WORDS, G.CSG_REF - r, ox, oy, oz,
                                             dx, dy, dz, tmin, tmax)[0] < tmax:
                             return True
                     elif _prim_first(i32, f64, ib, fb, i64, -1 - r, ox, oy, oz,
@@ -437,7 +511,7 @@ def occluded_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     items = ib + i64[G.H_TLAS_ITEMS]
     single = i64[G.H_SINGLE]
     if single >= 0:
-        return _instance_any(buf, stack, np.int64(0), single, ox, oy, oz, dx, dy, dz, tmin, tmax)
+        return _instance_any(buf, stack, typed(0), single, ox, oy, oz, dx, dy, dz, tmin, tmax)
     ix, iy, iz, nxo, nyo, nzo = _ray_slabs(dx, dy, dz)
     node = 0
     sp = 0
@@ -464,12 +538,12 @@ def surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
     """(face, u, v, nx, ny, nz) of a hit from `closest_core`, world unit normal."""
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
     m_inst = fb + i64[G.H_INST_INV] + 12 * inst
-    is_csg = shape >= csg_vs0(buf)
+    is_csg = _is_csg_shape(buf, shape)
     r = 0 if is_csg else i32[ib + i64[G.H_SHAPE_REF] + shape]
     if is_csg:
         # CSG leaf hit: the owning primitive's chart, the solid's normal
         ux, uy, uz, vx, vy, vz = xform_ray(f64, m_inst, ox, oy, oz, dx, dy, dz)
-        face, u, v, px, py, pz = csg_surface_core(buf, shape, ux, uy, uz, vx, vy, vz, t)
+        face, u, v, px, py, pz = _csg_surface(buf, shape, ux, uy, uz, vx, vy, vz, t)
     elif r >= 0:
         base = fb + i64[G.H_TRI4] + 36 * (r >> 2) + (r & 3)
         px, py, pz = triangle_normal(f64[base], f64[base + 4], f64[base + 8],
@@ -499,9 +573,9 @@ def intersect_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     t, inst, shape, b1, b2 = closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if shape < 0:
         return False, math.inf, -1, -1, -1, 0.0, 0.0, 0.0, 0.0, 0.0
-    if shape >= dcsg_vs0(buf):
+    if _is_dcsg_shape(buf, shape):
         # an L-system hit: the traversal left its normal and OL stub (face) in the stack
-        face, px, py, pz, _address = dcsg_hit_surface(stack, G.TRAV_WORDS + CSG_SCRATCH_WORDS)
+        face, px, py, pz, _address = _dcsg_surface(buf, stack, G.TRAV_WORDS + CSG_SCRATCH_WORDS)
         i64, f32, i32, f64, rb, ib, fb = _layout(buf)
         nx, ny, nz = normal_through(f64, fb + i64[G.H_INST_INV] + 12 * inst, px, py, pz)
         nx, ny, nz = unit(nx, ny, nz)
@@ -515,7 +589,7 @@ def intersect_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
 
 @njit(**INLINE)
 def _buf(g):
-    return (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64)
+    return (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)
 
 
 @njit(**INLINE)
@@ -554,8 +628,8 @@ def occluded(g, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
 
 
 @njit(cache=True, error_model="numpy", parallel=True, _nrt=False)
-def _closest_batch(i64, f32, i32, f64, origins, dirs, tmax, stacks, t_out, inst_out, shape_out):
-    buf = (i64, f32, i32, f64)
+def _closest_batch(i64, f32, i32, f64, feat, origins, dirs, tmax, stacks, t_out, inst_out, shape_out):
+    buf = (i64, f32, i32, f64, feat)
     n = origins.shape[0]
     n_chunks = (n + _CHUNK - 1) // _CHUNK
     for c in prange(n_chunks):
@@ -570,8 +644,8 @@ def _closest_batch(i64, f32, i32, f64, origins, dirs, tmax, stacks, t_out, inst_
 
 
 @njit(cache=True, error_model="numpy", parallel=True, _nrt=False)
-def _occluded_batch(i64, f32, i32, f64, origins, dirs, tmax, stacks, out):
-    buf = (i64, f32, i32, f64)
+def _occluded_batch(i64, f32, i32, f64, feat, origins, dirs, tmax, stacks, out):
+    buf = (i64, f32, i32, f64, feat)
     n = origins.shape[0]
     n_chunks = (n + _CHUNK - 1) // _CHUNK
     for c in prange(n_chunks):
@@ -601,7 +675,7 @@ def trace_closest_batch(g, origins, dirs, tmax=math.inf):
     # one stack per chunk of rays: nothing is allocated inside the kernel
     stacks = np.empty(((n + _CHUNK - 1) // _CHUNK, STACK_WORDS), np.int32)
     if n:
-        _closest_batch(g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, o, d, float(tmax),
+        _closest_batch(g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features, o, d, float(tmax),
                        stacks, t, inst, shape)
     return t, inst, shape
 
@@ -613,6 +687,6 @@ def occluded_batch(g, origins, dirs, tmax=math.inf):
     out = np.zeros(n, np.bool_)
     stacks = np.empty(((n + _CHUNK - 1) // _CHUNK, STACK_WORDS), np.int32)
     if n:
-        _occluded_batch(g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, o, d, float(tmax),
+        _occluded_batch(g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features, o, d, float(tmax),
                         stacks, out)
     return out

@@ -178,7 +178,7 @@ LeafSplit = namedtuple("LeafSplit", [
 
 
 def leaf_visibility(table_trace, root, flat, leaf, R):
-    # table_trace: the trace views (i64, f32, i32, f64)
+    # table_trace: the trace views (i64, f32, i32, f64) and features marker
     """Sampling-grid visibility of primitive leaf `leaf` of solid `root` on an
     R×R-per-face lightmap (prototype space, so instances can share it)."""
     kind = int(flat.leaf_kind[leaf])

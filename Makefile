@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 export PHOTON_LIGHTMAPS_NUMBA_CACHE ?= $(CURDIR)/.numba_cache
 
-.PHONY: setup demo test test-unit test-boundscheck bench fuzz clean
+.PHONY: setup demo test test-unit test-boundscheck test-quick warmup bench fuzz clean
 setup: .venv/.stamp
 .venv/.stamp: requirements.txt scripts/setup_venv.sh
 	sh scripts/setup_venv.sh
@@ -22,6 +22,16 @@ test: setup
 
 test-unit: setup
 	$(PY) -m pytest -q --durations=25 tests
+
+# For iterating on the engine: its own tests, without Blender or subprocesses
+# (the test files that import neither), on the kernel cache the suite keeps.
+QUICK_TESTS = $(shell grep -L -E "bpy|subprocess|blender_session" tests/test_*.py)
+test-quick: setup
+	$(PY) -m pytest -q -x $(QUICK_TESTS)
+
+# Compiles every kernel family now (engine/warmup.py), so the first render starts at once.
+warmup: setup
+	$(PY) -m photon_lightmaps warmup
 
 test-boundscheck: setup
 	NUMBA_BOUNDSCHECK=1 $(PY) -m pytest -q -p no:cacheprovider tests/test_bad_input.py tests/test_bad_input_blender.py tests/test_fuzz.py

@@ -536,68 +536,39 @@ def lsystem_main(args):
     return 0
 
 
-WARMUP_GRAMMAR = "axiom: F\nderivation length: 2\nangle: 25.7\nproduction:\nF --> F[+F]F[-F]F\n"
-
-
-def _warmup_steps(folder):
-    """(name, argv lists) of the kernel families, each through the command line users run."""
-    import bpy  # noqa: F401  (bmesh and friends need bpy loaded first)
-
-    from . import demo_blend
-    tiny = ["--photons=2000", "--seed=1"]
-    textured = os.path.join(folder, "textured.blend")
-    grammar = os.path.join(folder, "tree.lsys")
-    pathlib.Path(grammar).write_text(WARMUP_GRAMMAR)
-
-    def build_textured():
-        demo_blend.build_spheres_blend(textured, width=8, height=8, textures=True)
-    return [
-        ("meshes, spheres, exact CSG and orientation lightmaps: render, bake, bake-ol", None,
-         [["demo", "--out", os.path.join(folder, "demo"), "--samples=1", "--size=8x8", *tiny]]),
-        ("textures and glossy materials: render", build_textured,
-         [["render", textured, "--out", os.path.join(folder, "textured.png"), "--samples=1", *tiny]]),
-        ("L-systems through their scene graph: render", None,
-         [["lsystem", grammar, "--json", os.path.join(folder, "tree.json"),
-           "--render", os.path.join(folder, "tree.png"), "--photons=2000", "--samples=1", "--size=8x8"]]),
-    ]
-
-
 def warmup_main(args):
-    """CLI: runs each kernel family once at a tiny size, so its kernels compile
-    (and land in the cache) now rather than in the first real render."""
-    import contextlib
-    import tempfile
+    """CLI: runs each kernel family once at a tiny size (engine/warmup.py, what
+    Blender runs in the background), so its kernels compile, and land in the
+    cache, now rather than in the first real render."""
+    from .engine import warmup
     t0 = time.perf_counter()
-    ensure_registered()
     watch = _WATCH[-1]          # main() watches every command
     families = []
-    with tempfile.TemporaryDirectory(prefix="photon_lightmaps_warmup_") as folder:
-        steps = _warmup_steps(folder)
-        for k, (name, build, argvs) in enumerate(steps, 1):
-            before, seen = watch.compiled, dict(watch.by_kernel)
-            t1 = time.perf_counter()
-            sys.stderr.write(f"warmup {k}/{len(steps)}: {name}\n")
-            with open(os.devnull, "w") as quiet, contextlib.redirect_stdout(quiet):
-                if build is not None:
-                    build()
-                for argv in argvs:
-                    step = build_parser().parse_args(argv)
-                    step.func(step)
-            spent = {k: round(v - seen.get(k, 0.0), 2) for k, v in watch.by_kernel.items()
-                     if v > seen.get(k, 0.0)}
-            families.append({"family": name, "seconds": round(time.perf_counter() - t1, 2),
-                             "compiled": watch.compiled - before,
-                             "kernel_seconds": dict(sorted(spent.items(), key=lambda kv: -kv[1]))})
-            sys.stderr.write(f"warmup {k}/{len(steps)}: done in {families[-1]['seconds']:.0f} s, "
-                             f"{families[-1]['compiled']} kernels compiled "
-                             f"({time.perf_counter() - t0:.0f} s in all)\n")
+    state = {}
+    total = len(warmup.FAMILIES)
+
+    def before(k, name):
+        state.update(compiled=watch.compiled, seen=dict(watch.by_kernel), t=time.perf_counter())
+        sys.stderr.write(f"warmup {k}/{total}: {name}\n")
+
+    def after(k, name):
+        seen = state["seen"]
+        spent = {n: round(v - seen.get(n, 0.0), 2) for n, v in watch.by_kernel.items() if v > seen.get(n, 0.0)}
+        families.append({"family": name, "seconds": round(time.perf_counter() - state["t"], 2),
+                         "compiled": watch.compiled - state["compiled"],
+                         "kernel_seconds": dict(sorted(spent.items(), key=lambda kv: -kv[1]))})
+        sys.stderr.write(f"warmup {k}/{total}: done in {families[-1]['seconds']:.0f} s, "
+                         f"{families[-1]['compiled']} kernels compiled ({time.perf_counter() - t0:.0f} s in all)\n")
+
+    w = warmup.WarmUp().run(before, after)
+    if w.error:
+        raise RuntimeError(f"warm-up failed: {w.error}")
     report = {"families": families, "kernels": kernels_report(), "seconds": time.perf_counter() - t0}
     if args.json:
         write_report(args.json, json.dumps(report, indent=2))
     print(f"warmup: {report['kernels']['compiled']} kernels compiled in {report['seconds']:.0f} s; "
           "renders and bakes now start without compiling")
     return 0
-
 
 def write_report(path, text):
     """A command's JSON report at `path`, its folder made if missing."""

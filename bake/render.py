@@ -182,6 +182,18 @@ def _render(cs, settings, run, stats, progress, on_tile, should_stop, lm_text):
     return session.render(cs, settings, tile=TILE, progress=tile_progress, passes=passes)
 
 
+def _wait_for_warmup(stats, should_stop):
+    """A render started while the background warm-up compiles waits for it, saying
+    so (engine/warmup.py); the kernels it compiled are then the render's. False:
+    cancelled meanwhile."""
+    from ..engine import warmup
+
+    def poll(w):
+        stats(f"Preparing kernels (first run): {w.fraction:.0%}, {w.current or 'finishing'}")
+        return not (should_stop is not None and should_stop())
+    return warmup.wait(poll)
+
+
 def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=None, should_stop=None,
                camera_override=None, resolution=None):
     """_run_render, with the stats line saying so while kernels compile (a first
@@ -195,6 +207,9 @@ def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=Non
         stats(f"Compiling kernels (first run, cached afterwards): {watch.started} so far, "
               f"{time.perf_counter() - t0[0]:.0f} s")
 
+    if not _wait_for_warmup(stats, should_stop):
+        run = RenderRun(scene=depsgraph.scene.name, cancelled=True)
+        return run
     with kernel_watch.watching(on_compile) as watch:
         run = _run_render(depsgraph, report=report, stats=stats, progress=progress, on_tile=on_tile,
                           should_stop=should_stop, camera_override=camera_override,

@@ -33,6 +33,7 @@ from . import light_hits as LH
 from . import materials as MT
 from . import orientation_lightmap as OL
 from .photon_tracer import CAUSTIC_ALPHA, ray_epsilon
+from .jit import typed
 from .raycast import intersect_closest
 from .sampling import cosine_hemisphere, next_float, to_world
 
@@ -79,7 +80,7 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
                 g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
             if k > 0 and not sharp:
                 # the "irradiance" here is radiance weighted by cos/pdf (tp): lights met count
-                LH.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf, 0.0, True, tp, out)
+                LH.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf, 0.0, typed(True), tp, out)
             if not hit:
                 if k > 0 and not sharp and env_li >= 0:
                     ENV.radiance(env, dx, dy, dz, rad)

@@ -35,6 +35,7 @@ from numba import njit
 
 from . import lightmap as LM
 from .dcsg import dcsg_vs0
+from .jit import typed
 from .primitives import _octa_encode
 from .scene import SceneError
 
@@ -171,9 +172,9 @@ def _lookup_level(lm, lid, nx, ny, nz, mode, out):
     """E of one OL level at normal n: bilinear over measured bins only."""
     s, t = _octa_encode(nx, ny, nz)
     if mode == LM.MODE_BILINEAR:
-        LM.lookup_bilinear(lm, lid, 0, s, t, out)
+        LM.lookup_bilinear(lm, lid, typed(0), s, t, out)     # typed: the lightmaps' own signature
     else:
-        LM.lookup_constant(lm, lid, 0, s, t, out)
+        LM.lookup_constant(lm, lid, typed(0), s, t, out)
 
 
 @njit(cache=True)

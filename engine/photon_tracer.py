@@ -77,156 +77,147 @@ def _trace_chunk(g, ms, bt, ts, ls, lm, lmc, use_caustics, caustic_alpha, ol, se
                  max_bounces, record_from, main_last,
                  rec_texel, rec_power, rec_point, ledger, rays, start, stop):
     # rows start..stop-1 of the chunk; parallel.run spreads the rows over threads
-    scale = ls.total_power / n_total
-    for i in range(start, stop):
-        rays[i] = _trace_photon(g, ms, bt, ts, ls, lm, lmc, use_caustics, caustic_alpha, ol, seed, first,
-                                scale, max_bounces, record_from, main_last, i,
-                                rec_texel, rec_power, rec_point, ledger)
-
-
-@njit(cache=True)
-def _trace_photon(g, ms, bt, ts, ls, lm, lmc, use_caustics, caustic_alpha, ol, seed, first, scale,
-                  max_bounces, record_from, main_last, i, rec_texel, rec_power, rec_point, ledger):
-    """Photon `first + i` of the chunk: its records into row i -> rays traced."""
     n_rec = rec_texel.shape[1]
     nb = ledger.shape[2]
+    scale = ls.total_power / n_total
     n_main = lm.area.shape[0]
-    stack = np.empty(STACK_WORDS, np.int32)
-    power = np.empty(nb)
-    wt = np.empty(nb)
-    kd = np.empty(nb)
-    ks = np.empty(nb)
-    kt = np.empty(nb)
-    pc = np.empty(BS.P_SIZE)
-    for r in range(n_rec):
-        rec_texel[i, r] = -1
-    for k in range(4):
+    for i in range(start, stop):
+        stack = np.empty(STACK_WORDS, np.int32)
+        power = np.empty(nb)
+        wt = np.empty(nb)
+        kd = np.empty(nb)
+        ks = np.empty(nb)
+        kt = np.empty(nb)
+        pc = np.empty(BS.P_SIZE)
+        for r in range(n_rec):
+            rec_texel[i, r] = -1
+        for k in range(4):
+            for b in range(nb):
+                ledger[i, k, b] = 0.0
+        state = stream_state(seed, first + i)
+        state, li, ox, oy, oz, dx, dy, dz, w = emit_photon(ls, g, state)
+        p_light = ls.flux[li].mean()
+        photon_tint(ls, li, dx, dy, dz, wt)     # an environment map's colour along d
         for b in range(nb):
-            ledger[i, k, b] = 0.0
-    state = stream_state(seed, first + i)
-    state, li, ox, oy, oz, dx, dy, dz, w = emit_photon(ls, g, state)
-    p_light = ls.flux[li].mean()
-    photon_tint(ls, li, dx, dy, dz, wt)     # an environment map's colour along d
-    for b in range(nb):
-        power[b] = w * wt[b] * ls.flux[li, b] * scale / p_light if p_light > 0.0 else 0.0
-        ledger[i, 0, b] = power[b]
-    n_rays = 0
-    caustic = use_caustics
-    rec = 0
-    depth = 0
-    tmin = 0.0
-    while True:
-        hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
-            g, stack, ox, oy, oz, dx, dy, dz, tmin, math.inf)
-        n_rays += 1
-        if not hit:
-            for b in range(nb):
-                ledger[i, 2, b] += power[b]
-            break
-        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-        if depth >= record_from:
-            lid = -1
-            if caustic and depth >= 1:
-                # only sharp mirrors and glass since the light: the finer caustic lightmap
-                lid, f, s, tt = LM.record_slot(g, lmc, inst, shape, face, u, v)
-                if lid >= 0 and rec < n_rec:
-                    rec_texel[i, rec] = n_main + LM.record_index(lmc, lid, f, s, tt)
-                    if record_from == 0 and depth <= main_last and rec + 1 < n_rec:
-                        # total irradiance for the final gather: in the main lightmap too
-                        for b in range(nb):
-                            rec_power[i, rec, b] = power[b]
-                        rec += 1
-                        lid = -1
-            if lid < 0 and depth <= main_last:
-                lid, f, s, tt = LM.record_slot(g, lm, inst, shape, face, u, v)
-                if lid >= 0 and rec < n_rec:
-                    rec_texel[i, rec] = LM.record_index(lm, lid, f, s, tt)
-            if lid >= 0 and rec < n_rec:
+            power[b] = w * wt[b] * ls.flux[li, b] * scale / p_light if p_light > 0.0 else 0.0
+            ledger[i, 0, b] = power[b]
+        n_rays = 0
+        caustic = use_caustics
+        rec = 0
+        depth = 0
+        tmin = 0.0
+        while True:
+            hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
+                g, stack, ox, oy, oz, dx, dy, dz, tmin, math.inf)
+            n_rays += 1
+            if not hit:
                 for b in range(nb):
-                    rec_power[i, rec, b] = power[b]
-                if rec_point.shape[0] > 0:
-                    # Photon-map baselines keep the hit itself: position and normal.
-                    rec_point[i, rec, 0] = px
-                    rec_point[i, rec, 1] = py
-                    rec_point[i, rec, 2] = pz
-                    rec_point[i, rec, 3] = nx
-                    rec_point[i, rec, 4] = ny
-                    rec_point[i, rec, 5] = nz
-                rec += 1
-            # the hit's normal bin in its OL and every level above (thesis 6.2)
-            k = OL.hit_ol(g, ol, inst, shape, face) if depth <= main_last else -1
-            while k >= 0 and rec < n_rec:
-                rec_texel[i, rec] = OL.bin_index(lm, ol, k, nx, ny, nz)
+                    ledger[i, 2, b] += power[b]
+                break
+            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+            if depth >= record_from:
+                lid = -1
+                if caustic and depth >= 1:
+                    # only sharp mirrors and glass since the light: the finer caustic lightmap
+                    lid, f, s, tt = LM.record_slot(g, lmc, inst, shape, face, u, v)
+                    if lid >= 0 and rec < n_rec:
+                        rec_texel[i, rec] = n_main + LM.record_index(lmc, lid, f, s, tt)
+                        if record_from == 0 and depth <= main_last and rec + 1 < n_rec:
+                            # total irradiance for the final gather: in the main lightmap too
+                            for b in range(nb):
+                                rec_power[i, rec, b] = power[b]
+                            rec += 1
+                            lid = -1
+                if lid < 0 and depth <= main_last:
+                    lid, f, s, tt = LM.record_slot(g, lm, inst, shape, face, u, v)
+                    if lid >= 0 and rec < n_rec:
+                        rec_texel[i, rec] = LM.record_index(lm, lid, f, s, tt)
+                if lid >= 0 and rec < n_rec:
+                    for b in range(nb):
+                        rec_power[i, rec, b] = power[b]
+                    if rec_point.shape[0] > 0:
+                        # Photon-map baselines keep the hit itself: position and normal.
+                        rec_point[i, rec, 0] = px
+                        rec_point[i, rec, 1] = py
+                        rec_point[i, rec, 2] = pz
+                        rec_point[i, rec, 3] = nx
+                        rec_point[i, rec, 4] = ny
+                        rec_point[i, rec, 5] = nz
+                    rec += 1
+                # the hit's normal bin in its OL and every level above (thesis 6.2)
+                k = OL.hit_ol(g, ol, inst, shape, face) if depth <= main_last else -1
+                while k >= 0 and rec < n_rec:
+                    rec_texel[i, rec] = OL.bin_index(lm, ol, k, nx, ny, nz)
+                    for b in range(nb):
+                        rec_power[i, rec, b] = power[b]
+                    rec += 1
+                    k = ol.parent[k]
+            if depth >= max_bounces or (depth >= main_last and not caustic):
                 for b in range(nb):
-                    rec_power[i, rec, b] = power[b]
-                rec += 1
-                k = ol.parent[k]
-        if depth >= max_bounces or (depth >= main_last and not caustic):
+                    ledger[i, 3, b] += power[b]
+                break
+            m = g.shape_material[shape]
+            # photons read textures at their finest level: the albedo at the hit itself
+            rough, ior, _ = MT.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, 0.0, kd, ks, kt)
+            snx, sny, snz = MT.shading_normal(ms, ts, g, inst, m, shape, face, u, v, 0.0, nx, ny, nz)
+            # the local frame faces where the photon came from; entering by the outward normal
+            cos_dn = dx * nx + dy * ny + dz * nz
+            if cos_dn > 0.0:
+                fx, fy, fz, sx, sy, sz = -nx, -ny, -nz, -snx, -sny, -snz
+            else:
+                fx, fy, fz, sx, sy, sz = nx, ny, nz, snx, sny, snz
+            cos_o = -(dx * sx + dy * sy + dz * sz)
+            if cos_o <= 1e-6:
+                sx, sy, sz = fx, fy, fz
+                cos_o = abs(cos_dn)
+            BS.closure_scalars(bt, m, rough, ior, cos_dn < 0.0, cos_o, pc)
+            pd, ps, pm, pg = BS.lobe_probabilities(pc, kd, ks, kt, cos_o)
+            state, ur = next_float(state)
+            state, u1 = next_float(state)
+            state, u2 = next_float(state)
+            state, u3 = next_float(state)
+            ok = True
+            # a diffuse or rough bounce spreads the focus: the rest of the path is no caustic
+            caustic = caustic and ur >= pd and pc[BS.P_ALPHA] <= caustic_alpha
+            if ur < pd:
+                # Russian roulette on the lobe (thesis 3.4.3): a survivor keeps
+                # power k/p <= power per band, the rest is absorbed here
+                ix, iy, iz = BS.sample_diffuse(u1, u2)
+                ds = BS.diffuse_scale(pc)
+                for b in range(nb):
+                    wt[b] = kd[b] * ds / pd
+            elif ur < pd + ps + pm + pg:
+                q = ps + pm + pg
+                lox, loy, loz = BS.to_local(-dx, -dy, -dz, sx, sy, sz)
+                ok, ix, iy, iz, _, _ = BS.sample_glossy(pc, ks, kt, ps, pm, pg, lox, loy, loz,
+                                                        (ur - pd) / q, u1, u2, u3, wt)
+                for b in range(nb):
+                    wt[b] /= q
+            else:
+                for b in range(nb):
+                    ledger[i, 1, b] += power[b]
+                break
+            if not ok:
+                for b in range(nb):
+                    ledger[i, 1, b] += power[b]
+                break
             for b in range(nb):
-                ledger[i, 3, b] += power[b]
-            break
-        m = g.shape_material[shape]
-        # photons read textures at their finest level: the albedo at the hit itself
-        rough, ior, _ = MT.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, 0.0, kd, ks, kt)
-        snx, sny, snz = MT.shading_normal(ms, ts, g, inst, m, shape, face, u, v, 0.0, nx, ny, nz)
-        # the local frame faces where the photon came from; entering by the outward normal
-        cos_dn = dx * nx + dy * ny + dz * nz
-        if cos_dn > 0.0:
-            fx, fy, fz, sx, sy, sz = -nx, -ny, -nz, -snx, -sny, -snz
-        else:
-            fx, fy, fz, sx, sy, sz = nx, ny, nz, snx, sny, snz
-        cos_o = -(dx * sx + dy * sy + dz * sz)
-        if cos_o <= 1e-6:
-            sx, sy, sz = fx, fy, fz
-            cos_o = abs(cos_dn)
-        BS.closure_scalars(bt, m, rough, ior, cos_dn < 0.0, cos_o, pc)
-        pd, ps, pm, pg = BS.lobe_probabilities(pc, kd, ks, kt, cos_o)
-        state, ur = next_float(state)
-        state, u1 = next_float(state)
-        state, u2 = next_float(state)
-        state, u3 = next_float(state)
-        ok = True
-        # a diffuse or rough bounce spreads the focus: the rest of the path is no caustic
-        caustic = caustic and ur >= pd and pc[BS.P_ALPHA] <= caustic_alpha
-        if ur < pd:
-            # Russian roulette on the lobe (thesis 3.4.3): a survivor keeps
-            # power k/p <= power per band, the rest is absorbed here
-            ix, iy, iz = BS.sample_diffuse(u1, u2)
-            ds = BS.diffuse_scale(pc)
-            for b in range(nb):
-                wt[b] = kd[b] * ds / pd
-        elif ur < pd + ps + pm + pg:
-            q = ps + pm + pg
-            lox, loy, loz = BS.to_local(-dx, -dy, -dz, sx, sy, sz)
-            ok, ix, iy, iz, _, _ = BS.sample_glossy(pc, ks, kt, ps, pm, pg, lox, loy, loz,
-                                                    (ur - pd) / q, u1, u2, u3, wt)
-            for b in range(nb):
-                wt[b] /= q
-        else:
-            for b in range(nb):
-                ledger[i, 1, b] += power[b]
-            break
-        if not ok:
-            for b in range(nb):
-                ledger[i, 1, b] += power[b]
-            break
-        for b in range(nb):
-            kept = power[b] * wt[b]
-            ledger[i, 1, b] += power[b] - kept
-            power[b] = kept
-        dx, dy, dz = BS.from_local(ix, iy, iz, sx, sy, sz)
-        if (dx * fx + dy * fy + dz * fz) * iz <= 0.0:
-            # the shading frame's side and the face's disagree: absorbed, so a
-            # normal map never leaks light through the surface
-            for b in range(nb):
-                ledger[i, 1, b] += power[b]
-            break
-        # Leave the surface on the side the new direction points to.
-        eps = ray_epsilon(px, py, pz)
-        side = eps if (dx * nx + dy * ny + dz * nz) > 0.0 else -eps
-        ox, oy, oz = px + side * nx, py + side * ny, pz + side * nz
-        depth += 1
-    return n_rays
+                kept = power[b] * wt[b]
+                ledger[i, 1, b] += power[b] - kept
+                power[b] = kept
+            dx, dy, dz = BS.from_local(ix, iy, iz, sx, sy, sz)
+            if (dx * fx + dy * fy + dz * fz) * iz <= 0.0:
+                # the shading frame's side and the face's disagree: absorbed, so a
+                # normal map never leaks light through the surface
+                for b in range(nb):
+                    ledger[i, 1, b] += power[b]
+                break
+            # Leave the surface on the side the new direction points to.
+            eps = ray_epsilon(px, py, pz)
+            side = eps if (dx * nx + dy * ny + dz * nz) > 0.0 else -eps
+            ox, oy, oz = px + side * nx, py + side * ny, pz + side * nz
+            depth += 1
+        rays[i] = n_rays
 
 
 def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,

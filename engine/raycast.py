@@ -405,7 +405,7 @@ def closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
         return _resolve(i64, i32, ib, tbest, inst, code, b1, b2)
     node = 0
     ix, iy, iz, nxo, nyo, nzo = _ray_slabs(dx, dy, dz)
-    sp = 0
+    sp = typed(0)        # int64 at once: inference compiles a core per type it meets
     while True:
         b = rb + node * 32
         m, lm, n0, n1, n2, n3 = _slab4(f32, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo,
@@ -514,7 +514,7 @@ def occluded_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
         return _instance_any(buf, stack, typed(0), single, ox, oy, oz, dx, dy, dz, tmin, tmax)
     ix, iy, iz, nxo, nyo, nzo = _ray_slabs(dx, dy, dz)
     node = 0
-    sp = 0
+    sp = typed(0)
     while True:
         b = rb + node * 32
         m, lm, n0, n1, n2, n3 = _slab4(f32, b, ox, oy, oz, ix, iy, iz, nxo, nyo, nzo,

@@ -29,9 +29,37 @@ class PhotonLightmapsRenderEngine(bpy.types.RenderEngine):
         return bool(self.test_break())
 
 
+def _redraw_while_warming():
+    """Timer: the render panel's "Preparing kernels" line follows the warm-up."""
+    from ..engine import warmup
+    w = warmup.status()
+    for window in bpy.context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type == "PROPERTIES":
+                area.tag_redraw()
+    return None if w is None or w.finished.is_set() else 1.0
+
+
+def start_warmup():
+    """Kernels compile on a background thread from the moment the add-on is enabled
+    (engine/warmup.py), so an interactive user's first F12 does not wait minutes.
+    Headless runs (the CLI, pipelines, tests) compile what they use, or run
+    `python -m photon_lightmaps warmup`."""
+    from ..engine import warmup
+    if bpy.app.background or warmup.is_warm():
+        return None
+    w = warmup.start()
+    if not bpy.app.timers.is_registered(_redraw_while_warming):
+        bpy.app.timers.register(_redraw_while_warming, first_interval=1.0, persistent=True)
+    return w
+
+
 def register():
     bpy.utils.register_class(PhotonLightmapsRenderEngine)
+    start_warmup()
 
 
 def unregister():
+    if bpy.app.timers.is_registered(_redraw_while_warming):
+        bpy.app.timers.unregister(_redraw_while_warming)
     bpy.utils.unregister_class(PhotonLightmapsRenderEngine)

@@ -16,9 +16,9 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 TINY = ("--photons", "20000", "--seed", "1")
 
 
-def run(*argv, timeout=900):
+def run(*argv, timeout=900, env=None):
     r = subprocess.run([sys.executable, "-m", "photon_lightmaps", *map(str, argv)], cwd=ROOT,
-                       capture_output=True, text=True, timeout=timeout)
+                       capture_output=True, text=True, timeout=timeout, env=env)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "Traceback" not in r.stderr
     return r
@@ -126,22 +126,34 @@ def test_lsystem(tmp_path):
 
 
 def test_warmup_then_render_compiles_nothing(demo, tmp_path):
-    """`warmup` runs every kernel family; a render after it compiles no kernel, even of
-    a family the demo does not have (textures, glossy lobes)."""
+    """On an empty kernel cache, `warmup` compiles every kernel family; renders after it
+    compile nothing: the demo (meshes, spheres, a CSG solid, orientation lightmaps) and
+    a textured scene of a kind the demo is not (no CSG)."""
+    out, _ = demo
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "kernels"))
+    env.pop("PHOTON_LIGHTMAPS_NUMBA_CACHE", None)
     rep = tmp_path / "w.json"
-    r = run("warmup", "--json", rep)
+    r = run("warmup", "--json", rep, env=env)
     report = json.loads(rep.read_text())
-    assert len(report["families"]) == 3 and all(f["seconds"] > 0 for f in report["families"])
-    assert [ln for ln in r.stderr.splitlines() if ln.startswith("warmup 3/3: done")]
+    from photon_lightmaps.engine import warmup
+    n = len(warmup.FAMILIES)
+    assert len(report["families"]) == n and all(f["seconds"] > 0 for f in report["families"])
+    assert report["kernels"]["compiled"] > 50
+    assert [ln for ln in r.stderr.splitlines() if ln.startswith(f"warmup {n}/{n}: done")]
     import bpy  # noqa: F401
     from photon_lightmaps import demo_blend, registration
     if not registration.is_registered():
         registration.register()
     blend = tmp_path / "textured.blend"
     demo_blend.build_spheres_blend(str(blend), width=12, height=8, textures=True)
-    rr = tmp_path / "r.json"
-    run("render", blend, "--out", tmp_path / "t.png", "--json", rr, *TINY, "--samples", "2")
-    assert json.loads(rr.read_text())["kernels"] == {"compiled": 0, "seconds": 0.0}
+    for name, path in (("demo", out / "demo.blend"), ("textured", blend)):
+        rr = tmp_path / f"{name}.json"
+        run("render", path, "--out", tmp_path / f"{name}.png", "--json", rr, *TINY, "--samples", "2", env=env)
+        assert json.loads(rr.read_text())["kernels"] == {"compiled": 0, "seconds": 0.0}, name
+    rb = tmp_path / "bake.json"
+    run("bake", out / "demo.blend", "--out", tmp_path / "maps", "--json", rb, *TINY, "--resolution", "8",
+        "--bake-gather-rays", "2", env=env)
+    assert json.loads(rb.read_text())["kernels"] == {"compiled": 0, "seconds": 0.0}
 
 
 def test_compile_line_is_ended_before_other_output():

@@ -39,6 +39,18 @@ def _draw_output(layout, tree, output_type, input_name):
     return True
 
 
+def _warmup_line(layout):
+    """While kernels compile in the background (engine/warmup.py): how far it is."""
+    from ..engine import warmup
+    w = warmup.status()
+    if w is None:
+        return
+    if w.error:
+        layout.label(text="Kernel warm-up stopped; the first render compiles what it needs", icon="ERROR")
+    elif not w.finished.is_set():
+        layout.label(text=f"Preparing kernels, {w.fraction:.0%} ({w.current})", icon="TIME")
+
+
 class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
     bl_label = "Photon Lightmaps"
     bl_context = "render"
@@ -48,6 +60,7 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         s = context.scene.photon_lightmaps
+        _warmup_line(layout)
         col = layout.column(heading="Photon Pass")
         col.prop(s, "photons")
         col.prop(s, "max_bounces")

@@ -1,0 +1,85 @@
+"""The kernel warm-up (engine/warmup.py): what it covers, its marker, and how a
+render meets a warm-up that is still running. That a warm-up leaves nothing for a
+render to compile is checked end to end, on an empty cache, in test_cli_commands.py."""
+import threading
+
+import numba
+import pytest
+
+from photon_lightmaps.engine import features, warmup
+from photon_lightmaps.engine.geometry import compile_geometry
+
+
+def test_families_cover_every_traversal_variant():
+    masks = {features.mask_of(compile_geometry(build())[0].trace_features)
+             for build in (warmup._room, warmup._solid_room, warmup._tree)}
+    assert masks == {0, features.CSG, features.DCSG}
+    names = [name for name, _ in warmup.FAMILIES]
+    assert names[0] == "meshes and primitives: render"       # what F12 needs first
+    assert sum("bake" in n for n in names) == 2
+
+
+def test_a_finished_warmup_marks_the_cache(tmp_path, monkeypatch):
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    calls = []
+    monkeypatch.setattr(warmup, "FAMILIES", [("a", lambda: calls.append("a")), ("b", lambda: calls.append("b"))])
+    assert not warmup.is_warm()
+    seen = []
+    w = warmup.WarmUp().run(lambda k, n: seen.append(("before", k, n)), lambda k, n: seen.append(("after", k, n)))
+    assert calls == ["a", "b"] and w.done == 2 and w.fraction == 1.0 and w.error is None
+    assert seen == [("before", 1, "a"), ("after", 1, "a"), ("before", 2, "b"), ("after", 2, "b")]
+    assert warmup.is_warm()
+
+
+def test_a_failing_family_stops_without_raising(tmp_path, monkeypatch):
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+
+    def broken():
+        raise RuntimeError("no")
+    monkeypatch.setattr(warmup, "FAMILIES", [("ok", lambda: None), ("broken", broken), ("never", None)])
+    w = warmup.WarmUp().run()
+    assert w.done == 1 and w.error == "broken: RuntimeError: no" and w.finished.is_set()
+    assert not warmup.is_warm()
+
+
+@pytest.fixture
+def running(monkeypatch):
+    """A background warm-up half done, finishing when the test sets `release`."""
+    w = warmup.WarmUp()
+    w.done, w.current = 2, "exact CSG solids: render"
+    release = threading.Event()
+    monkeypatch.setattr(warmup, "_background", w)
+
+    def finish():
+        release.wait(10)
+        w.finished.set()
+    threading.Thread(target=finish, daemon=True).start()
+    return w, release
+
+
+def test_a_render_waits_for_the_warmup_and_says_so(running):
+    from photon_lightmaps.bake import render
+    w, release = running
+    lines = []
+
+    def stats(text):
+        lines.append(text)
+        if len(lines) == 2:
+            release.set()
+    assert render._wait_for_warmup(stats, lambda: False)
+    assert lines[0] == f"Preparing kernels (first run): {2 / len(warmup.FAMILIES):.0%}, exact CSG solids: render"
+
+
+def test_a_render_cancelled_while_waiting_stops(running):
+    from photon_lightmaps.bake import render
+    w, release = running
+    assert not render._wait_for_warmup(lambda text: None, lambda: True)
+    release.set()
+
+
+def test_headless_blender_starts_no_background_warmup():
+    import bpy
+
+    from photon_lightmaps.operators import render_engine
+    assert bpy.app.background
+    assert render_engine.start_warmup() is None and warmup.status() is None

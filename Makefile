@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 export PHOTON_LIGHTMAPS_NUMBA_CACHE ?= $(CURDIR)/.numba_cache
 
-.PHONY: setup demo test test-unit test-boundscheck test-quick warmup bench fuzz clean
+.PHONY: setup demo test test-unit test-boundscheck test-first-run test-quick warmup bench fuzz clean
 setup: .venv/.stamp
 .venv/.stamp: requirements.txt scripts/setup_venv.sh
 	sh scripts/setup_venv.sh
@@ -13,15 +13,20 @@ DEMO_ARGS ?=
 demo: setup
 	$(PY) -m photon_lightmaps demo --out $(DEMO_OUT) $(DEMO_ARGS)
 
-# The whole suite, and beside it the bad-input and fuzz corpora again with
-# numba's bounds checking (kernels compiled into their own cache folder). They
-# run side by side: the checked pass is mostly compiling, which is one core's
-# work, so together they take little longer than the suite alone.
+# The whole suite, and beside it two lanes that compile into kernel caches of
+# their own: the bad-input and fuzz corpora with numba's bounds checking, then
+# the first-run tests (warm-up on an empty cache, the installed extension).
+# Those are mostly compiling, which is one core's work, so side by side they
+# take little longer than the suite alone.
+FIRST_RUN_TESTS = tests/test_first_run.py tests/test_extension.py
 test: setup
-	$(MAKE) -j2 --output-sync=target test-unit test-boundscheck
+	$(MAKE) -j2 --output-sync=target test-unit test-boundscheck test-first-run
 
 test-unit: setup
-	$(PY) -m pytest -q --durations=25 tests
+	$(PY) -m pytest -q --durations=25 $(addprefix --ignore=,$(FIRST_RUN_TESTS)) tests
+
+test-first-run: setup
+	$(PY) -m pytest -q --durations=5 $(FIRST_RUN_TESTS)
 
 # For iterating on the engine: its own tests, without Blender or subprocesses
 # (the test files that import neither), on the kernel cache the suite keeps.

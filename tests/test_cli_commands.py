@@ -125,37 +125,6 @@ def test_lsystem(tmp_path):
     assert read_png(tmp_path / "l.png") == (16, 16)
 
 
-def test_warmup_then_render_compiles_nothing(demo, tmp_path):
-    """On an empty kernel cache, `warmup` compiles every kernel family; renders after it
-    compile nothing: the demo (meshes, spheres, a CSG solid, orientation lightmaps) and
-    a textured scene of a kind the demo is not (no CSG)."""
-    out, _ = demo
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "kernels"))
-    env.pop("PHOTON_LIGHTMAPS_NUMBA_CACHE", None)
-    rep = tmp_path / "w.json"
-    r = run("warmup", "--json", rep, env=env)
-    report = json.loads(rep.read_text())
-    from photon_lightmaps.engine import warmup
-    n = len(warmup.FAMILIES)
-    assert len(report["families"]) == n and all(f["seconds"] > 0 for f in report["families"])
-    assert report["kernels"]["compiled"] > 50
-    assert [ln for ln in r.stderr.splitlines() if ln.startswith(f"warmup {n}/{n}: done")]
-    import bpy  # noqa: F401
-    from photon_lightmaps import demo_blend, registration
-    if not registration.is_registered():
-        registration.register()
-    blend = tmp_path / "textured.blend"
-    demo_blend.build_spheres_blend(str(blend), width=12, height=8, textures=True)
-    for name, path in (("demo", out / "demo.blend"), ("textured", blend)):
-        rr = tmp_path / f"{name}.json"
-        run("render", path, "--out", tmp_path / f"{name}.png", "--json", rr, *TINY, "--samples", "2", env=env)
-        assert json.loads(rr.read_text())["kernels"] == {"compiled": 0, "seconds": 0.0}, name
-    rb = tmp_path / "bake.json"
-    run("bake", out / "demo.blend", "--out", tmp_path / "maps", "--json", rb, *TINY, "--resolution", "8",
-        "--bake-gather-rays", "2", env=env)
-    assert json.loads(rb.read_text())["kernels"] == {"compiled": 0, "seconds": 0.0}
-
-
 def test_compile_line_is_ended_before_other_output():
     import io
 

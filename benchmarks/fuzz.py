@@ -3,7 +3,7 @@ either run cleanly or be refused with a SceneError, never crash, hang, produce
 NaN/inf or create energy.
 
 Case i is generated from seed i alone (reproducible). Cases run in a small pool
-of long-lived forked workers, so a segfault only kills a worker: the parent
+of long-lived worker processes, so a segfault only kills a worker: the parent
 records the case id and starts a new worker. Kernels are compiled/loaded once
 per worker (a warm-up scene before the first case), not per case.
 
@@ -604,7 +604,7 @@ def LM_STATE_MEASURED():
 
 
 # --------------------------------------------------------------------------------------
-# Worker pool (fork): a crash kills one worker, the parent records the case
+# Worker pool (forkserver): a crash kills one worker, the parent records the case
 # --------------------------------------------------------------------------------------
 
 def _warm_up():
@@ -684,8 +684,11 @@ class _Slot:
 
 
 def run_cases(ids, workers=2, timeout=60.0, warmup_timeout=1800.0, threads=1, log=None):
-    """Runs the case ids in forked workers; returns (results list, seconds)."""
-    ctx = mp.get_context("fork")
+    """Runs the case ids in worker processes; returns (results list, seconds)."""
+    # forkserver: a child forked from a process that ran numba's OpenMP threads
+    # is terminated by numba (GNU OpenMP is not fork-safe), and pytest runs
+    # this after other kernels; the server process has run none
+    ctx = mp.get_context("forkserver")
     todo = list(ids)[::-1]
     results = {}
     n_slots = max(1, min(workers, len(todo) or 1))

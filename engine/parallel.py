@@ -12,6 +12,7 @@ Each index writes only its own outputs, so the result does not depend on the
 number of threads or their scheduling. The thread count is numba's
 (`numba.set_num_threads`, NUMBA_NUM_THREADS), read in the calling thread.
 """
+import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -25,6 +26,18 @@ BLOCKS_PER_THREAD = 8
 _PREFIX = "photon_lightmaps"
 _pool = None
 _pool_lock = threading.Lock()
+
+
+def _forget_pool():
+    # a forked child (multiprocessing's fork start, e.g. the fuzz workers)
+    # inherits the pool object but none of its threads: it must make its own
+    global _pool, _pool_lock
+    _pool = None
+    _pool_lock = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
 
 
 def threads():

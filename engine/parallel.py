@@ -69,13 +69,25 @@ def run(kernel, n, *args, min_block=1):
     """kernel(*args, start, stop) over blocks of range(n), on the pool.
 
     `kernel` is a serial, nogil numba kernel that handles indices start..stop-1.
-    Returns once every block is done; the first block's exception is raised."""
+    Returns once every block is done; an exception in a block is raised here."""
     parts = blocks(n, min_block=min_block)
     if len(parts) <= 1 or threading.current_thread().name.startswith(_PREFIX):
         # one block, or called from a pool thread (waiting on the pool there could deadlock)
         for start, stop in parts:
             kernel(*args, start, stop)
         return
-    futures = [_executor().submit(kernel, *args, start, stop) for start, stop in parts]
+    # as many lanes as this thread's thread count, each taking the next block:
+    # numba.set_num_threads(k) holds, whatever the pool's size
+    todo = iter(parts)
+    lock = threading.Lock()
+
+    def lane():
+        while True:
+            with lock:
+                part = next(todo, None)
+            if part is None:
+                return
+            kernel(*args, *part)
+    futures = [_executor().submit(lane) for _ in range(min(threads(), len(parts)))]
     for f in futures:
         f.result()

@@ -427,6 +427,7 @@ def demo_main(args):
     import bpy  # noqa: F401  (bmesh and friends need bpy loaded first)
 
     from . import demo_blend
+    from .engine import warmup
 
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
@@ -442,6 +443,7 @@ def demo_main(args):
     ol_json = os.path.join(out, "orientation_lightmaps.json")
     lightmaps = os.path.join(out, "lightmaps")
     samples = [f"--samples={args.samples}"] if args.samples is not None else []
+    warmup.expect("bake")   # on a first run, the bake's kernels compile in a second process during the render
     # Each step goes through the same parser as on the command line, so it gets
     # every option's default; a failing step raises, and cli.main turns that
     # into the one "error: ..." line.
@@ -539,36 +541,39 @@ def lsystem_main(args):
 def warmup_main(args):
     """CLI: runs each kernel family once at a tiny size (engine/warmup.py, what
     Blender runs in the background), so its kernels compile, and land in the
-    cache, now rather than in the first real render."""
+    cache, now rather than in the first real render. Families compile side by
+    side in helper processes, one per core (at most two)."""
     from .engine import warmup
     t0 = time.perf_counter()
-    watch = _WATCH[-1]          # main() watches every command
-    families = []
-    state = {}
     total = len(warmup.FAMILIES)
+    w = warmup.WarmUp()
 
     def before(k, name):
-        state.update(compiled=watch.compiled, seen=dict(watch.by_kernel), t=time.perf_counter())
         sys.stderr.write(f"warmup {k}/{total}: {name}\n")
 
     def after(k, name):
-        seen = state["seen"]
-        spent = {n: round(v - seen.get(n, 0.0), 2) for n, v in watch.by_kernel.items() if v > seen.get(n, 0.0)}
-        families.append({"family": name, "seconds": round(time.perf_counter() - state["t"], 2),
-                         "compiled": watch.compiled - state["compiled"],
-                         "kernel_seconds": dict(sorted(spent.items(), key=lambda kv: -kv[1]))})
-        sys.stderr.write(f"warmup {k}/{total}: done in {families[-1]['seconds']:.0f} s, "
-                         f"{families[-1]['compiled']} kernels compiled ({time.perf_counter() - t0:.0f} s in all)\n")
+        rep = w.reports[-1]
+        sys.stderr.write(f"warmup {w.done}/{total}: done {name} in {rep['seconds']:.0f} s, "
+                         f"{rep['compiled']} kernels compiled ({time.perf_counter() - t0:.0f} s in all)\n")
 
-    w = warmup.WarmUp().run(before, after)
+    w.run(before, after)
     if w.error:
         raise RuntimeError(f"warm-up failed: {w.error}")
-    report = {"families": families, "kernels": kernels_report(), "seconds": time.perf_counter() - t0}
+    families = [{"family": r["family"], "seconds": round(r["seconds"], 2), "compiled": r["compiled"],
+                 "kernel_seconds": {n: round(v, 2) for n, v in sorted(r["kernel_seconds"].items(),
+                                                                      key=lambda kv: -kv[1])}}
+                for r in w.reports]
+    compiled = sum(f["compiled"] for f in families)
+    report = {"families": families, "lanes": warmup.lanes(),
+              "kernels": {"compiled": compiled,
+                          "seconds": round(sum(sum(f["kernel_seconds"].values()) for f in families), 2)},
+              "seconds": time.perf_counter() - t0}
     if args.json:
         write_report(args.json, json.dumps(report, indent=2))
-    print(f"warmup: {report['kernels']['compiled']} kernels compiled in {report['seconds']:.0f} s; "
+    print(f"warmup: {compiled} kernels compiled in {report['seconds']:.0f} s; "
           "renders and bakes now start without compiling")
     return 0
+
 
 def write_report(path, text):
     """A command's JSON report at `path`, its folder made if missing."""

@@ -113,7 +113,7 @@ def _export(depsgraph, run, report, camera_override, resolution):
 def _compile(scene, run, report):
     """Phase 2: the compiled scene, its warnings and lightmap numbers."""
     launches = uv_atlas.worker_launches
-    cs = session.compile(scene)
+    cs = session.compile(scene, ahead=("render",))   # a first run compiles the render pass meanwhile
     run.xatlas_workers = uv_atlas.worker_launches - launches
     for text in cs.info.get("warnings", ()):   # dropped triangles, unwrap fallbacks, clamped UVs
         report("WARNING", f"Photon Lightmaps: {text}")
@@ -179,7 +179,11 @@ def _render(cs, settings, run, stats, progress, on_tile, should_stop, lm_text):
               f"tile {t + 1}/{n_tiles} | {run.photons:,} photons | {lm_text}")
         return not should_stop()
 
-    return session.render(cs, settings, tile=TILE, progress=tile_progress, passes=passes)
+    def waiting(seconds):
+        stats(f"Compiling the render kernels in a second process (first run): {seconds:.0f} s | {lm_text}")
+        return not should_stop()
+
+    return session.render(cs, settings, tile=TILE, progress=tile_progress, passes=passes, waiting=waiting)
 
 
 def _wait_for_warmup(stats, should_stop):

@@ -33,3 +33,8 @@ else:
     os.environ["NUMBA_CACHE_DIR"] = os.path.join(_base, _source_digest() + _flavour)
 if _flavour and "numba" in sys.modules:      # numba read the variable when it was imported
     sys.modules["numba"].config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
+
+# Helper processes compile into the same cache folder (engine/warmup.py).
+from . import kernel_cache  # noqa: E402
+
+kernel_cache.install()

@@ -71,10 +71,27 @@ class Settings:
         return LM.MODE_CONSTANT if self.reconstruction == "CONSTANT" else LM.MODE_BILINEAR
 
 
-def compile(scene):
-    """Plain engine Scene -> compiled scene (flat arrays, BVHs, empty lightmaps)."""
+def compile(scene, ahead=()):
+    """Plain engine Scene -> compiled scene (flat arrays, BVHs, empty lightmaps).
+
+    ahead: the passes that will follow the photon pass ("render", "bake"); on a
+    first run a helper process compiles their kernels meanwhile (engine/warmup.py)."""
     from .compile import compile_scene
+    if ahead:
+        from . import warmup
+        warmup.ahead(scene, ahead)
     return compile_scene(scene)
+
+
+def _kernels_for(cs, pass_, poll=None):
+    """Before `pass_` runs: waits for its kernels if a helper is compiling them (engine/warmup.py)."""
+    from . import features, warmup
+    warmup.join(features.mask_of(cs.geometry.trace_features), pass_, poll)
+
+
+def _kernels_done(cs, pass_):
+    from . import features, warmup
+    warmup.done(features.mask_of(cs.geometry.trace_features), pass_)
 
 
 def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=None, caustics=False,
@@ -116,7 +133,7 @@ def compile_and_trace_bake(scene, settings, *, progress=None):
     averaged over each baked texel."""
     if not settings.bake_gathers:
         return compile_and_trace(scene, settings, progress=progress)
-    cs = compile(replace(scene, caustic_resolution=1.0))
+    cs = compile(replace(scene, caustic_resolution=1.0), ahead=("bake",))
     return cs, photon_pass(cs, settings, record_direct=True, progress=progress, caustics=True, gather=True)
 
 
@@ -132,6 +149,7 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
     from . import texel_gather as TG
     lightmap_ids, csg_leaves = list(lightmap_ids), list(csg_leaves)
     seconds = {}
+    _kernels_for(cs, "bake")
     t0 = time.perf_counter()
     parts = []
     if direct and lightmap_ids:
@@ -155,6 +173,7 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
     BG.set_gathered(cs.lightmaps, direct_E, indirect)
     cs.bake_error = texel_error(cs.lightmaps, direct_E, indirect)
     seconds["gather"] = time.perf_counter() - t1
+    _kernels_done(cs, "bake")
     return seconds
 
 
@@ -185,11 +204,14 @@ def add_direct(lightmaps, gathered):
     TG.add_direct(lightmaps, *gathered)
 
 
-def render(cs, settings, *, tile=64, progress=None, passes=None):
+def render(cs, settings, *, tile=64, progress=None, passes=None, waiting=None):
     """The render pass over a traced compiled scene -> (H, W, n_bands) radiance.
 
-    passes: samples per progressive pass (renderer.render; None: one pass)."""
+    passes: samples per progressive pass (renderer.render; None: one pass).
+    waiting(seconds): called while the render waits for a helper process
+    compiling its kernels (session.compile's ahead); False stops the wait."""
     from .renderer import render as render_image
+    _kernels_for(cs, "render", waiting)
     gather = int(settings.gather_rays) if settings.gathers else 0
     if settings.denoise:
         from . import denoise
@@ -197,6 +219,7 @@ def render(cs, settings, *, tile=64, progress=None, passes=None):
     img = render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
                        max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress,
                        passes=passes)
+    _kernels_done(cs, "render")
     if settings.denoise:
         t0 = time.perf_counter()
         img = denoise_render(cs, img, settings)

@@ -40,3 +40,35 @@ def test_warmup_then_render_compiles_nothing(tmp_path):
     run("bake", demo, "--out", tmp_path / "maps", "--json", rb, *TINY, "--resolution", "8",
         "--bake-gather-rays", "2", env=env)
     assert json.loads(rb.read_text())["kernels"] == {"compiled": 0, "seconds": 0.0}
+
+
+AHEAD = """
+import json, sys
+from photon_lightmaps.engine import demo_scenes, kernel_watch, session, warmup
+scene = demo_scenes.cornell_box(width=16, height=16, with_primitives=False)
+settings = session.Settings(photons=5000, samples=1)
+with kernel_watch.watching() as watch:
+    cs = session.compile(scene, ahead=("render",))
+    helper = warmup._ahead.get((0, "render"), (None,))[0]
+    session.render_photon_pass(cs, settings)
+    before = watch.compiled
+    image = session.render(cs, settings)
+json.dump({"helper": helper is not None and helper.error is None, "before": before,
+           "during": watch.compiled - before, "mean": float(image.mean())}, sys.stdout)
+"""
+
+
+def test_a_first_render_compiles_its_render_pass_in_a_second_process(tmp_path):
+    """On an empty cache, a render's compile starts a helper process on the render
+    pass's kernels while the host compiles and runs its photon pass; the render
+    then loads them and compiles nothing (engine/warmup.py, ahead)."""
+    import subprocess
+    import sys
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "kernels"))
+    env.pop("PHOTON_LIGHTMAPS_NUMBA_CACHE", None)
+    r = subprocess.run([sys.executable, "-c", AHEAD], env=env, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout)
+    assert out["helper"] and out["before"] > 50 and out["during"] == 0, out
+    assert out["mean"] > 0.0
+    assert (tmp_path / "kernels" / "compiled-0-render").is_file()

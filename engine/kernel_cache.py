@@ -14,7 +14,9 @@ renames it into place, and a data file not written yet reads as a miss.
 import contextlib
 import os
 
-_installed = False
+# marks numba's save once it is ours: the package can be imported under two
+# names (an add-on folder and its symlink), each with its own copy of this module
+_MARK = "_photon_lightmaps_locked"
 
 
 @contextlib.contextmanager
@@ -42,15 +44,14 @@ def _exclusive(path):
 
 def install():
     """Makes numba's cache saves exclusive across processes (once per process)."""
-    global _installed
-    if _installed:
-        return
     from numba.core import caching
     save = caching.IndexDataCacheFile.save
+    if getattr(save, _MARK, False):
+        return
 
     def locked_save(self, key, data):
         with _exclusive(self._index_path + ".lock"):
             return save(self, key, data)
     locked_save.__wrapped__ = save
+    setattr(locked_save, _MARK, True)
     caching.IndexDataCacheFile.save = locked_save
-    _installed = True

@@ -70,3 +70,21 @@ def test_processes_compiling_one_kernel_at_once_keep_each_signature(tmp_path):
              f"assert len(twice.signatures) == {len(SIGNATURES)}\n")
     r = subprocess.run([sys.executable, "-c", check], env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_a_second_copy_of_the_module_does_not_lock_twice(tmp_path):
+    """The package can be imported under two names (the add-on folder and a symlink):
+    a second copy's install must not wrap the save again, which would wait for itself."""
+    import importlib.util
+
+    from photon_lightmaps.engine import kernel_cache
+    spec = importlib.util.spec_from_file_location("second_copy_of_kernel_cache", kernel_cache.__file__)
+    copy = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(copy)
+    copy.install()
+    assert not hasattr(caching.IndexDataCacheFile.save.__wrapped__, "__wrapped__")
+    index = caching.IndexDataCacheFile(str(tmp_path), "k", ("stamp", 1))
+    worker = threading.Thread(target=index.save, args=("key", b"data"), daemon=True)
+    worker.start()
+    worker.join(10)
+    assert not worker.is_alive() and index.load("key") == b"data"

@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 export PHOTON_LIGHTMAPS_NUMBA_CACHE ?= $(CURDIR)/.numba_cache
 
-.PHONY: setup demo test test-unit test-boundscheck test-first-run test-quick warmup bench fuzz clean
+.PHONY: setup demo test test-unit test-boundscheck test-first-run test-references test-quick warmup bench fuzz clean
 setup: .venv/.stamp
 .venv/.stamp: requirements.txt scripts/setup_venv.sh
 	sh scripts/setup_venv.sh
@@ -13,20 +13,25 @@ DEMO_ARGS ?=
 demo: setup
 	$(PY) -m photon_lightmaps demo --out $(DEMO_OUT) $(DEMO_ARGS)
 
-# The whole suite, and beside it two lanes that compile into kernel caches of
-# their own: the bad-input and fuzz corpora with numba's bounds checking, then
-# the first-run tests (warm-up on an empty cache, the installed extension).
-# Those are mostly compiling, which is one core's work, so side by side they
+# The whole suite, and beside it a second lane: the bad-input and fuzz corpora
+# with numba's bounds checking and the first-run tests (warm-up on an empty
+# cache, the installed extension), each compiling into a kernel cache of its
+# own, then the bakes compared with stored Cycles references. The first two
+# are mostly compiling, which is one core's work, so side by side the lanes
 # take little longer than the suite alone.
 FIRST_RUN_TESTS = tests/test_first_run.py tests/test_extension.py
+REFERENCE_TESTS = tests/test_bake_bias.py tests/test_boolean_bake.py
 test: setup
-	$(MAKE) -j2 --output-sync=target test-unit test-boundscheck test-first-run
+	$(MAKE) -j2 --output-sync=target test-unit test-boundscheck test-first-run test-references
 
 test-unit: setup
-	$(PY) -m pytest -q --durations=25 $(addprefix --ignore=,$(FIRST_RUN_TESTS)) tests
+	$(PY) -m pytest -q --durations=25 $(addprefix --ignore=,$(FIRST_RUN_TESTS) $(REFERENCE_TESTS)) tests
 
 test-first-run: setup
 	$(PY) -m pytest -q --durations=5 $(FIRST_RUN_TESTS)
+
+test-references: setup
+	$(PY) -m pytest -q --durations=5 $(REFERENCE_TESTS)
 
 # For iterating on the engine: its own tests, without Blender or subprocesses
 # (the test files that import neither), on the kernel cache the suite keeps.

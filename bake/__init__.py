@@ -64,7 +64,10 @@ A layer is only moved while it still *is* the generated layout (every vertex on
 the chart point of its UV, export.uv_layers.primitive_chart_uvs): an operand whose layer
 the user made or edited, a plain mesh operand, a mesh shared with other objects
 or an operand used twice is left out of the solid's image with a warning naming
-it, and its UVs are never touched. Operands passed as bake targets are skipped
+it, and its UVs are never touched. A Boolean whose operands are all plain
+meshes is a polyhedron that Blender's Exact Boolean already gives exactly: it
+is baked as that result mesh, with the operands' generated layers laid out as
+one atlas (boolean_meshes.py). Operands passed as bake targets are skipped
 (they are part of their solid's image).
 
 Split texels. Where a CSG boundary cuts a texel into several visible regions,
@@ -79,7 +82,7 @@ density) until the features span several texels.
 
 Modules: pipeline.py (BakeSettings; prepare -> compute -> commit), images.py
 (image policy, the one save-or-pack), hooks.py (UV and OL material hooks),
-csg_atlas.py, orientation.py (orientation lightmaps), bake_api.py (Blender's
+csg_atlas.py, boolean_meshes.py, orientation.py (orientation lightmaps), bake_api.py (Blender's
 Bake button), render.py (the render pipeline's Blender end), lsystem_preview.py (an
 L-system object's viewport preview: the grammar -> its Geometry Nodes group and realized
 mesh). The command `python -m photon_lightmaps bake` is in cli.py.

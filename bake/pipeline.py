@@ -18,7 +18,7 @@ from ..engine.scene import SceneError
 from ..export import csg as csg_export
 from ..export import uv_layers
 from ..export.ol_routing import OLRouter
-from . import csg_atlas, hooks, images
+from . import boolean_meshes, csg_atlas, hooks, images
 from .images import BakedMap
 
 
@@ -83,6 +83,8 @@ class BakeJob:
     primitives: set = field(default_factory=set)   # stand-alone tagged primitives among targets
     # mesh name -> its Lightmap layer state before prepare_bake (rollback_bake puts it back)
     uv_undo: dict = field(default_factory=dict)
+    # Boolean of plain meshes -> its operands' names (baked as Blender's result, boolean_meshes.py)
+    booleans: dict = field(default_factory=dict)
 
 
 def _original(ob):
@@ -166,11 +168,16 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                        "use Bake Orientation Lightmaps")
         else:
             wanted.append(ob)
+    booleans = {}                   # Booleans of plain meshes: baked as Blender's result
     for ob in wanted:
         _check_finite(ob)
-    uv_undo = _uv_snapshot({ob.data.name: ob.data for ob in wanted}.values())
+        operands = boolean_meshes.mesh_operands(ob)
+        if operands is not None:
+            booleans[ob.name] = operands
+    uv_undo = _uv_snapshot({o.data.name: o.data for o in
+                            wanted + [o for ops in booleans.values() for o in ops]}.values())
     try:
-        job = _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution)
+        job = _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution, booleans)
     except BaseException:
         _uv_restore(uv_undo)
         raise
@@ -195,13 +202,27 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     return job
 
 
-def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution):
-    """prepare_bake after choosing the objects: their Lightmap UV layers, then the export."""
+def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution, booleans):
+    """prepare_bake after choosing the objects: their Lightmap UV layers, then the export.
+    booleans: {name: operands} of the wanted Booleans of plain meshes (boolean_meshes.py)."""
     from ..engine.uv_atlas import UnwrapError
     from ..export import export_scene
     bscene = depsgraph.scene
     changed = False
+    sides = {}
     for ob in list(wanted):
+        if ob.name in booleans:
+            try:
+                sides[ob.name], status = boolean_meshes.prepare(ob, booleans[ob.name], density, resolution)
+            except (UnwrapError, SceneError) as exc:
+                wanted.remove(ob)
+                result.skipped[ob.name] = getattr(exc, "reason", None) or str(exc)
+                result.warnings.append(f"object '{ob.name}': {result.skipped[ob.name]}")
+                continue
+            result.uv_layers.update(status)
+            changed = True
+            continue
+        changed |= boolean_meshes.release(ob.data)
         try:
             status = uv_layers.ensure_lightmap_uv(ob, resolution=layout_resolution(ob, density, resolution))
         except UnwrapError as exc:
@@ -228,7 +249,7 @@ def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, re
             depsgraph = context_or_depsgraph.evaluated_depsgraph_get()
 
     warnings = result.warnings
-    scene, emap = export_scene(depsgraph, report=lambda level, msg: None)
+    scene, emap = export_scene(depsgraph, report=lambda level, msg: None, mesh_results=set(booleans))
     warnings.extend(emap.warnings)
     targets = {}
     csg = {}
@@ -260,8 +281,12 @@ def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, re
         inst.lightmap = i in targets.values()
         if inst.lightmap and resolution:
             inst.lightmap_resolution = int(resolution)
+    for name, side in sides.items():
+        if name in targets and side:    # the result's layout is its operands' atlas, `side` texels wide
+            scene.instances[targets[name]].lightmap_resolution = int(side)
     return BakeJob(scene, emap, targets, BakeSettings.read(bscene_props(bscene)), True, result, 0.0, csg=csg,
-                   primitives=primitives, recording=recording)
+                   primitives=primitives, recording=recording,
+                   booleans={n: [o.name for o in ops[1:]] for n, ops in booleans.items() if n in targets})
 
 
 def _check_finite(ob):
@@ -276,7 +301,7 @@ def _check_finite(ob):
 
 
 def _uv_props():
-    return uv_layers.HASH_PROP, uv_layers.DIGEST_PROP, uv_layers.MIN_RES_PROP
+    return uv_layers.HASH_PROP, uv_layers.DIGEST_PROP, uv_layers.MIN_RES_PROP, boolean_meshes.BLOCK_PROP
 
 
 def _uv_snapshot(meshes):
@@ -457,7 +482,7 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
         baked = set(result.maps)
         for name, bm in result.maps.items():
             ob = bpy.data.objects[name]
-            parts = sorted(bm.tiles) if bm.tiles else ()
+            parts = sorted(bm.tiles) if bm.tiles else job.booleans.get(name, ())
             result.hooked += hooks.add_lightmap_hook(ob, bpy.data.images[result.images[name]],
                                                baked_objects=baked, warnings=result.warnings,
                                                parts=parts, materials=csg_atlas.solid_materials(ob, parts))

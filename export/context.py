@@ -39,7 +39,7 @@ class ExportMap:
     lights: list = field(default_factory=list)       # Blender object name per engine Light
     warnings: list = field(default_factory=list)
     csg_operands: dict = field(default_factory=dict)  # operand object name -> solid it belongs to
-    csg_solids: dict = field(default_factory=dict)    # object name -> "csg" | "primitive" | "fallback"
+    csg_solids: dict = field(default_factory=dict)    # object name -> "csg" | "primitive" | "fallback" | "mesh result"
     # per engine OrientationLightmap: {"empty", "collection", "parent" (empty name or None), "instances"}
     orientation_lightmaps: list = field(default_factory=list)
     # material textures (export/textures.py): textures, bytes, baked, cached, seconds
@@ -85,6 +85,7 @@ class ExportContext:
 
     def __init__(self, depsgraph, n_bands, report, orientation_lightmaps=True):
         self.use_ols = orientation_lightmaps
+        self.mesh_results = frozenset()     # Booleans exported as Blender's result (export_scene)
         if n_bands not in (1, 3):
             raise SceneError(f"the Blender exporter writes RGB (3 bands) or grey (1 band), not {n_bands}")
         self.dg = depsgraph

@@ -363,6 +363,9 @@ def csg_prototype(ctx, ob):
         return ctx.csg_index[key]
     name = original.name
     ctx.csg_index[key] = None
+    if name in ctx.mesh_results:
+        ctx.map.csg_solids[name] = "mesh result"
+        return None
     try:
         tag = primitive_tag(original)
     except ValueError as exc:

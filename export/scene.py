@@ -16,16 +16,19 @@ from .world import world
 
 
 def export_scene(depsgraph, *, n_bands=3, report=None, camera_override=None, resolution=None,
-                 orientation_lightmaps=True):
+                 orientation_lightmaps=True, mesh_results=()):
     """Exports the evaluated `depsgraph` to (engine Scene, ExportMap).
 
     report(level, message), level 'INFO' | 'WARNING', receives each
     approximation once. `camera_override` (an object) and `resolution`
     ((w, h) in pixels) replace the scene's camera and render size, as a
     RenderEngine may ask. orientation_lightmaps=False ignores OL empties (every
-    object keeps its own lightmap), as the OL planner needs.
+    object keeps its own lightmap), as the OL planner needs. mesh_results:
+    names of Booleans of plain meshes to export as Blender's result mesh rather
+    than an exact CSG tree (the same polyhedron; a bake needs its UVs).
     """
     ctx = ExportContext(depsgraph, n_bands, report, orientation_lightmaps)
+    ctx.mesh_results = frozenset(mesh_results)
     ctx.csg = csg.CSGBuilder(depsgraph, lambda ob: first_material(ctx, ob),
                              lambda mesh, ob: leaf_mesh(ctx, mesh, ob), ctx.report)
     return _run(ctx, camera_override, resolution)

@@ -319,32 +319,46 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
         raise ValueError("final gather needs a photon pass that recorded direct light (record_direct=True)")
     cam = cs.camera
     img = np.zeros((cam.height, cam.width, cs.n_bands))
-    env = cs.environment        # environment.EnvMap
-    ol = cs.orientation if cs.orientation is not None else OL.empty_maps(cs.geometry.inst_proto.shape[0])
-    # photons the caustic lightmaps hold are in no other lightmap (photon_tracer)
-    lmc = cs.caustics if getattr(cs, "caustics_traced", False) else cs.lightmaps
     t0 = time.perf_counter()
     s0 = 0
     shown = img if len(passes) == 1 else np.zeros_like(img)
     for n in passes:
         scale = samples / (s0 + n)      # sums of 1/spp-weighted samples -> the mean so far
-        for y0 in range(0, cam.height, tile):
-            for x0 in range(0, cam.width, tile):
-                tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
-                out = np.zeros((th, tw, cs.n_bands))
-                parallel.run(_render_tile, tw * th, cs.geometry, cs.materials, cs.bsdf, cs.textures,
-                             cs.lights, cs.lightmaps, lmc, lmc is not cs.lightmaps, ol, cam, env,
-                             x0, y0, tw, th, samples, s0, s0 + n, np.uint64(seed), int(mode),
-                             int(max_depth), bool(indirect), max(gather, 0), out)
-                img[y0:y0 + th, x0:x0 + tw] += out
-                if shown is not img:
-                    shown[y0:y0 + th, x0:x0 + tw] = img[y0:y0 + th, x0:x0 + tw] * scale
-                if progress is not None and progress(x0, y0, shown[y0:y0 + th, x0:x0 + tw],
-                                                     shown) is False:
-                    raise Cancelled("render cancelled")
+
+        def on_tile(x0, y0, th, tw):
+            if shown is not img:
+                shown[y0:y0 + th, x0:x0 + tw] = img[y0:y0 + th, x0:x0 + tw] * scale
+            if progress is not None and progress(x0, y0, shown[y0:y0 + th, x0:x0 + tw], shown) is False:
+                raise Cancelled("render cancelled")
+        add_samples(cs, img, samples, s0, s0 + n, seed=seed, mode=mode, max_depth=max_depth, tile=tile,
+                    indirect=indirect, gather=gather, on_tile=on_tile)
         s0 += n
     cs.timings["render"] = time.perf_counter() - t0
     return img
+
+
+def add_samples(cs, img, samples, start, stop, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
+                indirect=True, gather=0, on_tile=None):
+    """Adds samples start..stop-1 of a `samples`-sample render of cs.camera to `img`
+    ((height, width, n_bands), each sample weighted 1/samples): after every sample
+    has been added, img is render(cs, samples, seed, ...). A progressive host (the
+    Rendered viewport) adds one sample at a time. on_tile(x0, y0, th, tw) after each tile."""
+    cam = cs.camera
+    env = cs.environment        # environment.EnvMap
+    ol = cs.orientation if cs.orientation is not None else OL.empty_maps(cs.geometry.inst_proto.shape[0])
+    # photons the caustic lightmaps hold are in no other lightmap (photon_tracer)
+    lmc = cs.caustics if getattr(cs, "caustics_traced", False) else cs.lightmaps
+    for y0 in range(0, cam.height, tile):
+        for x0 in range(0, cam.width, tile):
+            tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
+            out = np.zeros((th, tw, cs.n_bands))
+            parallel.run(_render_tile, tw * th, cs.geometry, cs.materials, cs.bsdf, cs.textures,
+                         cs.lights, cs.lightmaps, lmc, lmc is not cs.lightmaps, ol, cam, env,
+                         x0, y0, tw, th, int(samples), int(start), int(stop), np.uint64(seed), int(mode),
+                         int(max_depth), bool(indirect), max(int(gather), 0), out)
+            img[y0:y0 + th, x0:x0 + tw] += out
+            if on_tile is not None:
+                on_tile(x0, y0, th, tw)
 
 
 @njit(cache=True, nogil=True)

@@ -2,7 +2,7 @@
 add-on does, so the class is only Blender's entry point."""
 import bpy
 
-from ..bake import bake_api, render
+from ..bake import bake_api, render, viewport
 
 ENGINE_ID = "PHOTON_LIGHTMAPS"
 
@@ -13,7 +13,7 @@ class PhotonLightmapsRenderEngine(bpy.types.RenderEngine):
     bl_use_preview = False
     bl_use_postprocess = True
     # Materials are Cycles/EEVEE shader nodes (Principled BSDF), so keep those nodes visible,
-    # and let EEVEE draw material previews in the viewport.
+    # and let EEVEE draw Material Preview; Rendered shading is ours (view_update, view_draw).
     bl_use_shading_nodes_custom = False
     bl_use_eevee_viewport = True
 
@@ -22,6 +22,18 @@ class PhotonLightmapsRenderEngine(bpy.types.RenderEngine):
 
     def bake(self, depsgraph, obj, pass_type, pass_filter, width, height):
         bake_api.bake(self, depsgraph, obj, pass_type, pass_filter, width, height)
+
+    def view_update(self, context, depsgraph):
+        viewport.view_update(self, context, depsgraph)
+
+    def view_draw(self, context, depsgraph):
+        viewport.view_draw(self, context, depsgraph)
+
+    def __del__(self):
+        try:
+            viewport.free(self)
+        except ReferenceError:      # Blender freed the engine's data first: nothing left to stop
+            pass
 
     def _photon_should_stop(self):
         # Esc during Blender's bake. (A Python name of our own: RNA functions such as

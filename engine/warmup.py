@@ -441,6 +441,11 @@ def ahead(scene, passes):
     return h
 
 
+# A helper compiles one pass in a minute or two on 2 cores; past this the host
+# stops waiting and compiles what it needs itself (a stuck helper never hangs a render).
+JOIN_LIMIT_S = 600.0
+
+
 def join(mask, pass_, poll=None):
     """Before the host runs `pass_` on a scene of feature `mask`: waits for a helper
     compiling it ahead (poll(seconds waited) every 0.25 s may return False to stop
@@ -448,7 +453,11 @@ def join(mask, pass_, poll=None):
     h, family = _ahead.pop((int(mask), pass_), (None, None))
     if h is not None:
         t0 = time.perf_counter()
-        h.wait(family, None if poll is None else (lambda _: poll(time.perf_counter() - t0)))
+
+        def keep_waiting(_):
+            waited = time.perf_counter() - t0
+            return waited < JOIN_LIMIT_S and (poll is None or poll(waited) is not False)
+        h.wait(family, keep_waiting)
 
 
 def done(mask, pass_):

@@ -115,3 +115,17 @@ def test_headless_blender_starts_no_background_warmup():
     from photon_lightmaps.operators import render_engine
     assert bpy.app.background
     assert render_engine.start_warmup() is None and warmup.status() is None
+
+
+def test_a_stuck_helper_never_holds_the_render(monkeypatch):
+    """join stops waiting after JOIN_LIMIT_S; the render then compiles what it needs itself."""
+    class Stuck:
+        def wait(self, family, poll):
+            while poll(self) is not False:
+                pass
+            return False
+    monkeypatch.setattr(warmup, "JOIN_LIMIT_S", 0.2)
+    monkeypatch.setitem(warmup._ahead, (0, "render"), (Stuck(), None))
+    seen = []
+    warmup.join(0, "render", poll=seen.append)
+    assert seen and (0, "render") not in warmup._ahead

@@ -30,9 +30,13 @@ class PhotonLightmapsRenderEngine(bpy.types.RenderEngine):
         viewport.view_draw(self, context, depsgraph)
 
     def __del__(self):
+        # Blender may have freed the engine's data (ReferenceError), or Python be shutting
+        # down with this module's globals gone: then there is no worker left to stop.
+        if viewport is None:
+            return
         try:
             viewport.free(self)
-        except ReferenceError:      # Blender freed the engine's data first: nothing left to stop
+        except ReferenceError:
             pass
 
     def _photon_should_stop(self):

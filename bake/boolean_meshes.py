@@ -65,20 +65,24 @@ def release(mesh):
     del mesh[BLOCK_PROP]
     if not uv_layers.layer_is_ours(mesh) or not (sx > 0.0 and sy > 0.0):
         return False                # edited since: the user's now, as it is
-    layer = mesh.uv_layers[uv_layers.LAYER_NAME]
-    uv = (uv_layers.read_uvs(layer).astype(np.float64) - (x0, y0)) / (sx, sy)
-    layer.uv.foreach_set("vector", uv.astype(np.float32).reshape(-1))
-    mesh[uv_layers.DIGEST_PROP] = uv_layers._digest(uv_layers.read_uvs(layer))
-    mesh.update()
+    _write_ours(mesh, (_layer_uvs(mesh) - (x0, y0)) / (sx, sy))
     return True
 
 
 def _move(mesh, rect):
+    _write_ours(mesh, _layer_uvs(mesh) * rect[2:] + rect[:2])
+    mesh[BLOCK_PROP] = [float(v) for v in rect]
+
+
+def _layer_uvs(mesh):
+    return uv_layers.read_uvs(mesh.uv_layers[uv_layers.LAYER_NAME]).astype(np.float64)
+
+
+def _write_ours(mesh, uv):
+    """Writes our layer's UVs and records them as ours (uv_layers.layer_is_ours)."""
     layer = mesh.uv_layers[uv_layers.LAYER_NAME]
-    uv = uv_layers.read_uvs(layer).astype(np.float64) * rect[2:] + rect[:2]
     layer.uv.foreach_set("vector", uv.astype(np.float32).reshape(-1))
     mesh[uv_layers.DIGEST_PROP] = uv_layers._digest(uv_layers.read_uvs(layer))
-    mesh[BLOCK_PROP] = [float(v) for v in rect]
     mesh.update()
 
 

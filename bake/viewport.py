@@ -80,6 +80,10 @@ class ViewportSession:
         self._wake.set()
         return True
 
+    def has_scene(self):
+        """True once a scene was handed over."""
+        return self._scene is not None
+
     # ------------------------------------------------------------------- work
     def target(self):
         s = self._settings
@@ -212,7 +216,7 @@ def view_update(engine, context, depsgraph):
     """RenderEngine.view_update: exports the scene again when it changed."""
     s = _session(engine)
     try:
-        if s.cs is None and s._scene is None or _scene_changed(depsgraph):
+        if not s.has_scene() or _scene_changed(depsgraph):
             from ..export import export_scene
             region = context.region
             scene, _ = export_scene(depsgraph, resolution=(max(region.width, 1), max(region.height, 1)))

@@ -223,8 +223,13 @@ def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, re
             changed = True
             continue
         changed |= boolean_meshes.release(ob.data)
+        notes = []
         try:
-            status = uv_layers.ensure_lightmap_uv(ob, resolution=layout_resolution(ob, density, resolution))
+            side = layout_resolution(ob, density, resolution)
+            status = uv_layers.ensure_lightmap_uv(ob, resolution=side, notes=notes)
+            result.warnings.extend(f"object '{ob.name}': {note}" for note in notes)
+            if uv_layers.required_resolution(ob) > side:   # a fast layout whose gaps need more texels
+                sides[ob.name] = uv_layers.required_resolution(ob)
         except UnwrapError as exc:
             # xatlas failed (or crashed in its worker) on this mesh alone: bake the others
             wanted.remove(ob)
@@ -282,7 +287,9 @@ def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, re
         if inst.lightmap and resolution:
             inst.lightmap_resolution = int(resolution)
     for name, side in sides.items():
-        if name in targets and side:    # the result's layout is its operands' atlas, `side` texels wide
+        # A Boolean's layout is its operands' atlas, `side` texels wide; a fast
+        # layout needs `side` texels for its gaps.
+        if name in targets and side:
             scene.instances[targets[name]].lightmap_resolution = int(side)
     return BakeJob(scene, emap, targets, BakeSettings.read(bscene_props(bscene)), True, result, 0.0, csg=csg,
                    primitives=primitives, recording=recording,
@@ -301,7 +308,8 @@ def _check_finite(ob):
 
 
 def _uv_props():
-    return uv_layers.HASH_PROP, uv_layers.DIGEST_PROP, uv_layers.MIN_RES_PROP, boolean_meshes.BLOCK_PROP
+    return (uv_layers.HASH_PROP, uv_layers.DIGEST_PROP, uv_layers.MIN_RES_PROP, uv_layers.LAYOUT_PROP,
+            boolean_meshes.BLOCK_PROP)
 
 
 def _uv_snapshot(meshes):

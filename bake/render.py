@@ -119,10 +119,11 @@ def _compile(scene, run, report):
         report("WARNING", f"Photon Lightmaps: {text}")
     run.layouts = list(cs.info.get("layouts", ()))
     for row in run.layouts:
-        if row["layout"] == "orientation lightmap" and "unwrap limit" in row["reason"]:
-            report("INFO", f"Photon Lightmaps: mesh '{row['mesh']}' is lit through an automatic "
-                           f"orientation lightmap: {row['reason']} (raise Unwrap Limit, or add a "
-                           "'Lightmap' UV layer, for per-texel detail)")
+        if row["layout"] == "fast layout" and "unwrap limit" in row["reason"]:
+            report("INFO", f"Photon Lightmaps: mesh '{row['mesh']}' got a fast box-projection layout "
+                           f"({row['charts']:,} charts on {row['resolution']}×{row['resolution']} texels): "
+                           f"{row['reason']} (raise Unwrap Limit, or add a 'Lightmap' UV layer, for a "
+                           "tighter one)")
     run.lightmap_bytes = cs.lightmap_bytes()
     if cs.info.get("csg_ties"):
         report("WARNING", f"Photon Lightmaps: coincident CSG operand faces ({cs.info['csg_ties']:,} ties on "

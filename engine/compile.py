@@ -275,20 +275,26 @@ def _csg_with_uvs(node, uvs):
     return node
 
 
-def unwrap_meshes(scene, warnings, progress=None, layouts=None):
+def unwrap_meshes(scene, warnings, progress=None, layouts=None, texel_density=None,
+                  max_resolution=1024):
     """Gives lightmap UVs to the meshes that record photons but have none.
 
-    Only prototypes with an instance that keeps its own lightmaps are
-    unwrapped (objects under an orientation lightmap need no UVs), all in one
-    batch through the contained xatlas worker (engine/uv_atlas.py). A mesh
-    above scene.unwrap_limit triangles whose unwrap is not cached is not
-    unwrapped: an xatlas run would take minutes, and with the final gather an
-    object's own lightmap is read only one bounce away, so its prototype is lit
-    through an automatic orientation lightmap instead. Where xatlas fails on a
-    mesh, the prototype falls back the same way, with a warning naming the
-    mesh. layouts (a list) gets one row per unwrapped or skipped mesh: which
-    layout it got and why. Returns a new Scene; the input is not modified."""
+    Only prototypes with an instance that keeps its own lightmaps are laid out
+    (objects under an orientation lightmap need no UVs). Meshes up to
+    scene.unwrap_limit triangles, and larger ones whose unwrap is cached, get an
+    xatlas unwrap, all in one batch through the contained worker
+    (engine/uv_atlas.py). Larger ones get the fast box-projection layout
+    (engine/fast_layout.py) in seconds instead of minutes, and so does a mesh on
+    which xatlas fails (with a warning naming it). The fast layout is made for
+    the smallest lightmap among the prototype's instances; where its charts and
+    gaps need more texels, those instances get a larger forced resolution. Only
+    a mesh too fragmented for any lightmap falls back to an automatic
+    orientation lightmap. layouts (a list) gets one row per laid-out or skipped
+    mesh: which layout it got and why. Returns a new Scene; the input is not
+    modified."""
     from . import uv_atlas as UA   # late: xatlas is only needed for such meshes
+    from . import fast_layout as FL
+    density = float(scene.texel_density if texel_density is None else texel_density)
     n_mat = len(scene.materials)
     recording = np.zeros(len(scene.prototypes), np.bool_)
     for inst in scene.instances:
@@ -297,8 +303,8 @@ def unwrap_meshes(scene, warnings, progress=None, layouts=None):
             recording[p] = True
     layouts = [] if layouts is None else layouts
     limit = int(getattr(scene, "unwrap_limit", 0) or 0)
-    jobs, owners = [], []          # owners[j]: (prototype, mesh) of job j
-    too_big = {}                   # prototype -> (mesh, triangles) over the limit
+    jobs, owners = [], []          # owners[j]: (prototype, mesh, kept triangles) of xatlas job j
+    fast = []                      # (prototype, mesh, kept, vertices, triangles, why, xatlas error)
     for pi, proto in enumerate(scene.prototypes):
         if not recording[pi]:
             continue
@@ -310,56 +316,92 @@ def unwrap_meshes(scene, warnings, progress=None, layouts=None):
             keep = nondegenerate(v[tri])
             n = int(keep.sum())
             if limit and n > limit and not UA.is_cached(v, tri[keep]):
-                too_big.setdefault(pi, (mesh, n))
+                fast.append((pi, mesh, keep, v, tri[keep],
+                             f"{n:,} triangles without a 'Lightmap' UV layer is above the "
+                             f"unwrap limit of {limit:,}", None))
                 continue
             jobs.append((v, tri[keep]))
             owners.append((pi, mesh, keep))
-    owners_jobs = [(o, j) for o, j in zip(owners, jobs) if o[0] not in too_big]
-    owners, jobs = [o for o, _ in owners_jobs], [j for _, j in owners_jobs]
-    if not jobs and not too_big:
+    if not jobs and not fast:
         return scene
     results = UA.unwrap_many(jobs, progress=progress) if jobs else []
     uvs_by_proto, failed = {}, {}
-    for pi, (mesh, n) in too_big.items():
-        failed[pi] = (mesh, None)
-        layouts.append({"mesh": mesh.name, "triangles": n, "layout": "orientation lightmap",
-                        "reason": f"{n:,} triangles without a 'Lightmap' UV layer is above the "
-                                  f"unwrap limit of {limit:,}"})
-    for (pi, mesh, keep), res in zip(owners, results):
+    for (pi, mesh, keep), (v, t), res in zip(owners, jobs, results):
         if isinstance(res, Exception):
-            failed.setdefault(pi, (mesh, res))
+            n = getattr(res, "triangles", None)
+            what = getattr(res, "reason", str(res)) + (f" unwrapping {n:,} triangles" if n else "")
+            fast.append((pi, mesh, keep, v, t, what, res))
             continue
         layouts.append({"mesh": mesh.name, "triangles": int(keep.sum()), "layout": "xatlas",
                         "reason": "no 'Lightmap' UV layer"})
         uv = np.zeros((keep.shape[0], 3, 2))
         uv[keep] = res.uv
         uvs_by_proto.setdefault(pi, {})[id(mesh)] = uv
+    instances = list(scene.instances)
+    for pi, mesh, keep, v, t, why, err in fast:
+        sizes = _lightmap_sizes(instances, pi, v, t, density, max_resolution)   # never empty
+        try:
+            lay = FL.layout(v, t, min(sizes.values()), max_resolution=max(max_resolution, *sizes.values()))
+        except FL.LayoutError as e:
+            failed.setdefault(pi, (mesh, why if err is not None else None, e))
+            continue
+        for i, r in sizes.items():
+            if r < lay.resolution:       # the charts' gaps need this many texels
+                instances[i] = replace(instances[i], lightmap_resolution=lay.resolution)
+        layouts.append({"mesh": mesh.name, "triangles": int(keep.sum()), "layout": "fast layout",
+                        "reason": why, "charts": int(lay.charts), "resolution": int(lay.resolution)})
+        if err is not None:
+            warnings.append(f"mesh '{mesh.name}': {why}; it got a fast box-projection layout "
+                            "instead (add a UV layer named 'Lightmap' for a tighter one)")
+        uv = np.zeros((keep.shape[0], 3, 2))
+        uv[keep] = lay.uv
+        uvs_by_proto.setdefault(pi, {})[id(mesh)] = uv
     prototypes = list(scene.prototypes)
     for pi, uvs in uvs_by_proto.items():
+        if pi in failed:
+            continue
         proto = prototypes[pi]
         prototypes[pi] = replace(
             proto, meshes=[replace(m, uvs=uvs[id(m)]) if id(m) in uvs else m for m in proto.meshes],
             csg=[_csg_with_uvs(root, uvs) for root in proto.csg])
-    instances = list(scene.instances)
     ols = list(scene.orientation_lightmaps)
     covered = {int(i) for ol in ols for i in ol.instances}
-    for pi, (mesh, err) in failed.items():
+    for pi, (mesh, xatlas_why, err) in failed.items():
         mine = [i for i, inst in enumerate(instances) if inst.prototype == pi and inst.lightmap]
         for i in mine:
             instances[i] = replace(instances[i], lightmap=False)
         alone = [i for i in mine if i not in covered]
         if alone:
             ols.append(OrientationLightmap(name=f"{mesh.name} (automatic)", instances=alone))
-        if err is None:            # over the limit: a choice, reported in layouts, not a warning
-            continue
-        n = getattr(err, "triangles", None)
-        what = getattr(err, "reason", str(err)) + (f" unwrapping {n:,} triangles" if n else "")
-        layouts.append({"mesh": mesh.name, "triangles": n, "layout": "orientation lightmap",
-                        "reason": what})
+        what = (xatlas_why + "; " if xatlas_why else "") + err.reason
+        layouts.append({"mesh": mesh.name, "triangles": int(np.asarray(mesh.triangles).shape[0]),
+                        "layout": "orientation lightmap", "reason": what})
         warnings.append(f"mesh '{mesh.name}': {what}; its objects are lit through an orientation "
                         "lightmap instead (per-object shading detail is averaged by normal; add a "
                         "UV layer named 'Lightmap' to keep it)")
     return replace(scene, prototypes=prototypes, instances=instances, orientation_lightmaps=ols)
+
+
+def _lightmap_sizes(instances, pi, v, t, density, max_resolution):
+    """{instance: lightmap side} of prototype pi's recording instances for the
+    mesh (v, t), as allocate_lightmaps will size them."""
+    p = v[t]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])    # twice the area, along the normal
+    sizes = {}
+    for i, inst in enumerate(instances):
+        if inst.prototype != pi or not inst.lightmap:
+            continue
+        forced = int(inst.lightmap_resolution)
+        if forced:
+            sizes[i] = forced
+            continue
+        M = np.asarray(inst.transform, np.float64)[:3, :3]
+        # A linear map scales area vectors by its cofactor matrix (det M · M^-T).
+        cof = np.stack([np.cross(M[:, 1], M[:, 2]), np.cross(M[:, 2], M[:, 0]),
+                        np.cross(M[:, 0], M[:, 1])], axis=0)
+        area = 0.5 * np.linalg.norm(n @ cof, axis=1).sum()
+        sizes[i] = LM.resolution_for(area, density, max_res=max_resolution)
+    return sizes
 
 
 def _plan_orientation(scene):
@@ -514,7 +556,8 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     scene, ol_maps = _plan_orientation(scene)
     n_ols = len(scene.orientation_lightmaps)
     layouts = []
-    scene = unwrap_meshes(scene, warnings, layouts=layouts)
+    scene = unwrap_meshes(scene, warnings, layouts=layouts, texel_density=density,
+                          max_resolution=max_resolution)
     if len(scene.orientation_lightmaps) != n_ols:    # unwrap fallbacks added OLs
         scene, ol_maps = _plan_orientation(scene)
     t_unwrap = time.perf_counter()

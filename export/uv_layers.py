@@ -21,6 +21,11 @@ from .context import LIGHTMAP_UV as LAYER_NAME  # noqa: E402  (one name for the 
 HASH_PROP = "photon_lightmaps_uv_hash"
 DIGEST_PROP = "photon_lightmaps_uv_digest"
 MIN_RES_PROP = "photon_lightmaps_uv_min_res"
+# "fast" where xatlas failed on the mesh and the fast box-projection layout
+# stands in: it is kept while the geometry is unchanged (xatlas would fail
+# again), and its MIN_RES_PROP is the lightmap side it needs.
+LAYOUT_PROP = "photon_lightmaps_uv_layout"
+FAST = "fast"
 
 # Result of ensure_lightmap_uv: what happened to the mesh's layer.
 USER = "user"          # the user's own layer, untouched
@@ -105,7 +110,7 @@ def layer_is_ours(mesh):
 
 
 def _forget(mesh):
-    for k in (HASH_PROP, DIGEST_PROP, MIN_RES_PROP):
+    for k in (HASH_PROP, DIGEST_PROP, MIN_RES_PROP, LAYOUT_PROP):
         if k in mesh:
             del mesh[k]
 
@@ -146,15 +151,19 @@ def _planar_uvs(v, tri_v, rows):
     return np.stack([p @ a, p @ b], axis=-1)
 
 
-def compute_lightmap_uvs(mesh, resolution=None, padding=2):
-    """xatlas layout of a mesh as one UV per loop -> (uv (L, 2) float64, min_resolution).
+def compute_lightmap_uvs(mesh, resolution=None, padding=2, notes=None):
+    """xatlas layout of a mesh as one UV per loop -> (uv (L, 2) float64, min_resolution,
+    layout: "xatlas" or FAST).
 
     xatlas charts triangles, but a UV layer holds one UV per polygon corner, so
     a polygon whose triangles land in different charts cannot be written as
     they are. Such polygons (a few percent on organic meshes) become islands of
     their own, flattened onto their plane, and all islands are packed again.
-    xatlas runs in a child process; its failures and crashes raise
-    engine.uv_atlas.UnwrapError (a SceneError), for the caller to report.
+    xatlas runs in a child process. Where it fails or crashes, the mesh gets the
+    fast box-projection layout (engine/fast_layout.py), made for `resolution`
+    or, where its charts and gaps need more, the min_resolution it returns; and
+    `notes` (a list) gets a line saying so. Only where that cannot fit either is
+    engine.uv_atlas.UnwrapError (a SceneError) raised, for the caller to report.
     """
     from ..engine import uv_atlas as UA
 
@@ -162,8 +171,21 @@ def compute_lightmap_uvs(mesh, resolution=None, padding=2):
     v, tri_v, tri_l, poly = mesh_triangles(mesh)
     n_loops = len(mesh.loops)
     if tri_v.shape[0] == 0:
-        return np.zeros((n_loops, 2)), 1
-    res = UA.unwrap_atlas(v, tri_v, resolution=resolution, padding=padding)
+        return np.zeros((n_loops, 2)), 1, "xatlas"
+    try:
+        res = UA.unwrap_atlas(v, tri_v, resolution=resolution, padding=padding)
+    except UA.UnwrapError as exc:
+        if not np.isfinite(v).all():
+            raise                  # bad input, not xatlas: the user's to fix
+        uv, side = _fast_layout(v, tri_v, poly, resolution, exc)
+        if notes is not None:
+            notes.append(f"{exc.reason} unwrapping {tri_v.shape[0]:,} triangles; its '{LAYER_NAME}' "
+                         f"layer is a fast box-projection layout instead"
+                         + (f", baked at {side}×{side} texels so its charts stay apart"
+                            if side > resolution else ""))
+        per_loop = np.zeros((n_loops, 2))
+        per_loop[tri_l.reshape(-1)] = uv.reshape(-1, 2)
+        return per_loop, side, FAST
     uv, min_res = res.uv, res.min_resolution
     bad = _inconsistent_polygons(uv, res.chart, tri_l, poly, n_loops)
     if bad.size:
@@ -188,14 +210,31 @@ def compute_lightmap_uvs(mesh, resolution=None, padding=2):
         uv, min_res = UA.pack_islands(v, tri_v, corner, island, resolution, padding)
     per_loop = np.zeros((n_loops, 2))
     per_loop[tri_l.reshape(-1)] = uv.reshape(-1, 2)
-    return per_loop, int(min_res)
+    return per_loop, int(min_res), "xatlas"
+
+
+def _fast_layout(v, tri_v, poly, resolution, xatlas_error):
+    """The fast layout of a mesh's triangles, polygons kept whole -> (per-triangle
+    UVs (T, 3, 2), the lightmap side it is made for, >= resolution)."""
+    from ..engine import fast_layout as FL
+    from ..engine.geometry import nondegenerate
+    keep = nondegenerate(v[tri_v])
+    uv = np.zeros((tri_v.shape[0], 3, 2))
+    try:
+        lay = FL.layout(v, tri_v[keep], resolution, groups=poly[keep])
+    except FL.LayoutError as e:
+        from ..engine.uv_atlas import UnwrapError
+        raise UnwrapError(f"{xatlas_error.reason}, and the fast layout does not fit either "
+                          f"({e.reason})", tri_v.shape[0], detail=xatlas_error.detail) from None
+    uv[keep] = lay.uv
+    return uv, int(lay.resolution)
 
 
 # --------------------------------------------------------------------------------------
 # The public entry point
 # --------------------------------------------------------------------------------------
 
-def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False):
+def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False, notes=None):
     """Gives a mesh (or a mesh object's mesh) a `Lightmap` UV layer; returns what happened.
 
     resolution: lightmap texels per side the layout is for (charts stay apart
@@ -203,8 +242,10 @@ def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False):
     force: unwrap our own layer again even if it looks current. A layer named
     `Lightmap` that we did not make (or that was edited after we made it) is
     never modified, force or not. Returns USER, CACHED, CREATED or UPDATED.
-    Raises engine.uv_atlas.UnwrapError when xatlas fails or crashes (the mesh is
-    left as it was).
+    notes (a list) gets a line where xatlas failed and the fast layout stood in;
+    required_resolution(mesh) then says the lightmap side that layout needs.
+    Raises engine.uv_atlas.UnwrapError when no layout fits (the mesh is left as
+    it was).
     """
     mesh = _mesh_of(obj_or_mesh)
     if mesh.is_editmode:
@@ -219,9 +260,10 @@ def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False):
     ghash = geometry_hash(mesh)
     want_res = int(resolution) if resolution else None
     if layer is not None and not force and mesh.get(HASH_PROP) == ghash \
-            and (want_res is None or int(mesh.get(MIN_RES_PROP, 0)) <= want_res):
+            and (want_res is None or int(mesh.get(MIN_RES_PROP, 0)) <= want_res
+                 or mesh.get(LAYOUT_PROP) == FAST):
         return CACHED
-    uv, min_res = compute_lightmap_uvs(mesh, want_res)
+    uv, min_res, how = compute_lightmap_uvs(mesh, want_res, notes=notes)
 
     status = UPDATED
     if layer is None:
@@ -244,7 +286,20 @@ def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False):
     mesh[HASH_PROP] = ghash
     mesh[DIGEST_PROP] = _digest(read_uvs(mesh.uv_layers[LAYER_NAME]))
     mesh[MIN_RES_PROP] = int(min_res)
+    if how == FAST:
+        mesh[LAYOUT_PROP] = FAST
+    elif LAYOUT_PROP in mesh:
+        del mesh[LAYOUT_PROP]
     return status
+
+
+def required_resolution(obj_or_mesh):
+    """The lightmap side our fast-layout `Lightmap` layer needs so that its charts
+    stay apart, else 0 (xatlas layouts and user layers bake at any side)."""
+    mesh = _mesh_of(obj_or_mesh)
+    if mesh.get(LAYOUT_PROP) != FAST or not layer_is_ours(mesh):
+        return 0
+    return int(mesh.get(MIN_RES_PROP, 0))
 
 
 # --------------------------------------------------------------------------------------

@@ -238,9 +238,12 @@ def test_area_samples_and_render_size_beyond_memory_are_refused(monkeypatch):
         compile_scene(s)
 
 
-def test_unwrap_failure_falls_back_to_an_orientation_lightmap(monkeypatch):
-    """Where xatlas fails (crashes in its worker), the object is lit through an
-    automatic OL and the warning names the mesh; nothing else changes."""
+def test_unwrap_failure_falls_back_to_the_fast_layout(monkeypatch):
+    """Where xatlas fails (crashes in its worker), the mesh gets the fast
+    box-projection layout and keeps its own lightmap; the warning names the
+    mesh. Only where that layout cannot fit either is the object lit through
+    an automatic OL."""
+    from photon_lightmaps.engine import fast_layout as FL
     from photon_lightmaps.engine import uv_atlas as UA
     s = small_scene()
     s.add_object(demo_scenes.uv_sphere_mesh(0.3, 8, 16), translate(0, 0, 0.5), name="ball")
@@ -250,7 +253,19 @@ def test_unwrap_failure_falls_back_to_an_orientation_lightmap(monkeypatch):
         return [UA.UnwrapError("xatlas crashed (SIGSEGV)", 224) for _ in jobs]
     monkeypatch.setattr(UA, "unwrap_many", fail_all)
     cs, stats, img = run_all(s, photons=20000)
-    assert any("'ball'" in w and "SIGSEGV" in w and "orientation lightmap" in w
+    assert any("'ball'" in w and "SIGSEGV" in w and "fast box-projection layout" in w
+               for w in cs.info["warnings"])
+    row, = [r for r in cs.info["layouts"] if r["mesh"] == "ball"]
+    assert row["layout"] == "fast layout" and "SIGSEGV" in row["reason"]
+    assert not cs.info.get("orientation_lightmaps") and cs.geometry.inst_lm_base[-1] >= 0
+    lid = int(cs.instance_lightmaps[-1][0])
+    assert cs.lightmaps.hits[LM.texel_slice(cs.lightmaps, lid)].sum() > 0
+
+    def no_fit(*args, **kw):
+        raise FL.LayoutError("224 separate charts do not fit a 1024×1024 lightmap 3 texels apart")
+    monkeypatch.setattr(FL, "layout", no_fit)
+    cs, stats, img = run_all(s, photons=20000)
+    assert any("'ball'" in w and "SIGSEGV" in w and "do not fit" in w and "orientation lightmap" in w
                for w in cs.info["warnings"])
     rows = cs.info["orientation_lightmaps"]
     assert [r["name"] for r in rows] == ["ball (automatic)"] and rows[0]["instances"] == 1

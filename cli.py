@@ -269,11 +269,11 @@ def render_to_file(scene, out_path):
     scene.render.engine = ENGINE_ID
     configure_output(scene, out_path)
     render_engine.LAST_RUN = render_engine.LAST_ERROR = None
-    render_engine.RAISE_BUGS = False    # we re-raise it below; Blender would print it first
+    render_engine.PRINT_ERRORS = False    # we raise it again below, to be reported once
     try:
         bpy.ops.render.render(write_still=False, scene=scene.name)
     finally:
-        render_engine.RAISE_BUGS = True
+        render_engine.PRINT_ERRORS = True
     if render_engine.LAST_ERROR is not None:
         raise render_engine.LAST_ERROR
     run = render_engine.LAST_RUN

@@ -36,6 +36,28 @@ def describe(exc):
     return " ".join(text.split())   # one line, whatever the message held
 
 
+DEBUG_HINT = " (start Blender with --debug, or set PHOTON_LIGHTMAPS_DEBUG=1, for the traceback)"
+
+
+def bug_text(exc):
+    """describe(exc), and for a bug its traceback on the console where one was asked
+    for (Blender's --debug, PHOTON_LIGHTMAPS_DEBUG), else a hint how to get it."""
+    text = describe(exc)
+    if is_user_error(exc):
+        return text
+    import os
+    try:
+        import bpy
+        debug = bool(bpy.app.debug)
+    except Exception:  # noqa: BLE001  (no Blender: the variable alone decides)
+        debug = False
+    if debug or os.environ.get("PHOTON_LIGHTMAPS_DEBUG"):
+        import traceback
+        traceback.print_exception(exc)
+        return text
+    return text + DEBUG_HINT
+
+
 def operator_failed(op, exc, scene=None, source="bake"):
     """report()s a failed operator's error (bugs also print their traceback) -> {'CANCELLED'}."""
     text = describe(exc)

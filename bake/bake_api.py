@@ -16,7 +16,7 @@ from ..engine.photon_tracer import Cancelled  # noqa: E402
 from ..engine.scene import SceneError  # noqa: E402
 from ..engine.session import Settings  # noqa: E402
 from ..export import export_scene  # noqa: E402
-from ..messages import describe, is_user_error  # noqa: E402
+from ..messages import bug_text  # noqa: E402
 from . import images  # noqa: E402
 
 # RenderEngine.bake pass_filter bits (BakeSettings.pass_filter enum values, read from bpy).
@@ -182,10 +182,7 @@ def bake(self, depsgraph, obj, pass_type, pass_filter, width, height):
         except Cancelled:
             self.report({"WARNING"}, "Photon Lightmaps bake cancelled; the image was left as it was")
         except Exception as e:  # noqa: BLE001  (any failure must still end the result)
-            if not is_user_error(e):
-                import traceback
-                traceback.print_exception(e)
-            self.report({"ERROR"}, describe(e))
+            self.report({"ERROR"}, bug_text(e))
         if rgba is None:
             # Blender writes the image whatever happens: give it back what it holds.
             imgs = _target_images(obj)

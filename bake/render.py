@@ -16,7 +16,7 @@ import numpy as np
 from ..engine import session, uv_atlas
 from ..engine.photon_tracer import Cancelled
 from ..export import export_scene
-from ..messages import describe, is_user_error, record
+from ..messages import bug_text, describe, record
 
 TILE = 64
 
@@ -61,10 +61,10 @@ class RenderRun:
 
 
 LAST_RUN = None
-# The exception the last render() failed with (headless.py raises it again), and
-# whether render() re-raises a bug itself (headless.py turns that off while it waits).
+# The exception the last render() failed with (the CLI raises it again), and
+# whether render() prints it (the CLI, which reports it itself, turns that off).
 LAST_ERROR = None
-RAISE_BUGS = True
+PRINT_ERRORS = True
 
 
 def peak_rss_bytes():
@@ -291,9 +291,34 @@ def render_region(render, width, height):
 
 
 def render(self, depsgraph):
-    """PhotonLightmapsRenderEngine.render: runs run_render, writing tiles into Blender's result."""
+    """PhotonLightmapsRenderEngine.render: runs run_render, writing tiles into Blender's result.
+
+    Never raises into Blender: any failure, a bug included, ends this render
+    with error_set and one line on the console, and Blender goes on."""
     global LAST_RUN, LAST_ERROR
     LAST_RUN = LAST_ERROR = None
+    try:
+        _render_into(self, depsgraph)
+    except Exception as exc:  # noqa: BLE001 - shown to the user instead of a silent black frame
+        LAST_ERROR = exc
+        text = describe(exc)
+        try:
+            self.error_set(text)
+            record(depsgraph.scene.name, "render", LAST_RUN.warnings if LAST_RUN is not None else [],
+                   error=text)
+        except Exception:  # noqa: BLE001 - Blender's data may be what failed; the line below still tells
+            pass
+        if PRINT_ERRORS:
+            _print_error(exc)
+
+
+def _print_error(exc):
+    """One console line for a failed render: a pipeline running Blender headless
+    sees no error_set."""
+    print(f"Photon Lightmaps: {bug_text(exc)}", file=sys.stderr, flush=True)
+
+
+def _render_into(self, depsgraph):
     scene = depsgraph.scene
     width, height = int(self.resolution_x), int(self.resolution_y)
     layer = depsgraph.view_layer.name
@@ -315,26 +340,14 @@ def render(self, depsgraph):
         result.layers[0].passes["Combined"].rect.foreach_set(sub.reshape(-1))
         self.end_result(result)
 
-    try:
-        run = run_render(depsgraph,
-                         report=lambda level, msg: self.report({level}, msg),
-                         stats=lambda text: self.update_stats("", text),
-                         progress=self.update_progress,
-                         on_tile=on_tile,
-                         should_stop=self.test_break,
-                         camera_override=self.camera_override,
-                         resolution=(width, height))
-    except Exception as exc:  # noqa: BLE001 - shown to the user instead of a silent black frame
-        LAST_ERROR = exc
-        text = describe(exc)
-        self.error_set(text)
-        record(scene.name, "render", LAST_RUN.warnings if LAST_RUN is not None else [], error=text)
-        # A user error is told by error_set alone (raising would add Blender's traceback);
-        # a bug is raised so its traceback reaches the console, except when headless.py
-        # re-raises it itself.
-        if RAISE_BUGS and not is_user_error(exc):
-            raise
-        return
+    run = run_render(depsgraph,
+                     report=lambda level, msg: self.report({level}, msg),
+                     stats=lambda text: self.update_stats("", text),
+                     progress=self.update_progress,
+                     on_tile=on_tile,
+                     should_stop=self.test_break,
+                     camera_override=self.camera_override,
+                     resolution=(width, height))
     record(scene.name, "render", run.warnings)
     if run.cancelled:
         return

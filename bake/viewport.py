@@ -194,6 +194,23 @@ def view_camera(region_data, width, height):
     return cam
 
 
+def _guarded(callback):
+    """A RenderEngine viewport callback that never raises into Blender: what escapes
+    its own handling (the engine's data already freed, a bug) is one console line."""
+    import functools
+
+    @functools.wraps(callback)
+    def call(*args):
+        try:
+            return callback(*args)
+        except Exception as exc:  # noqa: BLE001  (Blender's draw loop must go on)
+            import sys
+            from ..messages import bug_text
+            print(f"Photon Lightmaps viewport: {bug_text(exc)}", file=sys.stderr, flush=True)
+        return None
+    return call
+
+
 def _session(engine):
     s = getattr(engine, "_photon_viewport", None)
     if s is None:
@@ -212,6 +229,7 @@ def _scene_changed(depsgraph):
     return False
 
 
+@_guarded
 def view_update(engine, context, depsgraph):
     """RenderEngine.view_update: exports the scene again when it changed."""
     s = _session(engine)
@@ -228,6 +246,7 @@ def view_update(engine, context, depsgraph):
     _stats(engine, s)
 
 
+@_guarded
 def view_draw(engine, context, depsgraph):
     """RenderEngine.view_draw: the session's image, scaled to the region."""
     s = _session(engine)

@@ -180,7 +180,7 @@ def test_cli_bug_is_an_internal_error_and_errors_start_a_fresh_line(tmp_path, ca
     assert cli.main(["--debug", "render", str(blend), "--out", str(tmp_path / "x.png")]) == 1
     err = capsys.readouterr().err
     assert "Traceback" in err and "in bug" in err
-    assert render_engine.RAISE_BUGS     # the UI path raises bugs again
+    assert render_engine.PRINT_ERRORS     # the UI path prints them again
     # A user error after "\rphotons N/M" progress starts on a line of its own.
     monkeypatch.setattr(session, "bake_texels", lambda *a, **k: (_ for _ in ()).throw(SceneError("texel density: too high")))
     assert cli.main(["bake", str(blend), "--out", str(tmp_path / "lm"), "--resolution", "8"]) == 2

@@ -90,6 +90,7 @@ mesh). The command `python -m photon_lightmaps bake` is in cli.py.
 from .hooks import HOOK_PREFIX, HOOK_PROP, add_lightmap_hook, remove_lightmap_hook  # noqa: F401,E402
 from .images import IMAGE_SUFFIX, LIGHTMAP_DIR, OWNER_PROP, BakedMap, check_writable, write_exr  # noqa: F401,E402
 from .pipeline import (BakeJob, BakeResult, BakeSettings, bake_objects, commit_bake, compute_bake,  # noqa: F401,E402
-                       layout_resolution, prepare_bake, rollback_bake)
+                       layout_resolution, prepare_bake, rollback_bake, run_unwraps, unwrap_plan,
+                       unwrap_seconds)
 from .bake_api import clear_cache  # noqa: F401,E402
 from ..engine.photon_tracer import Cancelled  # noqa: F401,E402  (what a cancelled bake raises)

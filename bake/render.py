@@ -110,10 +110,15 @@ def _export(depsgraph, run, report, camera_override, resolution):
     return scene
 
 
-def _compile(scene, run, report):
+def _compile(scene, run, report, stats, should_stop):
     """Phase 2: the compiled scene, its warnings and lightmap numbers."""
     launches = uv_atlas.worker_launches
-    cs = session.compile(scene, ahead=("render",))   # a first run compiles the render pass meanwhile
+
+    def unwrapping(done, total):
+        stats(f"Compiling scene | xatlas unwraps {done}/{total} meshes without a Lightmap UV layer")
+    # A first run compiles the render pass meanwhile (ahead).
+    cs = session.compile(scene, ahead=("render",), unwrap_progress=unwrapping,
+                         should_stop=should_stop)
     run.xatlas_workers = uv_atlas.worker_launches - launches
     for text in cs.info.get("warnings", ()):   # dropped triangles, unwrap fallbacks, clamped UVs
         report("WARNING", f"Photon Lightmaps: {text}")
@@ -254,10 +259,10 @@ def _run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=No
     scene = _export(depsgraph, run, report, camera_override, resolution)
     t_export = time.perf_counter()
     stats("Compiling scene")
-    cs = _compile(scene, run, report)
-    lm_text = f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB ({run.texels:,} texels)"
-    t_compile = time.perf_counter()
     try:
+        cs = _compile(scene, run, report, stats, should_stop or (lambda: False))
+        lm_text = f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB ({run.texels:,} texels)"
+        t_compile = time.perf_counter()
         t_photon0 = _photons(cs, scene, settings, run, report, stats, progress, should_stop, lm_text)
         t_photons = time.perf_counter()
         img = _render(cs, settings, run, stats, progress, on_tile, should_stop, lm_text)

@@ -276,7 +276,7 @@ def _csg_with_uvs(node, uvs):
 
 
 def unwrap_meshes(scene, warnings, progress=None, layouts=None, texel_density=None,
-                  max_resolution=1024):
+                  max_resolution=1024, should_stop=None):
     """Gives lightmap UVs to the meshes that record photons but have none.
 
     Only prototypes with an instance that keeps its own lightmaps are laid out
@@ -290,8 +290,9 @@ def unwrap_meshes(scene, warnings, progress=None, layouts=None, texel_density=No
     gaps need more texels, those instances get a larger forced resolution. Only
     a mesh too fragmented for any lightmap falls back to an automatic
     orientation lightmap. layouts (a list) gets one row per laid-out or skipped
-    mesh: which layout it got and why. Returns a new Scene; the input is not
-    modified."""
+    mesh: which layout it got and why. progress(done, total) follows the xatlas
+    batch (from 0 before it starts); should_stop() -> True cancels it (raises
+    photon_tracer.Cancelled). Returns a new Scene; the input is not modified."""
     from . import uv_atlas as UA   # late: xatlas is only needed for such meshes
     from . import fast_layout as FL
     density = float(scene.texel_density if texel_density is None else texel_density)
@@ -324,7 +325,9 @@ def unwrap_meshes(scene, warnings, progress=None, layouts=None, texel_density=No
             owners.append((pi, mesh, keep))
     if not jobs and not fast:
         return scene
-    results = UA.unwrap_many(jobs, progress=progress) if jobs else []
+    if jobs and progress is not None:
+        progress(0, len(jobs))
+    results = UA.unwrap_many(jobs, progress=progress, should_stop=should_stop) if jobs else []
     uvs_by_proto, failed = {}, {}
     for (pi, mesh, keep), (v, t), res in zip(owners, jobs, results):
         if isinstance(res, Exception):
@@ -540,7 +543,10 @@ def _caustic_lightmaps(scene, geom, density, max_resolution, csg, csg_split, dcs
     return None
 
 
-def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True):
+def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True, unwrap_progress=None,
+                  should_stop=None):
+    """Scene -> CompiledScene. unwrap_progress(done, total) and should_stop():
+    the xatlas unwraps of meshes without lightmap UVs (unwrap_meshes)."""
     t0 = time.perf_counter()
     if int(scene.n_bands) < 1:
         raise SceneError(f"n_bands must be >= 1, got {scene.n_bands}")
@@ -556,8 +562,8 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     scene, ol_maps = _plan_orientation(scene)
     n_ols = len(scene.orientation_lightmaps)
     layouts = []
-    scene = unwrap_meshes(scene, warnings, layouts=layouts, texel_density=density,
-                          max_resolution=max_resolution)
+    scene = unwrap_meshes(scene, warnings, progress=unwrap_progress, layouts=layouts,
+                          texel_density=density, max_resolution=max_resolution, should_stop=should_stop)
     if len(scene.orientation_lightmaps) != n_ols:    # unwrap fallbacks added OLs
         scene, ol_maps = _plan_orientation(scene)
     t_unwrap = time.perf_counter()

@@ -71,16 +71,18 @@ class Settings:
         return LM.MODE_CONSTANT if self.reconstruction == "CONSTANT" else LM.MODE_BILINEAR
 
 
-def compile(scene, ahead=()):
+def compile(scene, ahead=(), unwrap_progress=None, should_stop=None):
     """Plain engine Scene -> compiled scene (flat arrays, BVHs, empty lightmaps).
 
     ahead: the passes that will follow the photon pass ("render", "bake"); on a
-    first run a helper process compiles their kernels meanwhile (engine/warmup.py)."""
+    first run a helper process compiles their kernels meanwhile (engine/warmup.py).
+    unwrap_progress(done, total), should_stop(): the xatlas unwraps of meshes
+    without lightmap UVs (compile.unwrap_meshes)."""
     from .compile import compile_scene
     if ahead:
         from . import warmup
         warmup.ahead(scene, ahead)
-    return compile_scene(scene)
+    return compile_scene(scene, unwrap_progress=unwrap_progress, should_stop=should_stop)
 
 
 def _kernels_for(cs, pass_, poll=None):
@@ -137,7 +139,7 @@ def compile_and_trace_bake(scene, settings, *, progress=None):
     return cs, photon_pass(cs, settings, record_direct=True, progress=progress, caustics=True, gather=True)
 
 
-def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline=None):
+def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline=None, phase=None):
     """A bake's texel values into cs.lightmaps -> seconds per part.
 
     Direct light per texel (unless direct=False), plus either the photons' own
@@ -145,13 +147,20 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
     (engine/bake_gather.py). lightmap_ids: instance lightmaps; csg_leaves:
     (instance, leaf) pairs of CSG solids (csg_bake.solid_leaves). deadline: the
     time.perf_counter() by which the bake should end (settings.bake_time); the
-    gather gives the time left to the texels with the highest error."""
+    gather gives the time left to the texels with the highest error.
+    phase(name, n) is told as "direct" and "gather" start (n: texels), and
+    while it waits on a helper compiling the bake kernels ("kernels", seconds)."""
     from . import texel_gather as TG
     lightmap_ids, csg_leaves = list(lightmap_ids), list(csg_leaves)
+    phase = phase or (lambda name, texels: None)
+    lm = cs.lightmaps
+    texels = sum(int(lm.width[i]) * int(lm.height[i]) for i in set(lightmap_ids))
     seconds = {}
-    _kernels_for(cs, "bake")
+    _kernels_for(cs, "bake", lambda waited: phase("kernels", waited))
     t0 = time.perf_counter()
     parts = []
+    if direct:
+        phase("direct", texels)
     if direct and lightmap_ids:
         parts.append(gather_direct(cs, lightmap_ids, settings))
     if direct and csg_leaves:
@@ -162,6 +171,7 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
             add_direct(cs.lightmaps, part)
         return seconds
     from . import bake_gather as BG
+    phase("gather", texels)
     t1 = time.perf_counter()
     direct_E = TG._by_texel(parts, cs.n_bands)
     indirect = BG.gathered_indirect(cs, lightmap_ids, csg_leaves, DIRECT_SAMPLES, settings.bake_rays_per_point,

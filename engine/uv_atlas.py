@@ -92,6 +92,10 @@ AtlasResult = namedtuple("AtlasResult", [
 ])
 
 _lru = OrderedDict()
+# Cache key -> the _Failure of an xatlas run that failed or crashed on it in this
+# process: the same mesh would fail again, so a second ask (a bake's prepass,
+# then the bake) does not start a worker to crash it twice.
+_failures = OrderedDict()
 
 
 def cache_dir():
@@ -103,6 +107,7 @@ def cache_dir():
 
 def clear_memory_cache():
     _lru.clear()
+    _failures.clear()
 
 
 def _bad_input(reason):
@@ -406,6 +411,10 @@ def unwrap_many(jobs, progress=None, should_stop=None):
         if hit is not None:
             results[i] = _copy(hit)
             continue
+        failed = _failures.get(key) if use_cache else None
+        if failed is not None:
+            results[i] = UnwrapError(failed.reason, t.shape[0], advice=failed.advice, detail=failed.detail)
+            continue
         entry = todo.setdefault(key, [v, t, (res, tpu, pad), False, []])
         entry[3] |= use_cache
         entry[4].append(i)
@@ -430,6 +439,10 @@ def unwrap_many(jobs, progress=None, should_stop=None):
         T = t.shape[0]
         if isinstance(out, _Failure):
             res = UnwrapError(out.reason, T, advice=out.advice, detail=out.detail)
+            if out.advice == _ADVICE:         # xatlas itself failed, not a worker that cannot start
+                _failures[key] = out
+                while len(_failures) > _LRU_SIZE:
+                    _failures.popitem(last=False)
         else:
             res = AtlasResult(out["uv"].astype(np.float64), out["chart"].astype(np.int32),
                               int(out["width"]), int(out["height"]), int(out["resolution"]),

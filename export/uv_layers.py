@@ -259,9 +259,7 @@ def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False, notes=None)
         raise RuntimeError(f"mesh {mesh.name!r} is linked from a library; cannot add a lightmap UV layer")
     ghash = geometry_hash(mesh)
     want_res = int(resolution) if resolution else None
-    if layer is not None and not force and mesh.get(HASH_PROP) == ghash \
-            and (want_res is None or int(mesh.get(MIN_RES_PROP, 0)) <= want_res
-                 or mesh.get(LAYOUT_PROP) == FAST):
+    if not force and _current(mesh, ghash, want_res):
         return CACHED
     uv, min_res, how = compute_lightmap_uvs(mesh, want_res, notes=notes)
 
@@ -291,6 +289,25 @@ def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False, notes=None)
     elif LAYOUT_PROP in mesh:
         del mesh[LAYOUT_PROP]
     return status
+
+
+def _current(mesh, ghash, want_res):
+    """Our Lightmap layer is there, made from this geometry, and good for want_res texels."""
+    return (mesh.uv_layers.get(LAYER_NAME) is not None and mesh.get(HASH_PROP) == ghash
+            and (want_res is None or int(mesh.get(MIN_RES_PROP, 0)) <= want_res
+                 or mesh.get(LAYOUT_PROP) == FAST))
+
+
+def needs_unwrap(obj_or_mesh, resolution=None):
+    """True when ensure_lightmap_uv would run xatlas on this mesh now (no layer, or
+    our layer is stale); changes nothing. Meshes it cannot write (Edit Mode, a
+    library) answer False: ensure_lightmap_uv refuses those by name."""
+    mesh = _mesh_of(obj_or_mesh)
+    if mesh.is_editmode or mesh.library is not None:
+        return False
+    if mesh.uv_layers.get(LAYER_NAME) is not None and not layer_is_ours(mesh):
+        return False
+    return not _current(mesh, geometry_hash(mesh), int(resolution) if resolution else None)
 
 
 def required_resolution(obj_or_mesh):

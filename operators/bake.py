@@ -1,8 +1,10 @@
 """Operators: "Bake Photon Lightmaps" and "Remove Lightmap Hook".
 
-The bake runs modal: the scene is exported on the UI thread, the photon pass
-runs on a worker thread while a timer updates the status bar, and the images
-are written on the UI thread once every lightmap is done. Esc sets a flag the
+The bake runs modal: meshes without a Lightmap UV layer are unwrapped by xatlas
+on a worker thread first (told up front with an estimate, cancellable), the
+scene is exported on the UI thread, the bake runs on a worker thread while a
+timer shows its phase in the status bar, and the images are written on the UI
+thread once every lightmap is done. Esc sets a flag the
 photon pass polls between chunks; a cancelled or failed bake writes nothing
 (the Lightmap UV layers it made are removed again), so images and layers from
 an earlier bake stay as they were. A user error (engine SceneError) is reported
@@ -17,12 +19,29 @@ from .. import messages
 from ..bake import hooks
 from ..bake import pipeline as B
 from ..engine.photon_tracer import Cancelled
+from ..export import uv_layers
 from .common import ImageOutputOptions, ObjectModeOperator
 
 
 def _bake_candidates(context, selected_only):
     obs = context.selected_objects if selected_only else context.scene.objects
     return [ob for ob in obs if ob.type == "MESH"]
+
+
+def _without_layer(objects):
+    """(how many meshes have no Lightmap UV layer, their triangles): cheap enough for draw()."""
+    import numpy as np
+    meshes = {ob.data for ob in objects if ob.data.uv_layers.get(uv_layers.LAYER_NAME) is None}
+    triangles = 0
+    for me in meshes:
+        loops = np.empty(len(me.polygons), np.int32)
+        me.polygons.foreach_get("loop_total", loops)
+        triangles += int((loops - 2).sum())
+    return len(meshes), triangles
+
+
+def _duration(seconds):
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
 
 
 def _summary(res):
@@ -64,11 +83,13 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
     _thread = None
 
     # -- shared --------------------------------------------------------------------------
-    def _start(self, context):
+    def _objects(self, context):
         objects = _bake_candidates(context, self.selected_only)
         if not objects:
             self.report({"ERROR"}, "No mesh objects to bake" + (" (select some)" if self.selected_only else ""))
-            return None
+        return objects
+
+    def _prepare(self, context, objects):
         return B.prepare_bake(context, objects, photons=self.photons or None,
                               resolution=self.resolution or None, indirect_only=self.indirect_only)
 
@@ -104,12 +125,13 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
     def execute(self, context):
         job = None
         try:
-            job = self._start(context)
-            if job is None:
+            objects = self._objects(context)
+            if not objects:
                 return {"CANCELLED"}
             if self.run_modal and context.window is not None:
-                return self._start_modal(context, job)
+                return self._start_modal(context, objects)
             # Blocking (scripts, background mode).
+            job = self._prepare(context, objects)
             B.compute_bake(job)
             self._finish(job)
         except Exception as e:  # noqa: BLE001  (reported to the user instead of a traceback)
@@ -117,30 +139,84 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         return {"FINISHED"}
 
     # -- modal (UI) ----------------------------------------------------------------------------
-    def _start_modal(self, context, job):
-        # The worker only touches these plain objects, never the operator (an RNA struct).
+    # The status bar and progress bar follow the phases: xatlas unwraps (on a
+    # worker thread, before the export reads their layers), then the bake's
+    # scene, kernels, photons, direct light, gather and images.
+    _SPAN = {"unwrap": (0, 15), "scene": (15, 18), "kernels": (18, 20), "photons": (20, 55),
+             "direct": (55, 65), "gather": (65, 95), "images": (95, 98), "denoise": (98, 100)}
+
+    def _start_modal(self, context, objects):
+        # Workers only touch these plain objects, never the operator (an RNA struct).
         cancel = threading.Event()
-        state = {"done": 0, "total": max(int(job.settings.photons), 1), "error": None}
+        state = {"phase": "unwrap", "detail": "", "done": 0, "total": 1, "error": None}
+        self._job, self._cancel, self._state, self._objects_left = None, cancel, state, objects
+        plan = B.unwrap_plan(context, objects, self.resolution or None)
+        if plan:
+            triangles = sum(t.shape[0] for _, _, t, _ in plan)
+            state.update(total=len(plan), estimate=B.unwrap_seconds(triangles),
+                         detail=f"{len(plan)} mesh{'es' if len(plan) != 1 else ''} without a Lightmap "
+                                f"UV layer, {triangles:,} triangles, about {_duration(B.unwrap_seconds(triangles))}")
 
-        def progress(done, total):
-            state["done"], state["total"] = done, max(total, 1)
-            return not cancel.is_set()
+            def progress(done, total):
+                state["done"], state["total"] = done, max(total, 1)
 
-        def work():
-            try:
-                B.compute_bake(job, progress)
-            except BaseException as e:  # noqa: BLE001  (handed to the UI thread)
-                state["error"] = e
-
-        self._job, self._cancel, self._state = job, cancel, state
-        self._thread = threading.Thread(target=work, name="photon-lightmaps-bake", daemon=True)
+            def unwrap():
+                try:
+                    B.run_unwraps(plan, progress, cancel.is_set)
+                except BaseException as e:  # noqa: BLE001  (handed to the UI thread)
+                    state["error"] = e
+            self._thread = threading.Thread(target=unwrap, name="photon-lightmaps-unwrap", daemon=True)
+        else:
+            self._thread = None
+        if self._thread is None:
+            self._start_compute(context)    # before the handler: a failed export ends execute()
+        else:
+            self._thread.start()
         wm = context.window_manager
         wm.progress_begin(0, 100)
         self._timer = wm.event_timer_add(0.2, window=context.window)
         wm.modal_handler_add(self)
-        self._status(context, "Photon Lightmaps: photon pass 0%  (Esc to cancel)")
-        self._thread.start()
+        self._show(context)
         return {"RUNNING_MODAL"}
+
+    def _start_compute(self, context):
+        """UI thread: the export (its unwraps are cached now), then the bake on a worker."""
+        job = self._prepare(context, self._objects_left)
+        state, cancel = self._state, self._cancel
+        self._job = job
+        state.update(phase="scene", detail="", done=0, total=max(int(job.settings.photons), 1))
+
+        def progress(done, total):
+            state["phase"], state["done"], state["total"] = "photons", done, max(total, 1)
+            return not cancel.is_set()
+
+        def phase(name, detail):
+            state["phase"], state["detail"] = name, detail
+
+        def work():
+            try:
+                B.compute_bake(job, progress, phase)
+            except BaseException as e:  # noqa: BLE001  (handed to the UI thread)
+                state["error"] = e
+        self._thread = threading.Thread(target=work, name="photon-lightmaps-bake", daemon=True)
+        self._thread.start()
+
+    def _show(self, context):
+        st = self._state
+        lo, hi = self._SPAN.get(st["phase"], (0, 100))
+        within = st["done"] / st["total"] if st["phase"] in ("unwrap", "photons") else 0.0
+        context.window_manager.progress_update(lo + (hi - lo) * within)
+        if self._cancel.is_set():
+            return
+        if st["phase"] == "unwrap":
+            text = f"unwrapping {st['done']}/{st['total']} ({st['detail']})"
+        elif st["phase"] == "photons":
+            text = f"photon pass {100.0 * within:.0f}% ({st['done']:,}/{st['total']:,} photons)"
+        else:
+            label = {"scene": "compiling the scene", "kernels": "compiling kernels", "direct": "direct light",
+                     "gather": "final gather", "images": "writing images", "denoise": "denoising"}
+            text = label.get(st["phase"], st["phase"]) + (f" ({st['detail']})" if st["detail"] else "")
+        self._status(context, f"Photon Lightmaps: {text}  (Esc to cancel)")
 
     def _status(self, context, text):
         ws = getattr(context, "workspace", None)
@@ -164,22 +240,23 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
             return {"RUNNING_MODAL"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
-        pct = 100.0 * self._state["done"] / self._state["total"]
-        context.window_manager.progress_update(pct)
-        if not self._cancel.is_set():
-            self._status(context, f"Photon Lightmaps: photon pass {pct:.0f}%  (Esc to cancel)")
+        self._show(context)
         if self._thread.is_alive():
             return {"RUNNING_MODAL"}
         self._thread.join()
-        self._cleanup(context)
         error = self._state["error"]
         if self._cancel.is_set():
             error = Cancelled("cancelled with Esc")
         try:
             if error is not None:
                 raise error
+            if self._job is None:           # the unwraps are done: on to the bake
+                self._start_compute(context)
+                return {"RUNNING_MODAL"}
+            self._cleanup(context)
             self._finish(self._job)
         except Exception as e:  # noqa: BLE001  (reported to the user instead of a traceback)
+            self._cleanup(context)
             return self._failed(context, e, self._job)
         return {"FINISHED"}
 
@@ -188,7 +265,8 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         if self._thread is not None:
             self._cancel.set()
             self._thread.join()
-            B.rollback_bake(self._job)
+            if self._job is not None:
+                B.rollback_bake(self._job)
         self._cleanup(context)
 
     def draw(self, context):
@@ -196,6 +274,12 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         for prop in ("selected_only", "photons", "resolution", "indirect_only", "hook_materials",
                      "overwrite", "pack"):
             col.prop(self, prop)
+        # Told before the bake starts: meshes without a Lightmap layer need xatlas first.
+        n, triangles = _without_layer(_bake_candidates(context, self.selected_only))
+        if n:
+            col.label(text=f"{n} mesh{'es' if n != 1 else ''} without a Lightmap UV layer: xatlas unwraps "
+                           f"{triangles:,} triangles first, about {_duration(B.unwrap_seconds(triangles))}",
+                      icon="INFO")
 
 
 class PHOTON_LIGHTMAPS_OT_remove_lightmap_hook(bpy.types.Operator):

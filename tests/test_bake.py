@@ -233,6 +233,38 @@ def test_existing_lightmap_layer_and_uv_flags_untouched():
     assert uv_flags(box.data) == flags["tall_box"] + [("Lightmap", False, False)]
 
 
+def test_unwraps_run_first_on_a_worker_thread_and_the_bake_tells_its_phases():
+    """The operator's order: the xatlas unwraps the bake needs (planned on the UI
+    thread, with an estimate) run on a worker thread into the unwrap cache; the
+    export then starts no xatlas worker; the bake tells each phase as it starts."""
+    import threading
+    from photon_lightmaps.engine import uv_atlas as UA
+    demo_blend.build_cornell_blend()
+    floor, box = bpy.data.objects["floor"], bpy.data.objects["tall_box"]
+    box.data.vertices[0].co.z += 0.0123          # geometry no other test has unwrapped
+    plan = B.unwrap_plan(bpy.context, [floor, box], resolution=16)
+    assert [(name, side) for name, _, _, side in plan] == [("tall_box", 16)]   # the floor has its own layer
+    assert B.unwrap_seconds(sum(t.shape[0] for _, _, t, _ in plan)) < 1.0
+    seen = []
+    worker = threading.Thread(target=B.run_unwraps, args=(plan, lambda done, total: seen.append((done, total))))
+    worker.start()
+    worker.join()
+    assert seen[-1] == (1, 1)
+    before = UA.worker_launches
+    job = B.prepare_bake(bpy.context, [floor, box], photons=50_000, seed=0, resolution=16)
+    try:
+        assert UA.worker_launches == before and job.result.uv_layers["tall_box"] == uv_layers.CREATED
+        assert B.unwrap_plan(bpy.context, [floor, box], resolution=16) == []
+        phases = []
+        B.compute_bake(job, phase=lambda name, detail: phases.append((name, detail)))
+    finally:
+        B.rollback_bake(job)
+    told = [(n, d) for n, d in phases if n != "kernels"]
+    texels = f"{2 * 16 * 16:,} texels"
+    assert told == [("scene", f"{len(job.scene.instances):,} objects"), ("direct", texels),
+                    ("gather", texels), ("images", "2 objects")]
+
+
 def test_xatlas_layer_for_polygons_split_across_charts():
     """Suzanne: xatlas puts some quads' two triangles in different charts; one UV per loop still works."""
     bpy.ops.wm.read_factory_settings(use_empty=True)

@@ -111,3 +111,18 @@ def test_dense_ball_render_agrees_with_an_xatlas_ball(monkeypatch, tmp_path):
     rel_mean, rms = _compare(a, b)
     print(f"mean {rel_mean:.4f}  block rms {rms:.4f}  flux/area {e[1] / e[0] - 1:+.4f}")
     assert rel_mean < 0.002 and rms < 0.006 and abs(e[1] / e[0] - 1) < 0.01
+
+
+def test_unwraps_report_progress_and_can_be_cancelled(monkeypatch, tmp_path):
+    """The render's stats line follows the xatlas batch from its start, and Esc
+    kills the worker (the scene compile raises Cancelled, nothing is cached)."""
+    import pytest
+    from photon_lightmaps.engine.photon_tracer import Cancelled
+    monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(tmp_path))
+    UA.clear_memory_cache()
+    with pytest.raises(Cancelled):
+        compile_scene(_scene(16, 32, limit=0), should_stop=lambda: True)
+    assert not list(tmp_path.glob("uv/*.npz"))
+    calls = []
+    compile_scene(_scene(16, 32, limit=0), unwrap_progress=lambda done, total: calls.append((done, total)))
+    assert calls[0] == (0, 1) and calls[-1] == (1, 1)

@@ -213,9 +213,17 @@ def test_xatlas_crash_is_contained_and_the_batch_goes_on(cache, torus):
     ref = UA.unwrap_atlas(v, tri, resolution=64, use_cache=False)
     assert good.uv.tobytes() == ref.uv.tobytes() and good.min_resolution == ref.min_resolution
     assert calls[-1] == (2, 2)
-    # A crash is not cached: asking again runs xatlas again (and fails the same way).
+    # A crash is not stored on disk, but this process remembers it: asking again
+    # (a bake's prepass, then the bake) fails the same way without a worker.
+    assert len(list(cache.joinpath("uv").glob("*.npz"))) == 1       # the torus only
+    launches = UA.worker_launches
+    with pytest.raises(UA.UnwrapError, match=r"xatlas crashed \(SIGSEGV\)") as e:
+        UA.unwrap(*sphere, resolution=64)
+    assert UA.worker_launches == launches and e.value.triangles == 261_120
+    UA.clear_memory_cache()
     with pytest.raises(UA.UnwrapError, match=r"xatlas crashed \(SIGSEGV\)"):
         UA.unwrap(*sphere, resolution=64)
+    assert UA.worker_launches == launches + 1
 
 
 def test_cache_hits_start_no_worker(cache, torus):
@@ -261,6 +269,10 @@ def test_worker_that_cannot_start_raises(cache, torus, monkeypatch):
     with pytest.raises(UA.UnwrapError, match="could not start") as e:
         UA.unwrap(v, tri)
     assert "no_such_worker.py" in str(e.value)     # the child's stderr tail
+    # Not remembered: once the worker can start, the mesh is unwrapped.
+    monkeypatch.undo()
+    monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(cache))
+    assert UA.unwrap(v, tri).shape == (tri.shape[0], 3, 2)
 
 
 def test_pack_islands_in_the_worker(cache, torus):

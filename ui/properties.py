@@ -84,9 +84,9 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
     unwrap_limit: IntProperty(
         name="Unwrap Limit", default=_D.unwrap_limit, min=0, soft_max=1_000_000,
         description="Renders give meshes without a 'Lightmap' UV layer an xatlas unwrap up to this "
-                    "many triangles (about 0.6 ms each); larger ones get a fast box-projection "
-                    "layout in seconds instead of waiting minutes. 0: always unwrap with xatlas. "
-                    "Bakes always unwrap what they bake with xatlas")
+                    "many triangles (seconds for tens of thousands); larger ones get a fast "
+                    "box-projection layout in seconds instead of waiting minutes. 0: always unwrap "
+                    "with xatlas. Bakes always unwrap what they bake with xatlas")
     reconstruction: EnumProperty(
         name="Reconstruction", default=_D.reconstruction,
         items=(('BILINEAR', "Bilinear", "Interpolate irradiance between texel centres"),

@@ -305,6 +305,13 @@ def render(self, depsgraph):
     try:
         _render_into(self, depsgraph)
     except Exception as exc:  # noqa: BLE001 - shown to the user instead of a silent black frame
+        # The kept exception outlives this render; its frames' locals (this engine,
+        # the depsgraph) must not, or they are freed by Python after Blender freed
+        # them. Files, lines and functions stay for a traceback; this frame, still
+        # running, leaves it.
+        import traceback
+        exc = exc.with_traceback(exc.__traceback__.tb_next)
+        traceback.clear_frames(exc.__traceback__)
         LAST_ERROR = exc
         text = describe(exc)
         try:

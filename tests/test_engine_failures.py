@@ -51,6 +51,11 @@ else:
 for _ in range(2):
     bpy.ops.render.render()
     assert R.LAST_ERROR is not None and R.LAST_RUN is None or R.LAST_RUN.image is None
+    # The kept error holds no Blender data past the render (its frames' locals are cleared).
+    tb = R.LAST_ERROR.__traceback__
+    while tb is not None:
+        assert not any(isinstance(x, bpy.types.bpy_struct) for x in tb.tb_frame.f_locals.values())
+        tb = tb.tb_next
 restore()
 bpy.ops.render.render()
 assert R.LAST_ERROR is None and R.LAST_RUN.image is not None, R.LAST_ERROR

@@ -86,13 +86,13 @@ def _patch_missing_uvs(scene):
                                      f"lightmap UVs: {exc}") from exc
 
 
-def _bake_lightmaps(depsgraph, modes, progress, report):
+def _bake_lightmaps(depsgraph, modes, progress, report, stats=lambda text: None):
     """(scene, export map, {mode: (compiled scene, lightmaps)}) for the bake API, cached.
 
     Modes: "indirect" (the photon pass: hits after the first bounce), "direct"
     (the gathered direct light alone) and "total" (both). One photon pass serves
     all three; "direct" and "total" are copies of its lightmaps with the direct
-    light added.
+    light added. stats(text) names each phase as it starts.
     """
     scene, emap = export_scene(depsgraph, report=None)
     _patch_missing_uvs(scene)
@@ -108,6 +108,7 @@ def _bake_lightmaps(depsgraph, modes, progress, report):
         if mode in passes:
             continue
         if "indirect" not in passes:
+            stats("Compiling scene")
             cs, _ = session.compile_and_trace(scene, settings, progress=progress)
             passes["indirect"] = (cs, cs.lightmaps)
         cs, ind = passes["indirect"]
@@ -118,6 +119,8 @@ def _bake_lightmaps(depsgraph, modes, progress, report):
             # CSG solids are refused below), so only mesh lightmaps need direct light.
             mesh_lms = [l for i, lids in enumerate(cs.instance_lightmaps)
                         if scene.prototypes[scene.instances[i].prototype].meshes for l in lids]
+            texels = sum(int(cs.lightmaps.width[l]) * int(cs.lightmaps.height[l]) for l in mesh_lms)
+            stats(f"Direct light | {texels:,} texels")
             passes["gathered"] = session.gather_direct(cs, mesh_lms, settings)
         ids, E = passes["gathered"]
         lm = LM.Lightmaps(*(a.copy() for a in ind))
@@ -217,6 +220,7 @@ def _bake_pixels(self, depsgraph, obj, pass_type, pass_filter, raw):
 
     def progress(done, total):
         self.update_progress(done / max(total, 1))
+        self.update_stats("", f"Photons {done:,}/{total:,}")
         return not self._photon_should_stop()
 
     def report(level, msg):
@@ -224,7 +228,8 @@ def _bake_pixels(self, depsgraph, obj, pass_type, pass_filter, raw):
 
     if self._photon_should_stop():
         raise Cancelled("bake cancelled before the photon pass")
-    scene, emap, passes = _bake_lightmaps(depsgraph, modes, progress, report)
+    scene, emap, passes = _bake_lightmaps(depsgraph, modes, progress, report,
+                                          lambda text: self.update_stats("", text))
     name = (getattr(obj, "original", None) or obj).name
     ids = emap.object_instances(name)
     if not ids:

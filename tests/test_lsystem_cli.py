@@ -36,7 +36,10 @@ def test_counts_come_from_the_graph_for_huge_grammars(tmp_path, capsys):
     r = json.loads(out)
     assert rc == 0 and r["segments"] == r["primitives"] == 5 ** 60
     assert r["length"] == 5 ** 60 + 6 * (5 ** 60 - 1) // 4
-    assert not r["bounds_exact"] and r["timings"]["total"] < 10
+    # 5^60 segments cannot have been expanded one by one: the counts are the
+    # graph's (no wall-clock bound: a loaded machine would fail it, and
+    # benchmarks/ times the L-systems)
+    assert not r["bounds_exact"]
 
 
 def test_bad_grammar_is_one_line_with_exit_code_2(tmp_path, capsys):

@@ -33,6 +33,7 @@ from . import orientation_lightmap as OL
 from . import texel_gather as TG
 from .csg_bake import csg_texel_items, csg_texel_point
 from .final_gather import gather_irradiance
+from .jit import CORE
 from .raycast import STACK_WORDS
 from .sampling import next_float, stream_state
 from . import parallel
@@ -42,7 +43,7 @@ STREAM_XOR_2 = np.uint64(0x2545F4914F6CDD1D)  # the adaptive pass
 SCRATCH_ROWS = 7      # kd ks kt ind tp f rad of gather_irradiance
 
 
-@njit(cache=True)
+@njit(**CORE)
 def point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack, px, py, pz, nx, ny, nz,
                    side, state, sc, pc, out):
     """Gathered indirect irradiance at a bake point into out (added): along n
@@ -96,6 +97,21 @@ def _variance(q, wsum, e):
 def _indirect_mesh(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_inst, item_lid, item_side,
                    item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, item_rays, order, stream, out, var,
                    start, stop):
+    """The gather of mesh texels start..stop: the block's scratch, then the core."""
+    nb = out.shape[1]
+    _indirect_mesh_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_inst, item_lid,
+                        item_side, item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, item_rays, order,
+                        stream, out, var, start, stop, np.empty(STACK_WORDS, np.int32),
+                        np.empty((SCRATCH_ROWS, nb)), np.empty(BS.P_SIZE), np.empty(nb), np.empty(nb),
+                        np.empty(3))
+
+
+# Per-point loops compile without NRT, as texel_gather's kernels do (a read of a
+# scene tuple's field would otherwise be a contended atomic incref and decref).
+@njit(**CORE)
+def _indirect_mesh_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_inst, item_lid,
+                        item_side, item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, item_rays, order,
+                        stream, out, var, start, stop, stack, sc, pc, e, ep, q):
     nb = out.shape[1]
     k = TG._grid_side(n_points)
     for i in range(start, stop):
@@ -103,12 +119,9 @@ def _indirect_mesh(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
         n_rays = item_rays[it]
         if n_rays <= 0:
             continue
-        stack = np.empty(STACK_WORDS, np.int32)
-        sc = np.empty((SCRATCH_ROWS, nb))
-        pc = np.empty(BS.P_SIZE)
-        e = np.zeros(nb)
-        ep = np.empty(nb)
-        q = np.zeros(3)
+        for b in range(nb):
+            e[b] = 0.0
+        q[0] = q[1] = q[2] = 0.0
         p0 = pstart[it]
         p1 = pstart[it + 1]
         total = 0.0
@@ -143,6 +156,20 @@ def _indirect_mesh(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
 def _indirect_prim(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_lm, item_lid, item_face,
                    item_x, item_y, item_key, item_local, lm_kind, lm_params, lm_xf, lm_ncof, lm_res,
                    lm_sides, n_points, item_rays, order, stream, out, var, start, stop):
+    """The gather of primitive texels start..stop: the block's scratch, then the core."""
+    nb = out.shape[1]
+    _indirect_prim_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_lm, item_lid, item_face,
+                        item_x, item_y, item_key, item_local, lm_kind, lm_params, lm_xf, lm_ncof, lm_res,
+                        lm_sides, n_points, item_rays, order, stream, out, var, start, stop,
+                        np.empty(STACK_WORDS, np.int32), np.empty((SCRATCH_ROWS, nb)), np.empty(BS.P_SIZE),
+                        np.empty(nb), np.empty(nb), np.empty(3))
+
+
+@njit(**CORE)
+def _indirect_prim_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_lm, item_lid, item_face,
+                        item_x, item_y, item_key, item_local, lm_kind, lm_params, lm_xf, lm_ncof, lm_res,
+                        lm_sides, n_points, item_rays, order, stream, out, var, start, stop, stack, sc, pc, e,
+                        ew, q):
     nb = out.shape[1]
     k = TG._grid_side(n_points)
     for i in range(start, stop):
@@ -150,12 +177,9 @@ def _indirect_prim(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
         n_rays = item_rays[it]
         if n_rays <= 0:
             continue
-        stack = np.empty(STACK_WORDS, np.int32)
-        sc = np.empty((SCRATCH_ROWS, nb))
-        pc = np.empty(BS.P_SIZE)
-        e = np.zeros(nb)
-        ew = np.zeros(nb)
-        q = np.zeros(3)
+        for b in range(nb):
+            ew[b] = 0.0
+        q[0] = q[1] = q[2] = 0.0
         l = item_lm[it]
         side = 0 if lm_sides[l] == 2 else 1
         state = stream_state(item_key[it] ^ stream, item_local[it])

@@ -30,6 +30,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from .jit import CORE
 from .sampling import cosine_hemisphere, orthonormal_basis
 
 DELTA_ALPHA = 3.2e-4
@@ -265,7 +266,7 @@ def _table3(t, mu, a, f0):
 # Closure
 # --------------------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit(**CORE)
 def closure_scalars(bt, m, roughness, ior, entering, cos_o, p):
     """Fills p for material m at a hit: alpha, the glass eta (n_t/n_i from the side the
     light arrives on), the layer's F0, eta and weight, and the albedos at cos_o."""

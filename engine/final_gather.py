@@ -33,7 +33,7 @@ from . import light_hits as LH
 from . import materials as MT
 from . import orientation_lightmap as OL
 from .photon_tracer import CAUSTIC_ALPHA, ray_epsilon
-from .jit import typed
+from .jit import CORE, typed
 from .raycast import intersect_closest
 from .sampling import cosine_hemisphere, next_float, to_world
 
@@ -41,7 +41,7 @@ GOLDEN = 0.6180339887498949
 CHAIN = 3          # vertices a gather ray follows through glossy lobes
 
 
-@njit(cache=True)
+@njit(**CORE)
 def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, pz, fx, fy, fz, sx, sy, sz,
                       n_rays, mode, state, kd, ks, kt, pc, ind, tp, f, rad, out):
     """Indirect irradiance at p from n_rays gather rays into out[bands] (added).

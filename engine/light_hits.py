@@ -16,6 +16,7 @@ import math
 
 from numba import njit
 
+from .jit import CORE
 from . import environment as E
 from .lights import AREA, ELLIPSE, EMISSIVE, ENVIRONMENT, POINT, SPOT, SUN, _env, spot_mask
 
@@ -117,7 +118,7 @@ def _sphere_hit(ls, li, ox, oy, oz, dx, dy, dz, tmax):
     return t if 0.0 < t < tmax else -1.0
 
 
-@njit(cache=True)
+@njit(**CORE)
 def add_seen_lights(ls, ox, oy, oz, dx, dy, dz, tmax, pdf_bsdf, delta, tp, acc):
     """Adds into acc the radiance tp * L of every sized light the ray o + t d
     (t < tmax; inf: the ray escaped) passes, weighted against light sampling.
@@ -167,7 +168,7 @@ def add_seen_lights(ls, ox, oy, oz, dx, dy, dz, tmax, pdf_bsdf, delta, tp, acc):
             acc[b] += tp[b] * ls.radiance[li, b] * scale * w
 
 
-@njit(cache=True)
+@njit(**CORE)
 def environment_light(ls):
     """Index of the environment's light row, -1 when the world is dark."""
     for li in range(ls.kind.shape[0]):

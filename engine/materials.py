@@ -11,6 +11,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from .jit import CORE
 from .scene import SceneError, _bands
 from .texture import lod_for, sample4, sample_mean4
 
@@ -148,7 +149,7 @@ def _unit01(x):
     return min(max(x, 0.0), 1.0)
 
 
-@njit(cache=True)
+@njit(**CORE)
 def surface_inputs(ms, ts, g, inst, m, shape, face, u, v, footprint, kd, ks, kt):
     """Lobe weights of material m at a hit into kd, ks, kt (n_bands each);
     returns (roughness, ior, specular_level).

@@ -35,7 +35,7 @@ from numba import njit
 
 from . import lightmap as LM
 from .dcsg import dcsg_vs0
-from .jit import typed
+from .jit import CORE, typed
 from .primitives import _octa_encode
 from .scene import SceneError
 
@@ -200,7 +200,7 @@ def hit_ol(g, ol, inst, shape, face):
     return ol.inst_ol[inst]
 
 
-@njit(cache=True)
+@njit(**CORE)
 def surface_irradiance(g, lm, ol, inst, shape, face, u, v, nx, ny, nz, mode, out):
     """Stored irradiance at a hit: the surface's own lightmap, or its OL where
     it has none or (backup OL) where the texel is too noisy. n: the world

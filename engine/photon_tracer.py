@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from .jit import CORE
 from . import lightmap as LM
 from . import memory_budget
 from . import parallel
@@ -76,19 +77,26 @@ def ray_epsilon(px, py, pz):
 def _trace_chunk(g, ms, bt, ts, ls, lm, lmc, use_caustics, caustic_alpha, ol, seed, first, n_total,
                  max_bounces, record_from, main_last,
                  rec_texel, rec_power, rec_point, ledger, rays, start, stop):
-    # rows start..stop-1 of the chunk; parallel.run spreads the rows over threads
+    """Rows start..stop-1 of the chunk (parallel.run spreads the rows over
+    threads): the block's scratch, then the core."""
+    nb = ledger.shape[2]
+    _trace_chunk_core(g, ms, bt, ts, ls, lm, lmc, use_caustics, caustic_alpha, ol, seed, first, n_total,
+                      max_bounces, record_from, main_last, rec_texel, rec_power, rec_point, ledger, rays, start,
+                      stop, np.empty(STACK_WORDS, np.int32), np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nb),
+                      np.empty(nb), np.empty(BS.P_SIZE))
+
+
+# The photon loop compiles without NRT: with it, every read of a field of the
+# scene tuples is an atomic incref and decref that the threads contend for.
+@njit(**CORE)
+def _trace_chunk_core(g, ms, bt, ts, ls, lm, lmc, use_caustics, caustic_alpha, ol, seed, first, n_total,
+                      max_bounces, record_from, main_last, rec_texel, rec_power, rec_point, ledger, rays, start,
+                      stop, stack, power, wt, kd, ks, kt, pc):
     n_rec = rec_texel.shape[1]
     nb = ledger.shape[2]
     scale = ls.total_power / n_total
     n_main = lm.area.shape[0]
     for i in range(start, stop):
-        stack = np.empty(STACK_WORDS, np.int32)
-        power = np.empty(nb)
-        wt = np.empty(nb)
-        kd = np.empty(nb)
-        ks = np.empty(nb)
-        kt = np.empty(nb)
-        pc = np.empty(BS.P_SIZE)
         for r in range(n_rec):
             rec_texel[i, r] = -1
         for k in range(4):

@@ -21,6 +21,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from .jit import CORE
 from . import lightmap as LM
 from . import orientation_lightmap as OL
 from . import bsdf as BS
@@ -150,7 +151,23 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
 @njit(cache=True, nogil=True)
 def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed, mode,
                  max_depth, indirect, gather, out, start, stop):
-    # Pixels start..stop-1 of the tile (parallel.run spreads them over threads).
+    """Pixels start..stop-1 of the tile (parallel.run spreads them over threads):
+    the block's scratch, then the core."""
+    nb = out.shape[2]
+    sc = np.empty((16, nb))
+    _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed,
+                      mode, max_depth, indirect, gather, out, start, stop, np.empty(STACK_WORDS, np.int32),
+                      np.zeros(0, np.int64), sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7], sc[8],
+                      sc[9], sc[10], sc[11], sc[12], sc[13], sc[14], sc[15], np.empty(BS.P_SIZE),
+                      np.empty(BS.P_SIZE))
+
+
+# The pixel loop compiles without NRT: with it, every read of a field of the
+# scene tuples is an atomic incref and decref that the threads contend for.
+@njit(**CORE)
+def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed,
+                      mode, max_depth, indirect, gather, out, start, stop, stack, no_sides, acc, tp, e, lg, ind, f,
+                      kd, ks, kt, rad, kd2, ks2, kt2, tp2, f2, rad2, pc, pc2):
     # Samples s0 <= s < s1 of the pixel's spp, each weighted 1/spp: the passes of a
     # progressive render add up to the one-pass image (the same streams).
     nb = out.shape[2]
@@ -158,27 +175,10 @@ def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw,
     spread = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 0 else 0.0
     width0 = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 1 else 0.0
     env_li = LH.environment_light(ls)
-    no_sides = np.zeros(0, np.int64)      # camera hits are on the outside already
+    # no_sides: camera hits are on the outside already
     for idx in range(start, stop):
-        stack = np.empty(STACK_WORDS, np.int32)
-        acc = np.zeros(nb)
-        tp = np.empty(nb)
-        e = np.empty(nb)
-        lg = np.empty(nb)
-        ind = np.empty(nb)
-        f = np.empty(nb)
-        kd = np.empty(nb)
-        ks = np.empty(nb)
-        kt = np.empty(nb)
-        pc = np.empty(BS.P_SIZE)
-        rad = np.empty(nb)
-        kd2 = np.empty(nb)
-        ks2 = np.empty(nb)
-        kt2 = np.empty(nb)
-        pc2 = np.empty(BS.P_SIZE)
-        tp2 = np.empty(nb)
-        f2 = np.empty(nb)
-        rad2 = np.empty(nb)
+        for b in range(nb):
+            acc[b] = 0.0
         px_i = x0 + idx % tw
         py_i = y0 + idx // tw
         pixel = py_i * cam.width + px_i

@@ -40,6 +40,7 @@ import numpy as np
 from numba import njit
 
 from .affine import apply_linear, apply_point, cross
+from .jit import CORE, INLINE
 from . import lightmap as LM
 from . import texel_areas as TA
 from . import primitives as P
@@ -61,7 +62,8 @@ DEFAULT_SAMPLES = 16
 def direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, out):
     """Adds the direct irradiance at p (normal n facing the viewer) into out[bands]
     (direct_irradiance_stratum with no stratum)."""
-    return direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, -1, 0)
+    return direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, -1, 0,
+                                     np.empty(out.shape[0]))
 
 
 # Sample s of a texel takes light stratum (37 s) mod k²: a fixed shuffle, so the
@@ -69,9 +71,11 @@ def direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, out):
 _STRATUM_SHUFFLE = 37
 
 
-@njit(cache=True)
-def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, s, k):
-    """Adds the direct irradiance at p (normal n facing the viewer) into out[bands].
+@njit(**INLINE)
+def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, s, k, rad):
+    """Adds the direct irradiance at p (normal n facing the viewer) into out[bands];
+    rad[bands]: scratch. Inlined into the per-texel kernels, so no sample pays
+    for a call that passes the scene's tuples.
 
     With few lights every light gets one sample; with many, four are drawn in
     proportion to power (unbiased either way). The sample's radiance comes per
@@ -85,7 +89,6 @@ def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, 
     n_lights = ls.kind.shape[0]
     if n_lights == 0:
         return state
-    rad = np.empty(out.shape[0])
     eps = ray_epsilon(px, py, pz)
     ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
     all_lights = n_lights <= 8
@@ -145,14 +148,20 @@ def _jitter(s, k, j1, j2):
     return j1, j2
 
 
-@njit(cache=True)
+@njit(**INLINE)
 def mesh_texel_point(g, xf, ptri, parea, pnv, pb, p0, p1, total, u1, u2):
     """The point of a mesh texel for unit-square sample (u1, u2): uniform by world
     area over its UV pieces p0..p1 (total area `total`).
 
     -> (ok, px, py, pz, nx, ny, nz, triangle row, b1, b2): world point, unit
     geometric normal from the world edges (its sign is the triangle's winding),
-    barycentrics; ok False on a zero-area triangle (it has no area share)."""
+    barycentrics; ok False on a zero-area triangle (it has no area share).
+    A façade: the body takes the triangle array only (lights.py says why)."""
+    return _mesh_texel_point(g.tri_p, xf, ptri, parea, pnv, pb, p0, p1, total, u1, u2)
+
+
+@njit(**CORE)
+def _mesh_texel_point(tri_p, xf, ptri, parea, pnv, pb, p0, p1, total, u1, u2):
     # Piece by world area; u1 is rescaled inside the chosen interval so the
     # jitter keeps stratifying what follows.
     target = u1 * total
@@ -192,7 +201,7 @@ def mesh_texel_point(g, xf, ptri, parea, pnv, pb, p0, p1, total, u1, u2):
     b2 = wa * ay + wb * pb[p, fi, 1] + wc * pb[p, fi + 1, 1]
     b0 = 1.0 - b1 - b2
     t = ptri[p]
-    v = g.tri_p[t]
+    v = tri_p[t]
     lx = b0 * v[0, 0] + b1 * v[1, 0] + b2 * v[2, 0]
     ly = b0 * v[0, 1] + b1 * v[1, 1] + b2 * v[2, 1]
     lz = b0 * v[0, 2] + b1 * v[1, 2] + b2 * v[2, 2]
@@ -231,11 +240,23 @@ def prim_texel_point(kind, params, xf, cof, face, x, y, inv_r, u1, u2):
 @njit(cache=True, nogil=True)
 def _gather_mesh(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pnv, pb,
                  n_samples, out, start, stop):
+    """Direct light of mesh texels start..stop: the block's scratch, then the core."""
+    nb = out.shape[1]
+    _gather_mesh_core(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pnv, pb, n_samples, out,
+                      start, stop, np.empty(STACK_WORDS, np.int32), np.empty(nb), np.empty(nb))
+
+
+# The per-sample loop compiles without NRT: with it, every read of a field of the
+# scene tuples is an atomic incref and decref, which two threads contend for
+# (half the kernel's time, measured with perf); scratch comes from the wrapper.
+@njit(**CORE)
+def _gather_mesh_core(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pnv, pb,
+                      n_samples, out, start, stop, stack, e, rad):
     nb = out.shape[1]
     k = _grid_side(n_samples)
     for it in range(start, stop):
-        stack = np.empty(STACK_WORDS, np.int32)
-        e = np.zeros(nb)
+        for b in range(nb):
+            e[b] = 0.0
         p0 = pstart[it]
         p1 = pstart[it + 1]
         total = 0.0
@@ -256,8 +277,8 @@ def _gather_mesh(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pn
             if not ok:
                 continue
             # both sides: photons from either side add into the one texel
-            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k)
-            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e, s, k)
+            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k, rad)
+            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e, s, k, rad)
         inv = 1.0 / n_samples
         for b in range(nb):
             out[it, b] = e[b] * inv
@@ -266,12 +287,22 @@ def _gather_mesh(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pn
 @njit(cache=True, nogil=True)
 def _gather_prim(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local,
                  lm_kind, lm_params, lm_xf, lm_ncof, lm_res, lm_sides, n_samples, out, start, stop):
+    """Direct light of primitive texels start..stop: the block's scratch, then the core."""
+    nb = out.shape[1]
+    _gather_prim_core(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local, lm_kind, lm_params,
+                      lm_xf, lm_ncof, lm_res, lm_sides, n_samples, out, start, stop,
+                      np.empty(STACK_WORDS, np.int32), np.empty(nb), np.empty(nb), np.empty(nb))
+
+
+@njit(**CORE)
+def _gather_prim_core(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local, lm_kind, lm_params,
+                      lm_xf, lm_ncof, lm_res, lm_sides, n_samples, out, start, stop, stack, e, ew, rad):
+    """_gather_prim without NRT (see _gather_mesh_core)."""
     nb = out.shape[1]
     k = _grid_side(n_samples)
     for it in range(start, stop):
-        stack = np.empty(STACK_WORDS, np.int32)
-        e = np.zeros(nb)
-        ew = np.zeros(nb)
+        for b in range(nb):
+            ew[b] = 0.0
         l = item_lm[it]
         inv_r = 1.0 / lm_res[l]
         sides = lm_sides[l]
@@ -288,9 +319,9 @@ def _gather_prim(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local
                 continue
             for b in range(nb):
                 e[b] = 0.0
-            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k)
+            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k, rad)
             if sides == 2:
-                state = direct_irradiance_stratum(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e, s, k)
+                state = direct_irradiance_stratum(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e, s, k, rad)
             for b in range(nb):
                 ew[b] += jac * e[b]
             wsum += jac

@@ -335,9 +335,8 @@ def _gather_prim_core(g, ls, item_lm, item_face, item_x, item_y, item_key, item_
 
 def _lightmap_owners(cs):
     """lightmap id -> (instance, slot, ('mesh', tri rows) | ('prim', prim row))."""
-    from .compile import _prototype_surfaces
     g = cs.geometry
-    surfaces = _prototype_surfaces(g)
+    surfaces = surfaces_of(cs)
     owners = {}
     for inst, ids in enumerate(cs.instance_lightmaps):
         surf = surfaces[int(g.inst_proto[inst])]
@@ -532,11 +531,25 @@ def lit_sides(cs, inst):
     area light lies inside it. Photons of
     either side meet in one texel; the final gather must not read the inside of a
     closed mesh, whose rays would see the outside's light through its own texels."""
-    from .compile import _prototype_surfaces
+    memo = cs.__dict__.setdefault("_lit_sides", {})
+    if inst not in memo:
+        memo[inst] = _lit_sides(cs, inst)
+    return memo[inst]
+
+
+def surfaces_of(cs):
+    """compile._prototype_surfaces of the compiled scene, made once: a Python loop
+    over every shape, which the bake's texel collection would repeat per instance."""
+    if "_surfaces" not in cs.__dict__:
+        from .compile import _prototype_surfaces
+        cs.__dict__["_surfaces"] = _prototype_surfaces(cs.geometry)
+    return cs.__dict__["_surfaces"]
+
+
+def _lit_sides(cs, inst):
     from .csg import SceneError, check_closed_mesh
     g = cs.geometry
-    rows = [np.asarray(d, np.int64) for k, d in _prototype_surfaces(g)[int(g.inst_proto[inst])]
-            if k == "mesh"]
+    rows = [np.asarray(d, np.int64) for k, d in surfaces_of(cs)[int(g.inst_proto[inst])] if k == "mesh"]
     if not rows:
         return 0
     tri = g.tri_p[np.concatenate(rows)]
@@ -558,9 +571,8 @@ def instance_sides(cs):
     """lit_sides of every instance, for the gather's inside test: meshes as lit_sides,
     closed primitives and CSG solids +1 (outward hit normals) unless a light lies
     inside, everything else (open or mixed shapes, L-systems) 0."""
-    from .compile import _prototype_surfaces
     g = cs.geometry
-    surfaces = _prototype_surfaces(g)
+    surfaces = surfaces_of(cs)
     out = np.zeros(g.inst_proto.shape[0], np.int64)
     for inst in range(out.shape[0]):
         surf = surfaces[int(g.inst_proto[inst])]

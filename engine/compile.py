@@ -389,7 +389,6 @@ def _lightmap_sizes(instances, pi, v, t, density, max_resolution):
     """{instance: lightmap side} of prototype pi's recording instances for the
     mesh (v, t), as allocate_lightmaps will size them."""
     p = v[t]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])    # twice the area, along the normal
     sizes = {}
     for i, inst in enumerate(instances):
         if inst.prototype != pi or not inst.lightmap:
@@ -398,11 +397,7 @@ def _lightmap_sizes(instances, pi, v, t, density, max_resolution):
         if forced:
             sizes[i] = forced
             continue
-        M = np.asarray(inst.transform, np.float64)[:3, :3]
-        # A linear map scales area vectors by its cofactor matrix (det M · M^-T).
-        cof = np.stack([np.cross(M[:, 1], M[:, 2]), np.cross(M[:, 2], M[:, 0]),
-                        np.cross(M[:, 0], M[:, 1])], axis=0)
-        area = 0.5 * np.linalg.norm(n @ cof, axis=1).sum()
+        area = TA.triangle_world_areas(p, np.asarray(inst.transform, np.float64)[:3, :3]).sum()
         sizes[i] = LM.resolution_for(area, density, max_res=max_resolution)
     return sizes
 

@@ -270,8 +270,9 @@ def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, re
             side = layout_resolution(ob, density, resolution)
             status = uv_layers.ensure_lightmap_uv(ob, resolution=side, notes=notes)
             result.warnings.extend(f"object '{ob.name}': {note}" for note in notes)
-            if uv_layers.required_resolution(ob) > side:   # a fast layout whose gaps need more texels
-                sides[ob.name] = uv_layers.required_resolution(ob)
+            need = uv_layers.required_resolution(ob)
+            if need > side:                 # a fast layout whose gaps need more texels
+                sides[ob.name] = need
         except UnwrapError as exc:
             # xatlas failed (or crashed in its worker) on this mesh alone: bake the others
             wanted.remove(ob)

@@ -10,6 +10,7 @@ import argparse
 import json
 import os
 import pathlib
+import re
 import sys
 import time
 
@@ -70,6 +71,30 @@ def _size(text):
     return w, h
 
 
+MAX_FRAME = 1_048_574      # Blender's last frame (MAXFRAME)
+
+
+def _frames(text):
+    """'A-B' or 'A..B' (Blender's -f form, which allows negative frames), or one frame 'A'."""
+    m = re.fullmatch(r"\s*(-?\d+)\s*(?:(?:\.\.|-)\s*(-?\d+))?\s*", text)
+    a, b = (int(m.group(1)), int(m.group(2) if m.group(2) is not None else m.group(1))) if m else (1, 0)
+    if not (m and -MAX_FRAME <= a <= b <= MAX_FRAME):
+        raise argparse.ArgumentTypeError(f"must be FIRST-LAST frames (e.g. 1-60, or -5..5), first <= last, "
+                                         f"within ±{MAX_FRAME:,}; got '{text}'")
+    return a, b
+
+
+def frame_path(path, frame):
+    """The output of one frame: a run of '#' in the name becomes the frame number,
+    zero-padded to its length (as in Blender's output path); without one,
+    '_####' goes before the extension."""
+    p = pathlib.Path(path)
+    name = p.name if "#" in p.name else f"{p.stem}_####{p.suffix}"
+    m = re.search(r"#+", name)
+    digits = f"{abs(frame):0{len(m.group(0))}d}"
+    return p.with_name(name[:m.start()] + ("-" if frame < 0 else "") + digits + name[m.end():])
+
+
 def _add_common(p):
     p.add_argument("--photons", type=_count(0), default=None, help="photons to shoot (default: scene setting)")
     p.add_argument("--seed", type=_count(0), default=None, help="random seed (default: scene setting)")
@@ -107,6 +132,10 @@ def build_parser():
     r.add_argument("--indirect", choices=("gather", "lookup"), default=None,
                    help="indirect light by final gather or by the hit's own lightmap")
     r.add_argument("--gather-rays", type=_count(1), default=None, help="final-gather rays per sample")
+    r.add_argument("--frames", type=_frames, default=None, metavar="A-B",
+                   help="render frames A to B (one image each: a run of '#' in --out is the frame "
+                        "number, else _#### goes before the extension); where only the camera moves, "
+                        "the first frame's photon pass is reused")
     _add_denoise(r)
     r.set_defaults(func=render_main)
 
@@ -307,24 +336,62 @@ def render_main(args):
     if getattr(args, "indirect", None):
         settings.indirect = args.indirect.upper()
     t_load = time.perf_counter()
-    run = render_to_file(scene, out)
+    used = {k: getattr(settings, k) for k in ("photons", "max_bounces", "texel_density", "reconstruction",
+                                              "samples", "seed", "indirect", "gather_rays", "denoise")}
+    if args.frames is not None:
+        report = _render_frames(scene, out, args.frames)
+    else:
+        run = render_to_file(scene, out)
+        report = run.as_dict()
+        report["image"] = str(out)
+        report["seconds"]["pipeline"] = run.seconds["total"]
+        _print_run(out, run)
     t_end = time.perf_counter()
-    report = run.as_dict()
-    report.update(blend=str(blend), image=str(out), engine=ENGINE_ID,
-                  settings={k: getattr(settings, k) for k in ("photons", "max_bounces", "texel_density",
-                                                              "reconstruction", "samples", "seed", "indirect",
-                                                              "gather_rays", "denoise")})
+    report.update(blend=str(blend), engine=ENGINE_ID, settings=used)
     # "total" is the whole command (load, render, save); "pipeline" is export to last tile.
-    report["seconds"].update(load=t_load - t0, pipeline=run.seconds["total"], total=t_end - t0)
+    report["seconds"].update(load=t_load - t0, total=t_end - t0)
     report["kernels"] = kernels_report()
-    print(f"{out}: {run.width}x{run.height}, {run.photons:,} photons in {run.seconds['photon_pass']:.2f} s, "
-          f"render {run.seconds['render']:.2f} s, total {t_end - t0:.2f} s")
-    for ol in run.orientation_lightmaps:
-        print(f"  orientation lightmap '{ol['name']}': {ol['photons']:,} photons, "
-              f"{ol['memory_bytes'] / 1024:.1f} KiB, area {ol['area']:.4g} m², {len(ol['warnings'])} warnings")
+    if args.frames is not None:
+        print(f"{len(report['frames'])} frames, {report['frames_reusing_light']} of them on the first's light, "
+              f"total {t_end - t0:.2f} s")
+    else:
+        print(f"  total {t_end - t0:.2f} s")
     if args.json:
         write_report(args.json, json.dumps(report, indent=2))
     return 0
+
+
+def _print_run(out, run):
+    how = (f"light of frame {run.light_from_frame} reused" if run.light_from_frame is not None else
+           f"{run.photons:,} photons in {run.seconds['photon_pass']:.2f} s")
+    print(f"{out}: {run.width}x{run.height}, {how}, render {run.seconds['render']:.2f} s")
+    for ol in run.orientation_lightmaps:
+        print(f"  orientation lightmap '{ol['name']}': {ol['photons']:,} photons, "
+              f"{ol['memory_bytes'] / 1024:.1f} KiB, area {ol['area']:.4g} m², {len(ol['warnings'])} warnings")
+
+
+def _render_frames(scene, out, frames):
+    """Renders frames first..last to frame_path(out, f), keeping the traced light
+    from frame to frame (a frame where more than the camera moved traces its own).
+    -> the report: one entry per frame, and the seconds summed over them."""
+    from .bake import render as render_engine
+    first, last = frames
+    rows = []
+    seconds = {}
+    with render_engine.LIGHT.held():
+        for f in range(first, last + 1):
+            scene.frame_set(f)
+            path = frame_path(out, f)
+            run = render_to_file(scene, path)
+            _print_run(path, run)
+            row = run.as_dict()
+            row.update(frame=f, image=str(path))
+            rows.append(row)
+            for k, v in run.seconds.items():
+                seconds[k] = seconds.get(k, 0.0) + v
+    seconds["pipeline"] = seconds.pop("total", 0.0)
+    return {"frames": rows, "seconds": seconds,
+            "frames_reusing_light": sum(r["light_from_frame"] is not None for r in rows)}
 
 
 def bake_main(args):

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine import session, uv_atlas
+from ..engine import light_reuse, session, uv_atlas
 from ..engine.photon_tracer import Cancelled
 from ..export import export_scene
 from ..messages import bug_text, describe, record
@@ -44,6 +44,7 @@ class RenderRun:
     layouts: list = field(default_factory=list)   # per unwrapped mesh: the layout chosen and why
     xatlas_workers: int = 0     # xatlas child processes this render started
     kernels: dict = field(default_factory=dict)   # kernel compiles during the render (first runs)
+    light_from_frame: int = None   # the frame whose photon pass this one reused (only the camera moved)
 
     def as_dict(self):
         return {"scene": self.scene, "width": self.width, "height": self.height,
@@ -56,11 +57,18 @@ class RenderRun:
                 "orientation_lightmaps": [dict(r) for r in self.orientation_lightmaps],
                 "denoised": self.denoised,
                 "layouts": [dict(r) for r in self.layouts], "xatlas_workers": self.xatlas_workers,
-                "kernels": dict(self.kernels),
+                "kernels": dict(self.kernels), "light_from_frame": self.light_from_frame,
                 "environment": dict(self.environment) if self.environment else None}
 
 
 LAST_RUN = None
+# The last render's traced scene, kept for the next frame of an animation (only
+# the camera moved: no compile, no photon pass); let go when the render job ends
+# (operators/__init__.py) unless Persistent Data is on, or while the CLI holds it.
+LIGHT = light_reuse.LightCache()
+# What a reusing frame reports of the run that traced its light.
+_KEPT = ("photons", "rays", "photons_per_second", "lightmap_bytes", "lightmaps", "texels", "layouts",
+         "orientation_lightmaps", "environment", "xatlas_workers")
 # The exception the last render() failed with (the CLI raises it again), and
 # whether render() prints it (the CLI, which reports it itself, turns that off).
 LAST_ERROR = None
@@ -257,14 +265,27 @@ def _run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=No
 
     stats("Exporting scene")
     scene = _export(depsgraph, run, report, camera_override, resolution)
+    key = light_reuse.light_key(scene, settings)
     t_export = time.perf_counter()
-    stats("Compiling scene")
     try:
-        cs = _compile(scene, run, report, stats, should_stop or (lambda: False))
-        lm_text = f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB ({run.texels:,} texels)"
-        t_compile = time.perf_counter()
-        t_photon0 = _photons(cs, scene, settings, run, report, stats, progress, should_stop, lm_text)
-        t_photons = time.perf_counter()
+        kept = LIGHT.get(key)
+        if kept is not None:
+            cs = light_reuse.with_camera(kept, scene.camera)
+            for name in _KEPT:
+                setattr(run, name, LIGHT.summary[name])
+            run.light_from_frame = LIGHT.frame
+            report("INFO", f"Photon Lightmaps: the light traced for frame {LIGHT.frame} is reused "
+                           "(only the camera moved)")
+            t_compile = t_photon0 = t_photons = time.perf_counter()
+            lm_text = f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB, light of frame {LIGHT.frame}"
+        else:
+            stats("Compiling scene")
+            cs = _compile(scene, run, report, stats, should_stop or (lambda: False))
+            lm_text = f"Lightmaps {_mib(run.lightmap_bytes):.1f} MiB ({run.texels:,} texels)"
+            t_compile = time.perf_counter()
+            t_photon0 = _photons(cs, scene, settings, run, report, stats, progress, should_stop, lm_text)
+            t_photons = time.perf_counter()
+            LIGHT.put(key, cs, depsgraph.scene.frame_current, {name: getattr(run, name) for name in _KEPT})
         img = _render(cs, settings, run, stats, progress, on_tile, should_stop, lm_text)
         t_render = time.perf_counter()
     except Cancelled:
@@ -316,12 +337,21 @@ def render(self, depsgraph):
         text = describe(exc)
         try:
             self.error_set(text)
+            _empty_result(self)
             record(depsgraph.scene.name, "render", LAST_RUN.warnings if LAST_RUN is not None else [],
                    error=text)
         except Exception:  # noqa: BLE001 - Blender's data may be what failed; the line below still tells
             pass
         if PRINT_ERRORS:
             _print_error(exc)
+
+
+def _empty_result(engine):
+    """A black frame in the Render Result of a failed render: Blender 5.0 crashes
+    writing a still (Render > write_still, an animation's frames) as OpenEXR
+    from a result no engine ever filled."""
+    result = engine.begin_result(0, 0, int(engine.resolution_x), int(engine.resolution_y))
+    engine.end_result(result)
 
 
 def _print_error(exc):

@@ -195,6 +195,15 @@ def ours_render_gather(photons, samples, seed, gather_rays=16, denoise=False):
     return (img[..., :3], t), (den[..., :3], t + time.perf_counter() - t1)
 
 
+def oidn_cycles_bake(maps, covered):
+    """Cycles' baked maps through the same OIDN lightmap filter ours get
+    (RTLightmap, empty texels filled first) -> (maps, denoise seconds)."""
+    from photon_lightmaps.engine import denoise
+    t0 = time.perf_counter()
+    out = {n: denoise.denoise_lightmap(m, covered=covered[n]) for n, m in maps.items()}
+    return out, time.perf_counter() - t0
+
+
 def oidn_bake(job):
     """ours_bake's maps denoised as a bake with Denoise on does it -> (maps, denoise seconds)."""
     t0 = time.perf_counter()

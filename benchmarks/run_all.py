@@ -187,9 +187,14 @@ def run_scene(name, cfg, log):
             dmaps, t_dn = M.oidn_bake(job)
             add("bake", "ours_bake_oidn", "photons", n_ph, t + t_dn, bake_score(stack_maps(dmaps, names)),
                 nbytes, memory_compact_bytes=12 * len(names) * res * res, seconds_denoise=t_dn)
-        gmaps, t_g, nbytes_g, _, _ = M.ours_bake(objs, n_ph, 7, res, indirect="GATHER")
+        gmaps, t_g, nbytes_g, _, gjob = M.ours_bake(objs, n_ph, 7, res, indirect="GATHER")
         add("bake", "ours_bake_gather", "photons", n_ph, t_g, bake_score(stack_maps(gmaps, names)), nbytes_g,
             memory_compact_bytes=12 * len(names) * res * res, gather_rays_per_texel=256)
+        if OIDN:
+            dmaps, t_dn = M.oidn_bake(gjob)
+            add("bake", "ours_bake_gather_oidn", "photons", n_ph, t_g + t_dn,
+                bake_score(stack_maps(dmaps, names)), nbytes_g, memory_compact_bytes=12 * len(names) * res * res,
+                gather_rays_per_texel=256, seconds_denoise=t_dn)
         if n_ph == min(cfg["bake_photons"]):
             images["ours_low"] = (n_ph, x)
         if n_ph == DEFAULT_PHOTONS or (n_ph == cfg["bake_photons"][-1] and "ours_default" not in images):
@@ -217,13 +222,19 @@ def run_scene(name, cfg, log):
             images["pm_default"] = (n_ph, x)
         del pm, stats, cs
 
-    # Cycles bake over samples.
+    # Cycles bake over samples; and the same bake denoised, as The Lightmapper
+    # add-on does for Cycles bakes: the peer a baking artist would use.
+    covered = {n: maps0[n][..., 3] > 0.0 for n in names}
     for spp in cfg["cycles_bake_spp"]:
         with quiet():
             maps, t = M.cycles_bake(objs, res, spp, 11)
         x = stack_maps(maps, names)
         add("bake", "cycles_bake", "samples", spp, t, bake_score(x))
         images.setdefault("cycles_bake", {})[spp] = (t, x)
+        if OIDN:
+            dmaps, t_dn = M.oidn_cycles_bake(maps, covered)
+            add("bake", "cycles_bake_oidn", "samples", spp, t + t_dn, bake_score(stack_maps(dmaps, names)),
+                seconds_denoise=t_dn)
 
     # Renders: ours (constant, bilinear) over photons, Cycles over samples.
     for n_ph in cfg["render_photons"]:
@@ -357,11 +368,18 @@ def headlines(points):
         pm = curve("photon_map")
         h = {}
         # lookup: the thesis's bake; gather: the add-on's default (final gather)
-        for key, c in (("speedup_vs_cycles_bake", ours), ("speedup_vs_cycles_bake_gather", curve("ours_bake_gather"))):
-            if not (c and cyc):
+        # each of ours against the Cycles curve of its kind: plain, or both denoised
+        for key, c, peer in (("speedup_vs_cycles_bake", ours, cyc),
+                             ("speedup_vs_cycles_bake_gather", curve("ours_bake_gather"), cyc),
+                             ("speedup_oidn_vs_cycles_bake_oidn", curve("ours_bake_oidn"),
+                              curve("cycles_bake_oidn")),
+                             ("speedup_gather_oidn_vs_cycles_bake_oidn", curve("ours_bake_gather_oidn"),
+                              curve("cycles_bake_oidn"))):
+            if not (c and peer):
                 continue
             d = min(c, key=lambda p: abs(math.log(p["knob"] / DEFAULT_PHOTONS)))
-            t_cyc, extra = loglog_interp([p["seconds"] for p in cyc], [p["rel_rmse"] for p in cyc], d["rel_rmse"])
+            t_cyc, extra = loglog_interp([p["seconds"] for p in peer], [p["rel_rmse"] for p in peer],
+                                         d["rel_rmse"])
             h[key] = dict(
                 ours_photons=d["knob"], ours_seconds=d["seconds"], ours_rel_rmse=d["rel_rmse"],
                 cycles_seconds_at_equal_error=t_cyc, extrapolated=extra, ratio=t_cyc / d["seconds"])
@@ -403,11 +421,15 @@ def _spp_note(r):
 def print_headlines(h, log):
     log("\n=== Headline ratios ===")
     for scene, v in h.items():
-        for key, what in (("speedup_vs_cycles_bake", "lookup"), ("speedup_vs_cycles_bake_gather", "gather")):
+        for key, what, peer in (("speedup_vs_cycles_bake", "lookup", "Cycles bake"),
+                                ("speedup_vs_cycles_bake_gather", "gather", "Cycles bake"),
+                                ("speedup_oidn_vs_cycles_bake_oidn", "lookup + OIDN", "Cycles bake + OIDN"),
+                                ("speedup_gather_oidn_vs_cycles_bake_oidn", "gather + OIDN",
+                                 "Cycles bake + OIDN")):
             s = v.get(key)
             if s:
                 log(f"[{scene}] (a) our bake ({what}) {s['ours_photons']:,} photons: {s['ours_seconds']:.2f} s at "
-                    f"relRMSE {s['ours_rel_rmse']:.4f}; Cycles bake needs {s['cycles_seconds_at_equal_error']:.1f} s"
+                    f"relRMSE {s['ours_rel_rmse']:.4f}; {peer} needs {s['cycles_seconds_at_equal_error']:.1f} s"
                     f"{' (extrapolated)' if s['extrapolated'] else ''} -> {s['ratio']:.1f}x (goal >= 20x)")
         m = v.get("memory_vs_photon_map")
         if m and not math.isfinite(m["photon_map_bytes_measured"]):

@@ -45,16 +45,16 @@ SCRATCH_ROWS = 7      # kd ks kt ind tp f rad of gather_irradiance
 
 @njit(**CORE)
 def point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack, px, py, pz, nx, ny, nz,
-                   side, state, sc, pc, out):
+                   side, state, sc, pc, out, count):
     """Gathered indirect irradiance at a bake point into out (added): along n
-    (side >= 0) and against it (side <= 0)."""
+    (side >= 0) and against it (side <= 0); count[0] gains the rays traced."""
     for sgn in (1.0, -1.0):
         if side * sgn < 0.0:
             continue
         fx, fy, fz = sgn * nx, sgn * ny, sgn * nz
         state = gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, isd, stack, px, py, pz, fx, fy, fz,
                                   fx, fy, fz, n_rays, mode, state, sc[0], sc[1], sc[2], pc, sc[3],
-                                  sc[4], sc[5], sc[6], out)
+                                  sc[4], sc[5], sc[6], out, count)
     return state
 
 
@@ -103,7 +103,7 @@ def _indirect_mesh(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
                         item_side, item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, item_rays, order,
                         stream, out, var, start, stop, np.empty(STACK_WORDS, np.int32),
                         np.empty((SCRATCH_ROWS, nb)), np.empty(BS.P_SIZE), np.empty(nb), np.empty(nb),
-                        np.empty(3))
+                        np.empty(3), np.zeros(1, np.int64))
 
 
 # Per-point loops compile without NRT, as texel_gather's kernels do (a read of a
@@ -111,7 +111,7 @@ def _indirect_mesh(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
 @njit(**CORE)
 def _indirect_mesh_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_inst, item_lid,
                         item_side, item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, item_rays, order,
-                        stream, out, var, start, stop, stack, sc, pc, e, ep, q):
+                        stream, out, var, start, stop, stack, sc, pc, e, ep, q, count):
     nb = out.shape[1]
     k = TG._grid_side(n_points)
     for i in range(start, stop):
@@ -140,7 +140,7 @@ def _indirect_mesh_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode
                     ep[b] = 0.0
                 if ok:
                     state = point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack,
-                                           px, py, pz, nx, ny, nz, item_side[it], state, sc, pc, ep)
+                                           px, py, pz, nx, ny, nz, item_side[it], state, sc, pc, ep, count)
                     if caustics:
                         uv = g.tri_uv[t]
                         b0 = 1.0 - b1 - b2
@@ -162,14 +162,14 @@ def _indirect_prim(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, ite
                         item_x, item_y, item_key, item_local, lm_kind, lm_params, lm_xf, lm_ncof, lm_res,
                         lm_sides, n_points, item_rays, order, stream, out, var, start, stop,
                         np.empty(STACK_WORDS, np.int32), np.empty((SCRATCH_ROWS, nb)), np.empty(BS.P_SIZE),
-                        np.empty(nb), np.empty(nb), np.empty(3))
+                        np.empty(nb), np.empty(nb), np.empty(3), np.zeros(1, np.int64))
 
 
 @njit(**CORE)
 def _indirect_prim_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_lm, item_lid, item_face,
                         item_x, item_y, item_key, item_local, lm_kind, lm_params, lm_xf, lm_ncof, lm_res,
                         lm_sides, n_points, item_rays, order, stream, out, var, start, stop, stack, sc, pc, e,
-                        ew, q):
+                        ew, q, count):
     nb = out.shape[1]
     k = TG._grid_side(n_points)
     for i in range(start, stop):
@@ -196,7 +196,7 @@ def _indirect_prim_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode
             for b in range(nb):
                 e[b] = 0.0
             state = point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack, px, py, pz,
-                                   nx, ny, nz, side, state, sc, pc, e)
+                                   nx, ny, nz, side, state, sc, pc, e, count)
             if caustics:
                 _add_caustic(lmc, item_lid[it], item_face[it], cs_, ct, sc[3], e)
             _accumulate(jac, e, ew, q)
@@ -217,6 +217,7 @@ def _indirect_csg(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, buf,
     cb = CSG.csg_base(buf)
     nb = acc.shape[1]
     k = TG._grid_side(n_points)
+    count = np.zeros(1, np.int64)
     for i in range(start, stop):
         it = order[i]     # a shuffled order: the blocks get equal work
         n_rays = item_rays[it]
@@ -243,7 +244,7 @@ def _indirect_csg(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, buf,
             for b in range(nb):
                 e[b] = 0.0
             state = point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack, px, py, pz,
-                                   nx, ny, nz, 1, state, sc, pc, e)
+                                   nx, ny, nz, 1, state, sc, pc, e, count)
             if caustics:
                 _add_caustic(lmc, item_lid[it], item_face[it], cs_, ct, sc[3], e)
             _accumulate(jac, e, acc[row], q[row])

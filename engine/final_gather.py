@@ -43,7 +43,7 @@ CHAIN = 3          # vertices a gather ray follows through glossy lobes
 
 @njit(**CORE)
 def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, pz, fx, fy, fz, sx, sy, sz,
-                      n_rays, mode, state, kd, ks, kt, pc, ind, tp, f, rad, out):
+                      n_rays, mode, state, kd, ks, kt, pc, ind, tp, f, rad, out, count):
     """Indirect irradiance at p from n_rays gather rays into out[bands] (added).
 
     inst_side (one per instance, or empty: no test): the lit side of a closed
@@ -53,7 +53,8 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
     hold the outside's.
     f: the face normal on the viewer's side, s: the shading normal (rays are
     cosine-distributed about s; those that leave below f count zero, as the
-    direct light's do). kd, ks, kt, pc, ind, tp, f, rad: scratch arrays. A
+    direct light's do). kd, ks, kt, pc, ind, tp, f, rad: scratch arrays; count[0]
+    gains the rays traced (glossy chains included). A
     randomly shifted rank-1 lattice stratifies the rays; it stays unbiased."""
     nb = out.shape[0]
     eps = ray_epsilon(px, py, pz)
@@ -76,6 +77,7 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
             tp[b] = w
         sharp = True         # every lobe followed so far was sharp: lights seen are caustics
         for k in range(CHAIN):
+            count[0] += 1
             hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
                 g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
             if k > 0 and not sharp:

@@ -289,19 +289,12 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
                      use_caustics, CAUSTIC_ALPHA, ol, np.uint64(seed), done, n_photons, int(max_bounces),
                      0 if record_direct else 1, int(max_bounces) - 1 if gather else int(max_bounces),
                      rec_texel, rec_power, rec_point, ledger, rays, min_block=64)
-        ids = rec_texel[:c].reshape(-1)
-        keep = ids >= 0
-        powers = rec_power[:c].reshape(-1, nb)
-        if use_caustics:
-            fine = ids >= n_main
-            LM.accumulate(lmc, ids[fine] - n_main, powers[fine])
-            LM.accumulate(lm, ids[keep & ~fine], powers[keep & ~fine])
-        else:
-            LM.accumulate(lm, ids[keep], powers[keep])
+        # the threads wait for this serial step: one pass, no masked copies
+        stats.records += LM.accumulate_records(lm, lmc, rec_texel, rec_power, c, n_main)
         if keep_points:
+            keep = rec_texel[:c].reshape(-1) >= 0
             points.append(rec_point[:c].reshape(-1, 6)[keep])
             point_power.append(rec_power[:c].reshape(-1, nb)[keep])
-        stats.records += int(keep.sum())
         sums = ledger[:c].sum(axis=0)
         stats.emitted += sums[0]
         stats.absorbed += sums[1]

@@ -87,11 +87,11 @@ def camera_ray(cam, fx, fy):
 
 @njit(cache=True)
 def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx, sy, sz,
-                 ox, oy, oz, state, e, lg, f, rad):
+                 ox, oy, oz, state, e, lg, f, rad, count):
     """Direct light at p, sampled as texel_gather.direct_irradiance samples it: the
     diffuse irradiance into e[bands] and the glossy lobes' radiance towards wo
     (local o, in the frame of s) into lg, weighted by the power heuristic against
-    glossy sampling (light_hits). f is the face normal on the viewer's side, s the
+    glossy sampling (light_hits); count[0] gains the shadow rays. f is the face normal on the viewer's side, s the
     (normal-mapped) shading normal: cosines are s's, and a light must lie on the
     side of f that the lobe scatters to (no light through a normal map's tilt)."""
     n_lights = ls.kind.shape[0]
@@ -137,7 +137,10 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
         side = eps if cos_r > 0.0 else -eps
         qx, qy, qz = px + side * fx, py + side * fy, pz + side * fz
         tmax = dist * (1.0 - 1e-6) - eps if dist < math.inf else math.inf
-        if tmax <= 0.0 or occluded(g, stack, qx, qy, qz, wx, wy, wz, 0.0, tmax):
+        if tmax <= 0.0:
+            continue
+        count[0] += 1
+        if occluded(g, stack, qx, qy, qz, wx, wy, wz, 0.0, tmax):
             continue
         c = scale * w_sel
         for b in range(nb):
@@ -150,24 +153,24 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
 
 @njit(cache=True, nogil=True)
 def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed, mode,
-                 max_depth, indirect, gather, out, start, stop):
+                 max_depth, indirect, gather, out, rays, start, stop):
     """Pixels start..stop-1 of the tile (parallel.run spreads them over threads):
-    the block's scratch, then the core."""
+    the block's scratch, then the core. rays[y, x]: the rays a pixel traced."""
     nb = out.shape[2]
     sc = np.empty((16, nb))
     _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed,
-                      mode, max_depth, indirect, gather, out, start, stop, np.empty(STACK_WORDS, np.int32),
+                      mode, max_depth, indirect, gather, out, rays, start, stop, np.empty(STACK_WORDS, np.int32),
                       np.zeros(0, np.int64), sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7], sc[8],
                       sc[9], sc[10], sc[11], sc[12], sc[13], sc[14], sc[15], np.empty(BS.P_SIZE),
-                      np.empty(BS.P_SIZE))
+                      np.empty(BS.P_SIZE), np.zeros(1, np.int64))
 
 
 # The pixel loop compiles without NRT: with it, every read of a field of the
 # scene tuples is an atomic incref and decref that the threads contend for.
 @njit(**CORE)
 def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed,
-                      mode, max_depth, indirect, gather, out, start, stop, stack, no_sides, acc, tp, e, lg, ind, f,
-                      kd, ks, kt, rad, kd2, ks2, kt2, tp2, f2, rad2, pc, pc2):
+                      mode, max_depth, indirect, gather, out, rays, start, stop, stack, no_sides, acc, tp, e, lg,
+                      ind, f, kd, ks, kt, rad, kd2, ks2, kt2, tp2, f2, rad2, pc, pc2, count):
     # Samples s0 <= s < s1 of the pixel's spp, each weighted 1/spp: the passes of a
     # progressive render add up to the one-pass image (the same streams).
     nb = out.shape[2]
@@ -179,6 +182,7 @@ def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0
     for idx in range(start, stop):
         for b in range(nb):
             acc[b] = 0.0
+        count[0] = 0
         px_i = x0 + idx % tw
         py_i = y0 + idx // tw
         pixel = py_i * cam.width + px_i
@@ -196,6 +200,7 @@ def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0
             travelled = 0.0
             n_gather = gather
             for depth in range(max_depth + 1):
+                count[0] += 1
                 hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
                     g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
                 if depth > 0:      # lights are invisible to the camera, as in Cycles
@@ -237,11 +242,11 @@ def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0
                     lg[b] = 0.0
                 if pd > 0.0 or (ps + pm + pg > 0.0 and pc[BS.P_ALPHA] > BS.DELTA_ALPHA):
                     state = direct_light(g, ls, stack, pc, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz,
-                                         sx, sy, sz, lox, loy, loz, state, e, lg, f, rad)
+                                         sx, sy, sz, lox, loy, loz, state, e, lg, f, rad, count)
                 if pd > 0.0 and indirect and n_gather > 0:
                     state = FG.gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, no_sides, stack, px, py, pz,
                                                  fx, fy, fz, sx, sy, sz, n_gather, mode, state,
-                                                 kd2, ks2, kt2, pc2, ind, tp2, f2, rad2, e)
+                                                 kd2, ks2, kt2, pc2, ind, tp2, f2, rad2, e, count)
                     n_gather = max(1, n_gather // 4)
                 elif pd > 0.0 and indirect and OL.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
                                                                      nx, ny, nz, mode, ind):
@@ -277,6 +282,7 @@ def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0
                 ox, oy, oz = px + side * nx, py + side * ny, pz + side * nz
         for b in range(nb):
             out[idx // tw, idx % tw, b] = acc[b]
+        rays[idx // tw, idx % tw] = count[0]
 
 
 def progressive_passes(samples):
@@ -321,6 +327,7 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
     img = np.zeros((cam.height, cam.width, cs.n_bands))
     t0 = time.perf_counter()
     s0 = 0
+    rays = 0
     shown = img if len(passes) == 1 else np.zeros_like(img)
     for n in passes:
         scale = samples / (s0 + n)      # sums of 1/spp-weighted samples -> the mean so far
@@ -330,10 +337,11 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
                 shown[y0:y0 + th, x0:x0 + tw] = img[y0:y0 + th, x0:x0 + tw] * scale
             if progress is not None and progress(x0, y0, shown[y0:y0 + th, x0:x0 + tw], shown) is False:
                 raise Cancelled("render cancelled")
-        add_samples(cs, img, samples, s0, s0 + n, seed=seed, mode=mode, max_depth=max_depth, tile=tile,
-                    indirect=indirect, gather=gather, on_tile=on_tile)
+        rays += add_samples(cs, img, samples, s0, s0 + n, seed=seed, mode=mode, max_depth=max_depth,
+                            tile=tile, indirect=indirect, gather=gather, on_tile=on_tile)
         s0 += n
     cs.timings["render"] = time.perf_counter() - t0
+    cs.rays["render"] = rays
     return img
 
 
@@ -342,23 +350,28 @@ def add_samples(cs, img, samples, start, stop, seed=0, mode=LM.MODE_BILINEAR, ma
     """Adds samples start..stop-1 of a `samples`-sample render of cs.camera to `img`
     ((height, width, n_bands), each sample weighted 1/samples): after every sample
     has been added, img is render(cs, samples, seed, ...). A progressive host (the
-    Rendered viewport) adds one sample at a time. on_tile(x0, y0, th, tw) after each tile."""
+    Rendered viewport) adds one sample at a time. on_tile(x0, y0, th, tw) after each tile.
+    Returns the rays traced (camera, shadow, gather and glossy rays)."""
     cam = cs.camera
     env = cs.environment        # environment.EnvMap
     ol = cs.orientation if cs.orientation is not None else OL.empty_maps(cs.geometry.inst_proto.shape[0])
     # photons the caustic lightmaps hold are in no other lightmap (photon_tracer)
     lmc = cs.caustics if getattr(cs, "caustics_traced", False) else cs.lightmaps
+    traced = 0
     for y0 in range(0, cam.height, tile):
         for x0 in range(0, cam.width, tile):
             tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
             out = np.zeros((th, tw, cs.n_bands))
+            rays = np.zeros((th, tw), np.int64)
             parallel.run(_render_tile, tw * th, cs.geometry, cs.materials, cs.bsdf, cs.textures,
                          cs.lights, cs.lightmaps, lmc, lmc is not cs.lightmaps, ol, cam, env,
                          x0, y0, tw, th, int(samples), int(start), int(stop), np.uint64(seed), int(mode),
-                         int(max_depth), bool(indirect), max(int(gather), 0), out)
+                         int(max_depth), bool(indirect), max(int(gather), 0), out, rays)
             img[y0:y0 + th, x0:x0 + tw] += out
+            traced += int(rays.sum())
             if on_tile is not None:
                 on_tile(x0, y0, th, tw)
+    return traced
 
 
 @njit(cache=True, nogil=True)

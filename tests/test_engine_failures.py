@@ -1,7 +1,10 @@
 """An internal error never takes Blender down: a bug in the render pipeline, or
 a kernel that fails to compile, ends that render with one line, and the same
 process renders again. Each case runs in a process of its own, as a user's
-Blender would, so a crash shows as a signal instead of killing the test run."""
+Blender would, so a crash shows as a signal instead of killing the test run.
+The second failed render also writes its still as OpenEXR, which Blender 5.0
+crashes on when no engine filled the Render Result (a failed render leaves a
+black frame there)."""
 import os
 import subprocess
 import sys
@@ -48,8 +51,11 @@ else:
         return broken_kernel(1.0)
     original, session.render_photon_pass = session.render_photon_pass, photon_pass
     restore = lambda: setattr(session, "render_photon_pass", original)
-for _ in range(2):
-    bpy.ops.render.render()
+import tempfile
+sc.render.filepath = tempfile.mkdtemp() + "/failed.exr"
+sc.render.image_settings.file_format = "OPEN_EXR"
+for i in range(2):
+    bpy.ops.render.render(write_still=i == 1)
     assert R.LAST_ERROR is not None and R.LAST_RUN is None or R.LAST_RUN.image is None
     # The kept error holds no Blender data past the render (its frames' locals are cleared).
     tb = R.LAST_ERROR.__traceback__

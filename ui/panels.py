@@ -72,6 +72,9 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         col.prop(s, "reconstruction")
         col = layout.column(heading="Render")
         col.prop(s, "samples")
+        # Blender's own flag: keep the traced light after a render job, for the next
+        # one (an animation keeps it between its frames either way)
+        col.prop(context.scene.render, "use_persistent_data", text="Keep Light Between Renders")
         col = layout.column(heading="Renders and Bakes")
         col.prop(s, "indirect")
         sub = col.column()

@@ -257,33 +257,46 @@ def accumulate_kernel(lm, texel_ids, powers):
         hits[i] += 1
 
 
-@njit(cache=True, nogil=True)
 def accumulate_records(lm, fine, rec_texel, rec_power, n_rows, n_main):
     """Adds a photon chunk's records (rec_texel[:n_rows], ids < 0 empty) in record
     order: ids below n_main to lm, the others, less n_main, to `fine` (the
     caustic lightmaps; pass lm when there are none). The same sums as
     `accumulate` on each map's records in order, without the masked copies the
     serial step between chunks would make. Returns the records added."""
+    return _accumulate_records(lm.flux, lm.flux_sq, lm.hits, fine.flux, fine.flux_sq, fine.hits,
+                               rec_texel, rec_power, n_rows, n_main)
+
+
+# The arrays, not the tuples: a read of a tuple's field in the loop would cost a
+# reference count each time.
+@njit(cache=True, nogil=True)
+def _accumulate_records(flux, flux_sq, hits, f_flux, f_flux_sq, f_hits, rec_texel, rec_power, n_rows, n_main):
     n = 0
-    nb = lm.flux.shape[1]
+    nb = flux.shape[1]
     inv_b = 1.0 / nb
     for r in range(n_rows):
         for j in range(rec_texel.shape[1]):
             i = rec_texel[r, j]
             if i < 0:
                 continue
-            dst = lm
-            if i >= n_main:
-                dst = fine
-                i -= n_main
             m = 0.0
-            for b in range(nb):
-                p = rec_power[r, j, b]
-                dst.flux[i, b] += p
-                m += p
-            m *= inv_b
-            dst.flux_sq[i] += m * m
-            dst.hits[i] += 1
+            if i < n_main:
+                for b in range(nb):
+                    p = rec_power[r, j, b]
+                    flux[i, b] += p
+                    m += p
+                m *= inv_b
+                flux_sq[i] += m * m
+                hits[i] += 1
+            else:
+                i -= n_main
+                for b in range(nb):
+                    p = rec_power[r, j, b]
+                    f_flux[i, b] += p
+                    m += p
+                m *= inv_b
+                f_flux_sq[i] += m * m
+                f_hits[i] += 1
             n += 1
     return n
 

@@ -50,6 +50,7 @@ from .quiet import quiet  # noqa: E402
 from .run_all import Scorer, loglog_interp  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "out"
+CHARTS = ROOT / "benchmarks" / "charts"
 CACHE = ROOT / "benchmarks" / "cache"
 
 
@@ -182,6 +183,39 @@ def cycles(scene, frames, refs, spps):
     return rows
 
 
+def chart(result, path):
+    """Mean per-frame error against the time for all frames: ours (light reused),
+    ours with the light traced for every frame, and Cycles."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ours = sorted(result["ours"], key=lambda r: r["seconds"])
+    ax.plot([r["seconds"] for r in ours], [r["rel_rmse"] for r in ours], "P-", color="C4",
+            label="ours, light of frame 1 reused")
+    for r in result["ours_without_reuse"]:
+        match = next((o for o in ours if (o["photons"], o["samples"], o["gather_rays"]) ==
+                      (r["photons"], r["samples"], r["gather_rays"])), None)
+        if match:
+            ax.plot([r["seconds"]], [match["rel_rmse"]], "P", mfc="none", color="C4",
+                    label="ours, photon pass every frame")
+    cyc = result["cycles"]
+    ax.plot([r["seconds"] for r in cyc], [r["rel_rmse"] for r in cyc], "^-", color="C3", label="Cycles")
+    for r in cyc:
+        ax.annotate(f"{r['samples']} spp", (r["seconds"], r["rel_rmse"]), fontsize=7, xytext=(3, 3),
+                    textcoords="offset points")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(f"seconds for {result['frames']} frames ({result['size'][0]}x{result['size'][1]}, 2 cores)")
+    ax.set_ylabel("mean per-frame relative RMSE")
+    ax.set_title("camera fly-through of a furnished room")
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=72)
+    plt.close(fig)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60)
@@ -219,6 +253,10 @@ def main(argv=None):
         r.update(cycles_seconds_at_equal_error=t_cyc, extrapolated=extra, ratio=t_cyc / r["seconds"])
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "flythrough.json").write_text(json.dumps(out, indent=2))
+    if not args.quick:
+        CHARTS.mkdir(parents=True, exist_ok=True)
+        chart(out, CHARTS / "flythrough.png")
+        (CHARTS / "flythrough.json").write_text(json.dumps(out, indent=2))
     print(json.dumps(out, indent=2))
 
 

@@ -155,6 +155,9 @@ def build_parser():
     b.add_argument("--time", type=_seconds, default=None, metavar="S",
                    help="bake in about S seconds: after one pass of gather rays everywhere, the time "
                         "left goes to the texels with the highest estimated error")
+    b.add_argument("--irradiance-cache", action=argparse.BooleanOptionalAction, default=None,
+                   help="gather mesh texels through a sparse irradiance cache (several times fewer "
+                        "rays; default: scene setting)")
     b.add_argument("--error-images", action="store_true",
                    help="also write DIR/<object>_error.exr: each texel's estimated relative error "
                         "(gathered bakes)")
@@ -409,7 +412,8 @@ def bake_main(args):
                              denoise=getattr(args, "denoise", None),
                              indirect=args.indirect.upper() if args.indirect else None,
                              bake_gather_rays=args.bake_gather_rays,
-                             bake_target_error=args.target_error, bake_time=args.time)
+                             bake_target_error=args.target_error, bake_time=args.time,
+                             bake_irradiance_cache=args.irradiance_cache)
     photons, seed = settings.photons, settings.seed
     objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
     out_dir = os.path.abspath(args.out)
@@ -422,7 +426,8 @@ def bake_main(args):
                        overwrite=True, denoise=settings.denoise, indirect=settings.indirect,
                        bake_gather_rays=settings.bake_gather_rays,
                        bake_target_error=settings.bake_target_error, bake_time=settings.bake_time,
-                       error_images=args.error_images or None)
+                       error_images=args.error_images or None,
+                       irradiance_cache=settings.bake_irradiance_cache)
     print(file=sys.stderr)
     stats = res.stats
     report = {
@@ -438,6 +443,7 @@ def bake_main(args):
         "denoised": bool(settings.denoise),
         "indirect": "gather" if settings.bake_gathers else "lookup",
         "bake_gather_rays": int(settings.bake_gather_rays) if settings.bake_gathers else 0,
+        "irradiance_cache": res.irradiance_cache,
         "target_error": float(settings.bake_target_error) if settings.bake_gathers else 0.0,
         "time_budget": float(settings.bake_time) if settings.bake_gathers else 0.0,
         "objects": {name: {"path": res.paths[name], "width": bm.width, "height": bm.height,

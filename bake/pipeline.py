@@ -48,6 +48,7 @@ class BakeResult:
     hooked: list = field(default_factory=list)    # materials given a lightmap hook
     warnings: list = field(default_factory=list)
     stats: object = None                          # PhotonStats of the photon pass
+    irradiance_cache: dict = None                 # the cache's counts (records, rounds, rays), if used
     seconds: dict = field(default_factory=dict)   # export, photon_pass, bake, total
     lightmap_bytes: int = 0
     uv_layers: dict = field(default_factory=dict)  # mesh name -> uv_layers.ensure_lightmap_uv status
@@ -196,7 +197,7 @@ def run_unwraps(plan, progress=None, should_stop=None):
 
 def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None,
-                 bake_target_error=None, bake_time=None, error_images=None):
+                 bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
@@ -227,7 +228,8 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     job.settings = BakeSettings.read(props, photons=photons, seed=seed, resolution=resolution,
                                      indirect_only=indirect_only, denoise=denoise, indirect=indirect,
                                      bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error,
-                                     bake_time=bake_time, bake_error_images=error_images)
+                                     bake_time=bake_time, bake_error_images=error_images,
+                                     bake_irradiance_cache=irradiance_cache)
     if job.settings.bake_gathers:
         for inst, rec in zip(job.scene.instances, job.recording):
             inst.lightmap = inst.lightmap or rec
@@ -470,6 +472,7 @@ def compute_bake(job, progress=None, phase=None):
     ids = [cs.instance_lightmaps[i][0] for n, i in job.targets.items() if n not in job.csg]
     leaves = [(job.targets[n], d) for n, ls in solids.items() for d in ls]
     result.gathered = job.settings.bake_gathers
+    cs.info.pop("irradiance_cache", None)
     # --time / Bake Time counts the export too, which prepare_bake did
     deadline = (t0 + job.settings.bake_time - result.seconds.get("export", 0.0)
                 if job.settings.bake_time > 0 else None)
@@ -480,6 +483,7 @@ def compute_bake(job, progress=None, phase=None):
                                         f"compiled in a second process, {n:.0f} s (first run)")))
     if getattr(cs, "bake_error", None) is not None:
         result.error = _error_stats(cs, job, solids)
+    result.irradiance_cache = cs.info.get("irradiance_cache")
     if cs.lights.total_power <= 0.0:
         result.warnings.append("no photons were traced (no lights): lightmaps are black")
     elif stats.photons == 0:
@@ -566,7 +570,7 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
 def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, progress=None, overwrite=False, save_dir=None, pack=False,
                  hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None,
-                 bake_target_error=None, bake_time=None, error_images=None):
+                 bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
@@ -574,7 +578,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     lightmaps or from the texel's own photons (`indirect` "GATHER" / "LOOKUP",
     `bake_gather_rays` per texel, more where a texel's error is above
     `bake_target_error` or in the time left of `bake_time` seconds; None: the
-    scene's settings; `error_images` also writes each texel's estimated relative
+    scene's settings; `irradiance_cache` gathers mesh texels through the sparse
+    irradiance cache; `error_images` also writes each texel's estimated relative
     error as an image, BakeResult.error_maps). `resolution` forces
     R x R texels per object; otherwise the object's own setting or the scene's
     texel density decides. `denoise` (None: the scene's setting) runs OIDN over
@@ -586,7 +591,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                        resolution=resolution, indirect_only=indirect_only, denoise=denoise,
                        indirect=indirect, bake_gather_rays=bake_gather_rays,
                        bake_target_error=bake_target_error, bake_time=bake_time,
-                       error_images=error_images)
+                       error_images=error_images, irradiance_cache=irradiance_cache)
     try:
         compute_bake(job, progress)
     except BaseException:

@@ -15,6 +15,7 @@ STYLE = {
     "ours_bake_gather": dict(color="C4", marker="P", label="photon lightmap (ours, final gather)"),
     "photon_map": dict(color="C2", marker="s", label="photon map, k nearest"),
     "cycles_bake": dict(color="C3", marker="^", label="Cycles bake"),
+    "ours_bake_cache": dict(color="C8", marker="*", label="photon lightmap (ours, irradiance cache)"),
     "ours_bake_gather_oidn": dict(color="C4", marker="P", ls=":", mfc="none", label="final gather + OIDN"),
     "cycles_bake_oidn": dict(color="C3", marker="^", ls=":", mfc="none", label="Cycles bake + OIDN"),
     "ours_render_constant": dict(color="C0", marker="o", ls="--", label="ours, constant lookup"),
@@ -59,7 +60,8 @@ def error_vs_time(result, out, files):
         fig, axes = plt.subplots(1, 2, figsize=(10, 4))
         for ax, kind, methods, floor in (
                 (axes[0], "baked lightmaps, texel by texel",
-                 ("ours_bake", "ours_bake_gather", "ours_bake_oidn", "ours_bake_gather_oidn", "photon_map",
+                 ("ours_bake", "ours_bake_gather", "ours_bake_cache", "ours_bake_oidn", "ours_bake_gather_oidn",
+                  "photon_map",
                   "cycles_bake", "cycles_bake_oidn"),
                  info["bake_noise_floor"]),
                 (axes[1], "renders, pixel by pixel",

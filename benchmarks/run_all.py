@@ -155,6 +155,7 @@ def run_scene(name, cfg, log):
     # Warm-ups: numba kernels from the cache, Cycles' kernels and scene sync.
     M.ours_bake(objs, 1000, 0, res)
     M.ours_bake(objs, 1000, 0, res, indirect="GATHER")
+    M.ours_bake(objs, 1000, 0, res, indirect="GATHER", irradiance_cache=True)
     M.ours_render(1000, 1, 0)
     M.ours_render_gather(1000, 1, 0, denoise=OIDN)
     with quiet():
@@ -190,6 +191,10 @@ def run_scene(name, cfg, log):
         gmaps, t_g, nbytes_g, _, gjob = M.ours_bake(objs, n_ph, 7, res, indirect="GATHER")
         add("bake", "ours_bake_gather", "photons", n_ph, t_g, bake_score(stack_maps(gmaps, names)), nbytes_g,
             memory_compact_bytes=12 * len(names) * res * res, gather_rays_per_texel=256)
+        cmaps, t_c, nbytes_c, _, cjob = M.ours_bake(objs, n_ph, 7, res, indirect="GATHER", irradiance_cache=True)
+        add("bake", "ours_bake_cache", "photons", n_ph, t_c, bake_score(stack_maps(cmaps, names)), nbytes_c,
+            memory_compact_bytes=12 * len(names) * res * res, gather_rays_per_record=256,
+            irradiance_cache=cjob.result.irradiance_cache)
         if OIDN:
             dmaps, t_dn = M.oidn_bake(gjob)
             add("bake", "ours_bake_gather_oidn", "photons", n_ph, t_g + t_dn,
@@ -371,6 +376,7 @@ def headlines(points):
         # each of ours against the Cycles curve of its kind: plain, or both denoised
         for key, c, peer in (("speedup_vs_cycles_bake", ours, cyc),
                              ("speedup_vs_cycles_bake_gather", curve("ours_bake_gather"), cyc),
+                             ("speedup_vs_cycles_bake_cache", curve("ours_bake_cache"), cyc),
                              ("speedup_oidn_vs_cycles_bake_oidn", curve("ours_bake_oidn"),
                               curve("cycles_bake_oidn")),
                              ("speedup_gather_oidn_vs_cycles_bake_oidn", curve("ours_bake_gather_oidn"),
@@ -423,6 +429,7 @@ def print_headlines(h, log):
     for scene, v in h.items():
         for key, what, peer in (("speedup_vs_cycles_bake", "lookup", "Cycles bake"),
                                 ("speedup_vs_cycles_bake_gather", "gather", "Cycles bake"),
+                                ("speedup_vs_cycles_bake_cache", "gather, irradiance cache", "Cycles bake"),
                                 ("speedup_oidn_vs_cycles_bake_oidn", "lookup + OIDN", "Cycles bake + OIDN"),
                                 ("speedup_gather_oidn_vs_cycles_bake_oidn", "gather + OIDN",
                                  "Cycles bake + OIDN")):

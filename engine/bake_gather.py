@@ -297,18 +297,31 @@ class _Texels:
             rows.append(self.csg[1]["row"])
         return rows
 
-    def run(self, item_rays, stream):
+    def run(self, item_rays, stream, cached=False):
         """One pass, item_rays[part][item] rays per point -> (ids, E, var, rays) per texel row.
-        Also sets self.seconds, the time its kernels took."""
+        cached: mesh texels interpolate an irradiance cache whose records get
+        rays-per-point × points rays each (engine/irradiance_cache.py); those no
+        record reaches are gathered per texel. Also sets self.seconds, the time
+        its kernels took."""
         nb = self.cs.n_bands
         parts, i = [], 0
         t0 = time.perf_counter()
         if self.mesh is not None:
             cat, r = self.mesh, item_rays[i]
             out, var = np.zeros((cat["texel"].size, nb)), np.zeros(cat["texel"].size)
-            parallel.run(_indirect_mesh, out.shape[0], *self.fixed, cat["inst"], cat["lid"], cat["side"],
-                         cat["key"], cat["local"], cat["start"], cat["tri"], cat["area"], cat["nv"], cat["bary"],
-                         self.points, r, _order(r), stream, out, var)
+            todo = r
+            if cached and r.size:
+                from .irradiance_cache import cached_mesh_gather
+                out, var, fallback, self.cache_info = cached_mesh_gather(
+                    self.cs, self.fixed, cat, self.points, int(r.max()) * self.points, stream)
+                todo = np.zeros_like(r)
+                todo[fallback] = r[fallback]
+            if todo.any():
+                o2, v2 = np.zeros_like(out), np.zeros_like(var)
+                parallel.run(_indirect_mesh, out.shape[0], *self.fixed, cat["inst"], cat["lid"], cat["side"],
+                             cat["key"], cat["local"], cat["start"], cat["tri"], cat["area"], cat["nv"],
+                             cat["bary"], self.points, todo, _order(todo), stream, o2, v2)
+                out[todo > 0], var[todo > 0] = o2[todo > 0], v2[todo > 0]
             parts.append((cat["texel"], out, var, r))
             i += 1
         if self.prim is not None:
@@ -365,7 +378,7 @@ def _joined(parts, nb):
 
 def gathered_indirect(cs, lightmap_ids=(), csg_leaves=(), points=TG.DEFAULT_SAMPLES, rays=4,
                       mode=LM.MODE_BILINEAR, seed=0, target_error=0.0, max_rays=None, direct=None,
-                      time_budget=None):
+                      time_budget=None, cached=False, info=None):
     """Indirect irradiance (gather + caustics) of the measured texels of the given
     instance lightmaps and CSG leaves -> Gathered(ids, E, se, rays) over the same
     texels as texel_gather.direct_texel_irradiance / csg_bake.direct_csg_texels
@@ -381,14 +394,23 @@ def gathered_indirect(cs, lightmap_ids=(), csg_leaves=(), points=TG.DEFAULT_SAMP
       (which minimises the summed squared relative error), capped by the target's
       need if both are given.
     A texel's error is judged against at least a tenth of the median texel's
-    irradiance, so black texels do not take every ray."""
+    irradiance, so black texels do not take every ray.
+
+    cached: the first pass reads mesh texels' indirect light from an irradiance
+    cache (engine/irradiance_cache.py: records with points × rays rays each at a
+    sparse, adaptive set of places, interpolated at every texel's points); an
+    adaptive second pass adds per-texel rays as before. info (a dict) gets the
+    cache's counts."""
     points, rays = int(points), int(rays)
     if points < 1 or rays < 1:
         raise ValueError(f"points and rays must be >= 1, got {points}, {rays}")
     t0 = time.perf_counter()
     tex = _Texels(cs, lightmap_ids, csg_leaves, points, mode, seed)
     item_rows = tex.item_rows()
-    first = _joined(tex.run([np.full(r.size, rays, np.int64) for r in item_rows], STREAM_XOR), cs.n_bands)
+    first = _joined(tex.run([np.full(r.size, rays, np.int64) for r in item_rows], STREAM_XOR, cached),
+                    cs.n_bands)
+    if info is not None and getattr(tex, "cache_info", None):
+        info.update(tex.cache_info)
     t_first = tex.seconds
     got = first
     adaptive = target_error > 0.0 or time_budget is not None

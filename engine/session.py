@@ -33,6 +33,8 @@ class Settings:
     bake_target_error: float = 0.0  # > 0: texels above this relative error get more gather rays
     bake_max_rays: int = 4096       # the most gather rays per texel and lit side, adaptive included
     bake_time: float = 0.0          # > 0: seconds a bake should take; the gather spends what is left
+    # bakes: mesh texels read the gather from a sparse irradiance cache (engine/irradiance_cache.py)
+    bake_irradiance_cache: bool = False
     denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/denoise.py)
 
     @classmethod
@@ -174,12 +176,16 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
     phase("gather", texels)
     t1 = time.perf_counter()
     direct_E = TG._by_texel(parts, cs.n_bands)
+    cache_info = {}
     indirect = BG.gathered_indirect(cs, lightmap_ids, csg_leaves, DIRECT_SAMPLES, settings.bake_rays_per_point,
                                     settings.mode, seed=int(settings.seed),
                                     target_error=float(settings.bake_target_error),
                                     max_rays=max(1, int(settings.bake_max_rays) // DIRECT_SAMPLES),
                                     direct=direct_E,
-                                    time_budget=None if deadline is None else deadline - time.perf_counter())
+                                    time_budget=None if deadline is None else deadline - time.perf_counter(),
+                                    cached=bool(settings.bake_irradiance_cache), info=cache_info)
+    if cache_info:
+        cs.info["irradiance_cache"] = cache_info
     BG.set_gathered(cs.lightmaps, direct_E, indirect)
     cs.bake_error = texel_error(cs.lightmaps, direct_E, indirect)
     seconds["gather"] = time.perf_counter() - t1

@@ -114,6 +114,11 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         subtype='FACTOR', precision=3,
         description="Adaptive bake gather: texels whose estimated relative error is above this "
                     "get more gather rays, up to Bake Max Rays (0: every texel gets Bake Gather Rays)")
+    bake_irradiance_cache: BoolProperty(
+        name="Irradiance Cache", default=_D.bake_irradiance_cache,
+        description="Bakes: gather at a sparse set of points placed densest where light changes "
+                    "(contact, corners) and interpolate between them, instead of at every texel: "
+                    "several times fewer gather rays, no seams between charts or objects")
     bake_max_rays: IntProperty(
         name="Bake Max Rays", default=_D.bake_max_rays, min=1, soft_max=65536,
         description="The most final-gather rays a texel and lit side can get with a target error")

@@ -1,0 +1,442 @@
+"""Irradiance caching for the bake's final gather (Ward, Rubinstein & Clear 1988).
+
+The per-texel gather (bake_gather) sends its rays from points spread over every
+texel. Indirect light changes slowly over most surfaces, so most of those rays
+measure what the texel's neighbours measure too. Here the gather runs at a
+sparse set of *records* instead, and every texel point interpolates the records
+around it, as Ward's irradiance cache and Unreal's Lightmass do:
+
+* A record is a world point, the side it gathers on (its normal), its
+  irradiance from `rays` gather rays (the same point_indirect the per-texel
+  gather uses), the standard error of that, and its radius R: the harmonic
+  mean distance of RADIUS_RAYS extra rays to what surrounds it, clamped to
+  [MIN_RADIUS_TEXELS, MAX_RADIUS_TEXELS] texels. Near a wall, in a corner or
+  where an object rests on the floor, R is small; on open surfaces it is large.
+* A point x with normal n reads the records with
+      eps_i = |x - x_i| / R_i + sqrt(1 - n·n_i) < ACCURACY
+  and not in front of it, weighted w_i = 1/eps_i - 1/ACCURACY (which falls to 0
+  at the edge of a record's reach, so the result is continuous). Records are
+  world points: texels on both sides of a UV seam, or of two objects that
+  meet, read the same records, so no seam is made.
+* Placement is adaptive: the first records sit at every RECORD_STRIDE-th texel
+  of each lightmap; then, for up to REFINE_ROUNDS rounds, every texel with a
+  point no record reaches gets a record at that point. Where R is small (contact,
+  corners, gradients of geometry) that places them densely.
+* A texel some point of which no record reaches after the last round falls back
+  to the per-texel gather, so nothing is left out.
+
+Direct light stays per texel (texel_gather), and caustics are read per point
+from their own lightmap. Mesh texels only: primitives and CSG solids keep the
+per-texel gather.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from . import bsdf as BS
+from . import texel_gather as TG
+from . import parallel
+from .bake_gather import SCRATCH_ROWS, _add_caustic, point_indirect
+from .jit import CORE
+from .photon_tracer import ray_epsilon
+from .raycast import STACK_WORDS, intersect_closest
+from .sampling import cosine_hemisphere, next_float, stream_state, to_world
+
+RECORD_STRIDE = 3         # first records: every 3rd texel along each lightmap axis
+ACCURACY = 0.35           # Ward's a: the reach of a record, in eps units
+RADIUS_RAYS = 32          # rays that measure a record's distance to its surroundings
+MIN_RADIUS_TEXELS = 3.0
+MAX_RADIUS_TEXELS = 12.0
+REFINE_ROUNDS = 3
+BATCHES = 4               # a record's rays in this many batches: its standard error
+STREAM_RECORD = np.uint64(0x9E6C63D0676A9A99)
+
+
+# --------------------------------------------------------------------------------------
+# Records: gather and radius
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, nogil=True)
+def _records(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, pos, nrm, key, size, n_rays,
+             E, se, radius, start, stop):
+    nb = E.shape[1]
+    _records_core(g, ms, bt, ts, ls, lm, ol, env, isd, mode, pos, nrm, key, size, n_rays, E, se, radius,
+                  start, stop, np.empty(STACK_WORDS, np.int32), np.empty((SCRATCH_ROWS, nb)), np.empty(BS.P_SIZE),
+                  np.empty(nb), np.zeros(1, np.int64))
+
+
+@njit(**CORE)
+def _records_core(g, ms, bt, ts, ls, lm, ol, env, isd, mode, pos, nrm, key, size, n_rays, E, se, radius,
+                  start, stop, stack, sc, pc, e, count):
+    nb = E.shape[1]
+    per = max(n_rays // BATCHES, 1)
+    for r in range(start, stop):
+        state = stream_state(key[r] ^ STREAM_RECORD, r)
+        px, py, pz = pos[r, 0], pos[r, 1], pos[r, 2]
+        nx, ny, nz = nrm[r, 0], nrm[r, 1], nrm[r, 2]
+        s1 = 0.0
+        s2 = 0.0
+        for b in range(nb):
+            E[r, b] = 0.0
+        for k in range(BATCHES):
+            for b in range(nb):
+                e[b] = 0.0
+            state = point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, per, stack, px, py, pz,
+                                   nx, ny, nz, 1, state, sc, pc, e, count)
+            m = 0.0
+            for b in range(nb):
+                E[r, b] += e[b] / BATCHES
+                m += e[b]
+            m /= nb
+            s1 += m
+            s2 += m * m
+        mean = s1 / BATCHES
+        se[r] = math.sqrt(max(s2 / BATCHES - mean * mean, 0.0) / (BATCHES - 1))
+        # Ward's radius: the harmonic mean distance to the surroundings (a miss is far)
+        eps = ray_epsilon(px, py, pz)
+        ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
+        state, o1 = next_float(state)
+        state, o2 = next_float(state)
+        inv = 0.0
+        for i in range(RADIUS_RAYS):
+            u1 = (i + o1) / RADIUS_RAYS
+            u2 = (o2 + i * 0.6180339887498949) % 1.0
+            lx, ly, lz = cosine_hemisphere(u1, u2)
+            dx, dy, dz = to_world(lx, ly, lz, nx, ny, nz)
+            hit, t, _, _, _, _, _, _, _, _ = intersect_closest(g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
+            if hit and t > 0.0:
+                inv += 1.0 / t
+        rr = RADIUS_RAYS / inv if inv > 0.0 else math.inf
+        radius[r] = min(max(rr, MIN_RADIUS_TEXELS * size[r]), MAX_RADIUS_TEXELS * size[r])
+
+
+# --------------------------------------------------------------------------------------
+# The lookup grid: each record listed in every cell its reach overlaps (hashed)
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _hash(ix, iy, iz, mask):
+    h = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791)
+    return h & mask
+
+
+@njit(cache=True)
+def _cell_range(pos, reach, cell, r):
+    return (np.int64(math.floor((pos[r, 0] - reach[r]) / cell)), np.int64(math.floor((pos[r, 0] + reach[r]) / cell)),
+            np.int64(math.floor((pos[r, 1] - reach[r]) / cell)), np.int64(math.floor((pos[r, 1] + reach[r]) / cell)),
+            np.int64(math.floor((pos[r, 2] - reach[r]) / cell)), np.int64(math.floor((pos[r, 2] + reach[r]) / cell)))
+
+
+@njit(cache=True)
+def _build_grid(pos, reach, cell, mask):
+    """CSR over hash slots: start[h]..start[h+1] in entries are the records whose
+    reach overlaps a cell hashing to h (cells that collide share a slot)."""
+    n_slots = mask + 1
+    start = np.zeros(n_slots + 1, np.int64)
+    for r in range(pos.shape[0]):
+        x0, x1, y0, y1, z0, z1 = _cell_range(pos, reach, cell, r)
+        for ix in range(x0, x1 + 1):
+            for iy in range(y0, y1 + 1):
+                for iz in range(z0, z1 + 1):
+                    start[_hash(ix, iy, iz, mask) + 1] += 1
+    for i in range(n_slots):
+        start[i + 1] += start[i]
+    entries = np.empty(start[n_slots], np.int64)
+    fill = start[:n_slots].copy()
+    for r in range(pos.shape[0]):
+        x0, x1, y0, y1, z0, z1 = _cell_range(pos, reach, cell, r)
+        for ix in range(x0, x1 + 1):
+            for iy in range(y0, y1 + 1):
+                for iz in range(z0, z1 + 1):
+                    h = _hash(ix, iy, iz, mask)
+                    entries[fill[h]] = r
+                    fill[h] += 1
+    return start, entries
+
+
+@njit(cache=True)
+def _clamp_radii(pos, R, cell, mask, start, entries):
+    """Neighbour clamping (Křivánek et al. 2006): R_i <= R_j + |x_i - x_j| for every
+    record j within i's reach, so a record next to one that sees nearby geometry
+    (a shadow edge, a contact) cannot reach across it with a larger radius."""
+    out = R.copy()
+    for i in range(pos.shape[0]):
+        reach = ACCURACY * R[i]
+        x0 = np.int64(math.floor((pos[i, 0] - reach) / cell))
+        x1 = np.int64(math.floor((pos[i, 0] + reach) / cell))
+        y0 = np.int64(math.floor((pos[i, 1] - reach) / cell))
+        y1 = np.int64(math.floor((pos[i, 1] + reach) / cell))
+        z0 = np.int64(math.floor((pos[i, 2] - reach) / cell))
+        z1 = np.int64(math.floor((pos[i, 2] + reach) / cell))
+        for ix in range(x0, x1 + 1):
+            for iy in range(y0, y1 + 1):
+                for iz in range(z0, z1 + 1):
+                    h = _hash(ix, iy, iz, mask)
+                    for k in range(start[h], start[h + 1]):
+                        j = entries[k]
+                        d = math.sqrt((pos[i, 0] - pos[j, 0]) ** 2 + (pos[i, 1] - pos[j, 1]) ** 2
+                                      + (pos[i, 2] - pos[j, 2]) ** 2)
+                        if d < reach and R[j] + d < out[i]:
+                            out[i] = R[j] + d
+    return out
+
+
+class Grid:
+    """Records hashed by the cells their reach (ACCURACY·R) overlaps."""
+
+    def __init__(self, pos, radius):
+        reach = ACCURACY * radius
+        self.cell = max(float(np.median(reach)) if reach.size else 1.0, 1e-9)
+        # Cells each record touches, bounded: reach / cell is at most MAX/MIN radius.
+        span = np.floor((pos + reach[:, None]) / self.cell) - np.floor((pos - reach[:, None]) / self.cell) + 1
+        n = int(np.prod(span, axis=1).sum()) if reach.size else 1
+        self.mask = (1 << max(int(math.ceil(math.log2(max(2 * n, 2)))), 1)) - 1
+        self.start, self.entries = _build_grid(pos, reach, self.cell, self.mask)
+
+
+# --------------------------------------------------------------------------------------
+# Interpolation at the texels' points
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, nogil=True)
+def _interpolate(g, lmc, caustics, items, item_inst, item_lid, item_side, item_key, item_local, pstart, ptri,
+                 parea, pnv, pb, n_points, stream, rec_pos, rec_nrm, rec_E, rec_se, rec_R, cell, mask, gstart,
+                 gentries, out, var, miss, miss_pos, miss_nrm, start, stop):
+    """Items items[start:stop]: the block's scratch, then the core."""
+    nb = out.shape[1]
+    _interpolate_core(g, lmc, caustics, items, item_inst, item_lid, item_side, item_key, item_local, pstart, ptri,
+                      parea, pnv, pb, n_points, stream, rec_pos, rec_nrm, rec_E, rec_se, rec_R, cell, mask,
+                      gstart, gentries, out, var, miss, miss_pos, miss_nrm, start, stop, np.empty(nb),
+                      np.empty(nb), np.empty(nb))
+
+
+@njit(**CORE)
+def _interpolate_core(g, lmc, caustics, items, item_inst, item_lid, item_side, item_key, item_local, pstart,
+                      ptri, parea, pnv, pb, n_points, stream, rec_pos, rec_nrm, rec_E, rec_se, rec_R, cell, mask,
+                      gstart, gentries, out, var, miss, miss_pos, miss_nrm, start, stop, e, ep, tmp):
+    nb = out.shape[1]
+    k = TG._grid_side(n_points)
+    for j in range(start, stop):
+        it = items[j]
+        for b in range(nb):
+            e[b] = 0.0
+        miss[it] = 0
+        v2 = 0.0
+        p0 = pstart[it]
+        p1 = pstart[it + 1]
+        total = 0.0
+        for p in range(p0, p1):
+            total += parea[p]
+        n_ok = 0
+        if total > 0.0:
+            xf = g.inst_xf[item_inst[it]]
+            # the per-texel gather's points: the same stream, so the same places
+            state = stream_state(item_key[it] ^ stream, item_local[it])
+            for s in range(n_points):
+                state, j1 = next_float(state)
+                state, j2 = next_float(state)
+                u1, u2 = TG._jitter(s, k, j1, j2)
+                ok, px, py, pz, nx, ny, nz, t, b1, b2 = TG._mesh_texel_point(
+                    g.tri_p, xf, ptri, parea, pnv, pb, p0, p1, total, u1, u2)
+                if not ok:
+                    continue
+                n_ok += 1
+                for b in range(nb):
+                    ep[b] = 0.0
+                for sgn in (1.0, -1.0):
+                    if item_side[it] * sgn < 0.0:
+                        continue
+                    fx, fy, fz = sgn * nx, sgn * ny, sgn * nz
+                    wsum, vs = _lookup(px, py, pz, fx, fy, fz, rec_pos, rec_nrm, rec_E, rec_se, rec_R, cell,
+                                       mask, gstart, gentries, tmp)
+                    if wsum <= 0.0:
+                        if miss[it] == 0:
+                            miss[it] = 1
+                            miss_pos[it, 0], miss_pos[it, 1], miss_pos[it, 2] = px, py, pz
+                            miss_nrm[it, 0], miss_nrm[it, 1], miss_nrm[it, 2] = fx, fy, fz
+                        continue
+                    for b in range(nb):
+                        ep[b] += tmp[b]
+                    v2 += vs
+                if caustics:
+                    uv = g.tri_uv[t]
+                    b0 = 1.0 - b1 - b2
+                    _add_caustic(lmc, item_lid[it], 0, b0 * uv[0, 0] + b1 * uv[1, 0] + b2 * uv[2, 0],
+                                 b0 * uv[0, 1] + b1 * uv[1, 1] + b2 * uv[2, 1], tmp, ep)
+                for b in range(nb):
+                    e[b] += ep[b]
+        for b in range(nb):
+            out[it, b] = e[b] / n_ok if n_ok > 0 else 0.0
+        # neighbouring points read the same records: their errors are not
+        # independent, so the texel keeps the mean per-point variance
+        var[it] = v2 / n_ok if n_ok > 0 else 0.0
+
+
+@njit(**CORE)
+def _lookup(px, py, pz, nx, ny, nz, rec_pos, rec_nrm, rec_E, rec_se, rec_R, cell, mask, gstart, gentries, out):
+    """Ward's weighted mean of the records that reach x -> (weight sum, variance of
+    the mean from the records' errors); out[bands] the irradiance (0 weights: none)."""
+    nb = out.shape[0]
+    for b in range(nb):
+        out[b] = 0.0
+    h = _hash(np.int64(math.floor(px / cell)), np.int64(math.floor(py / cell)),
+              np.int64(math.floor(pz / cell)), mask)
+    wsum = 0.0
+    w2v = 0.0
+    for j in range(gstart[h], gstart[h + 1]):
+        r = gentries[j]
+        dx, dy, dz = px - rec_pos[r, 0], py - rec_pos[r, 1], pz - rec_pos[r, 2]
+        cosn = nx * rec_nrm[r, 0] + ny * rec_nrm[r, 1] + nz * rec_nrm[r, 2]
+        if cosn <= 0.0:
+            continue
+        eps = math.sqrt(dx * dx + dy * dy + dz * dz) / rec_R[r] + math.sqrt(max(1.0 - cosn, 0.0))
+        if eps >= ACCURACY:
+            continue
+        # a record in front of x (above its surface) sees what x does not
+        front = (dx * (nx + rec_nrm[r, 0]) + dy * (ny + rec_nrm[r, 1]) + dz * (nz + rec_nrm[r, 2])) * 0.5
+        if front < -0.05 * rec_R[r]:
+            continue
+        w = 1.0 / max(eps, 1e-6) - 1.0 / ACCURACY
+        wsum += w
+        w2v += w * w * rec_se[r] * rec_se[r]
+        for b in range(nb):
+            out[b] += w * rec_E[r, b]
+    if wsum > 0.0:
+        for b in range(nb):
+            out[b] /= wsum
+        return wsum, w2v / (wsum * wsum)
+    return 0.0, 0.0
+
+
+# --------------------------------------------------------------------------------------
+# The bake's cached gather of mesh texels
+# --------------------------------------------------------------------------------------
+
+def _first_sites(cs, cat):
+    """Items whose texel lies on the every-RECORD_STRIDE-th lattice of its lightmap."""
+    lm = cs.lightmaps
+    w = lm.width[cat["lid"]].astype(np.int64)
+    x, y = cat["local"] % w, cat["local"] // w
+    return np.flatnonzero((x % RECORD_STRIDE == 0) & (y % RECORD_STRIDE == 0))
+
+
+def _texel_sizes(cat):
+    """World size of each item's texel: the square root of its area."""
+    area = np.add.reduceat(cat["area"], cat["start"][:-1]) if cat["area"].size else np.zeros(0)
+    area[np.diff(cat["start"]) == 0] = 0.0
+    return np.sqrt(np.maximum(area, 0.0))
+
+
+def _site_points(cs, cat, items, stream):
+    """(pos, nrm, key, size) records at the first point of each given item, one per
+    lit side (both sides of an open surface)."""
+    pos = np.zeros((items.size, 3))
+    nrm = np.zeros((items.size, 3))
+    ok = np.zeros(items.size, bool)
+    _centres(cs.geometry.tri_p, cs.geometry.inst_xf, cat["inst"], cat["start"], cat["tri"], cat["area"],
+             cat["nv"], cat["bary"], items, pos, nrm, ok)
+    return _sided(cat, items[ok], pos[ok], nrm[ok])
+
+
+@njit(cache=True)
+def _centres(tri_p, inst_xf, item_inst, pstart, ptri, parea, pnv, pb, items, pos, nrm, ok):
+    for j in range(items.shape[0]):
+        it = items[j]
+        p0, p1 = pstart[it], pstart[it + 1]
+        total = 0.0
+        for p in range(p0, p1):
+            total += parea[p]
+        if not total > 0.0:
+            continue
+        good, px, py, pz, nx, ny, nz, _, _, _ = TG._mesh_texel_point(
+            tri_p, inst_xf[item_inst[it]], ptri, parea, pnv, pb, p0, p1, total, 0.5, 0.5)
+        if good:
+            ok[j] = True
+            pos[j, 0], pos[j, 1], pos[j, 2] = px, py, pz
+            nrm[j, 0], nrm[j, 1], nrm[j, 2] = nx, ny, nz
+
+
+def _sided(cat, items, pos, nrm):
+    side = cat["side"][items]
+    rows, normals = [], []
+    for sgn in (1.0, -1.0):
+        keep = side * sgn >= 0
+        rows.append(np.flatnonzero(keep))
+        normals.append(sgn * nrm[keep])
+    order = np.concatenate(rows)
+    return (np.ascontiguousarray(pos[order]), np.ascontiguousarray(np.concatenate(normals)),
+            np.ascontiguousarray(cat["key"][items][order]), items[order])
+
+
+class Cache:
+    """Records of one bake, grown round by round."""
+
+    def __init__(self, nb):
+        self.pos = np.zeros((0, 3))
+        self.nrm = np.zeros((0, 3))
+        self.E = np.zeros((0, nb))
+        self.se = np.zeros(0)
+        self.R = np.zeros(0)
+        self.rays = 0
+
+    def add(self, fixed, pos, nrm, key, size, n_rays, first_id):
+        n = pos.shape[0]
+        if n == 0:
+            return
+        E, se, R = np.zeros((n, self.E.shape[1])), np.zeros(n), np.zeros(n)
+        # the record's id in the key: records of later rounds at the same texel differ
+        keyed = key ^ (np.arange(first_id, first_id + n, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15))
+        parallel.run(_records, n, *fixed, pos, nrm, keyed, size, int(n_rays), E, se, R)
+        self.pos = np.concatenate([self.pos, pos])
+        self.nrm = np.concatenate([self.nrm, nrm])
+        self.E = np.concatenate([self.E, E])
+        self.se = np.concatenate([self.se, se])
+        self.R = np.concatenate([self.R, R])
+        self.rays += n * (max(int(n_rays) // BATCHES, 1) * BATCHES + RADIUS_RAYS)
+
+
+def cached_mesh_gather(cs, fixed, cat, n_points, n_rays, stream):
+    """The gather of the mesh items `cat` (bake_gather's packed mesh texels) through
+    the irradiance cache -> (E (K, B), var (K,), fallback items, info): the items in
+    `fallback` were not reached by any record and must be gathered per texel."""
+    nb = cs.n_bands
+    K = cat["texel"].size
+    size = _texel_sizes(cat)
+    cache = Cache(nb)
+    pos, nrm, key, owner = _site_points(cs, cat, _first_sites(cs, cat), stream)
+    cache.add(fixed, pos, nrm, key, size[owner], n_rays, 0)
+    out, var = np.zeros((K, nb)), np.zeros(K)
+    miss = np.zeros(K, np.int64)
+    rounds = 0
+    miss_pos, miss_nrm = np.zeros((K, 3)), np.zeros((K, 3))
+    g, lmc, caustics = fixed[0], fixed[6], fixed[7]
+    # Round 0 interpolates every item; each later round places a record at the
+    # first unreached point of every item that had one and tries those items
+    # again (a reached point stays reached as records are added). If records were
+    # added, a last pass interpolates every item with all of them.
+    args = (cat["inst"], cat["lid"], cat["side"], cat["key"], cat["local"], cat["start"], cat["tri"], cat["area"],
+            cat["nv"], cat["bary"], int(n_points), stream)
+
+    def interpolate(items):
+        grid = Grid(cache.pos, cache.R)
+        clamped = _clamp_radii(cache.pos, cache.R, grid.cell, grid.mask, grid.start, grid.entries)
+        if not np.array_equal(clamped, cache.R):
+            cache.R = clamped
+            grid = Grid(cache.pos, cache.R)
+        parallel.run(_interpolate, items.size, g, lmc, caustics, items, *args, cache.pos, cache.nrm, cache.E,
+                     cache.se, cache.R, grid.cell, grid.mask, grid.start, grid.entries, out, var, miss, miss_pos,
+                     miss_nrm)
+        return items[miss[items] > 0]
+
+    missed = interpolate(np.arange(K, dtype=np.int64))
+    while missed.size and rounds < REFINE_ROUNDS:
+        rounds += 1
+        cache.add(fixed, miss_pos[missed], miss_nrm[missed], cat["key"][missed], size[missed], n_rays,
+                  cache.pos.shape[0])
+        missed = interpolate(missed)
+    if rounds:
+        missed = interpolate(np.arange(K, dtype=np.int64))
+    info = dict(records=int(cache.pos.shape[0]), rounds=rounds, record_rays=int(cache.rays),
+                fallback_items=int(missed.size), items=int(K))
+    return out, var, missed, info

@@ -413,7 +413,7 @@ def bake_main(args):
                              indirect=args.indirect.upper() if args.indirect else None,
                              bake_gather_rays=args.bake_gather_rays,
                              bake_target_error=args.target_error, bake_time=args.time,
-                             bake_irradiance_cache=args.irradiance_cache)
+                             irradiance_cache=args.irradiance_cache)
     photons, seed = settings.photons, settings.seed
     objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
     out_dir = os.path.abspath(args.out)
@@ -427,7 +427,7 @@ def bake_main(args):
                        bake_gather_rays=settings.bake_gather_rays,
                        bake_target_error=settings.bake_target_error, bake_time=settings.bake_time,
                        error_images=args.error_images or None,
-                       irradiance_cache=settings.bake_irradiance_cache)
+                       irradiance_cache=settings.irradiance_cache)
     print(file=sys.stderr)
     stats = res.stats
     report = {

@@ -229,7 +229,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      indirect_only=indirect_only, denoise=denoise, indirect=indirect,
                                      bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error,
                                      bake_time=bake_time, bake_error_images=error_images,
-                                     bake_irradiance_cache=irradiance_cache)
+                                     irradiance_cache=irradiance_cache)
     if job.settings.bake_gathers:
         for inst, rec in zip(job.scene.instances, job.recording):
             inst.lightmap = inst.lightmap or rec

@@ -122,6 +122,9 @@ class ViewportSession:
         gather = int(settings.gather_rays) if settings.gathers else 0
         kw = dict(seed=int(settings.seed), mode=settings.mode, max_depth=int(settings.max_bounces),
                   gather=gather)
+        if gather and settings.irradiance_cache:
+            # made once per photon pass, then every view reads them
+            kw["records"] = session.render_records(self.cs, settings)
         if self.samples == 0 and self._preview is None:
             small = replace(camera, width=max(1, camera.width // PREVIEW_DIVISOR),
                             height=max(1, camera.height // PREVIEW_DIVISOR))

@@ -120,11 +120,17 @@ def references(scene, frames, spp, log):
     return out, "made"
 
 
-def ours(scene, frames, refs, photons, samples, gather_rays):
-    """The CLI's frame loop -> dict with total seconds and mean per-frame error."""
+def configure(scene, photons, samples, gather_rays, cache=False):
     pl = scene.photon_lightmaps
     pl.photons, pl.samples, pl.gather_rays, pl.seed, pl.indirect = photons, samples, gather_rays, 1, "GATHER"
+    pl.irradiance_cache = cache
     pl.max_bounces = M.MAX_BOUNCES
+
+
+def ours(scene, frames, refs, photons, samples, gather_rays, cache=False):
+    """The CLI's frame loop -> dict with total seconds and mean per-frame error.
+    cache: the final gather through the irradiance cache (its records made with frame 1's light)."""
+    configure(scene, photons, samples, gather_rays, cache)
     with tempfile.TemporaryDirectory() as tmp:
         with quiet():      # kernels compiled or loaded outside the timing (a first run's cost)
             scene.frame_set(1)
@@ -136,7 +142,7 @@ def ours(scene, frames, refs, photons, samples, gather_rays):
         total = time.perf_counter() - t0
         errs = {f: Scorer(*refs[f])(_read(pathlib.Path(tmp) / f"f_{f:03d}.exr"))["rel_rmse"] for f in refs}
     per = [r["seconds"]["total"] for r in report["frames"]]
-    return dict(photons=photons, samples=samples, gather_rays=gather_rays, seconds=total,
+    return dict(photons=photons, samples=samples, gather_rays=gather_rays, irradiance_cache=cache, seconds=total,
                 first_frame_seconds=per[0], later_frame_seconds=float(np.mean(per[1:])) if len(per) > 1 else 0.0,
                 frames_reusing_light=report["frames_reusing_light"],
                 rel_rmse=float(np.mean(list(errs.values()))), per_frame=errs)
@@ -144,6 +150,7 @@ def ours(scene, frames, refs, photons, samples, gather_rays):
 
 def ours_without_reuse(scene, frames, refs, photons, samples, gather_rays):
     """The scored frames with the light let go between them -> per-frame mean x frames."""
+    configure(scene, photons, samples, gather_rays)
     secs = []
     with tempfile.TemporaryDirectory() as tmp:
         for f in refs:
@@ -190,9 +197,14 @@ def chart(result, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(6, 4))
-    ours = sorted(result["ours"], key=lambda r: r["seconds"])
-    ax.plot([r["seconds"] for r in ours], [r["rel_rmse"] for r in ours], "P-", color="C4",
-            label="ours, light of frame 1 reused")
+    for cache, style, label in ((False, "P-", "ours, light of frame 1 reused"),
+                                (True, "*-", "ours, + irradiance cache")):
+        pts = sorted((r for r in result["ours"] if r.get("irradiance_cache", False) == cache),
+                     key=lambda r: r["seconds"])
+        if pts:
+            ax.plot([r["seconds"] for r in pts], [r["rel_rmse"] for r in pts], style,
+                    color="C8" if cache else "C4", label=label)
+    ours = [r for r in result["ours"] if not r.get("irradiance_cache", False)]
     for r in result["ours_without_reuse"]:
         match = next((o for o in ours if (o["photons"], o["samples"], o["gather_rays"]) ==
                       (r["photons"], r["samples"], r["gather_rays"])), None)
@@ -225,7 +237,9 @@ def main(argv=None):
     frames, (w, h) = (12, (48, 32)) if args.quick else (args.frames, args.size)
     ref_spp = 64 if args.quick else 1024
     cyc_spps = (4, 16) if args.quick else (16, 32, 64, 128, 256)
-    ours_cfgs = ((20_000, 2, 4),) if args.quick else ((300_000, 8, 8), (1_000_000, 16, 8), (1_000_000, 32, 16))
+    ours_cfgs = ((20_000, 2, 4, False), (20_000, 2, 4, True)) if args.quick else (
+        (300_000, 8, 8, False), (1_000_000, 16, 8, False), (1_000_000, 32, 16, False),
+        (300_000, 8, 8, True), (1_000_000, 16, 8, True), (1_000_000, 32, 16, True), (1_000_000, 64, 16, True))
 
     def log(msg):
         print(msg, file=sys.stderr, flush=True)
@@ -238,11 +252,12 @@ def main(argv=None):
     log(f"references ({src}) in {time.perf_counter() - t0:.0f} s")
     out = {"frames": frames, "size": [w, h], "scored_frames": list(refs), "reference_spp": ref_spp,
            "ours": [], "ours_without_reuse": [], "cycles": []}
-    for photons, spp, rays in ours_cfgs:
-        r = ours(scene, frames, refs, photons, spp, rays)
-        log(f"ours {photons:,} photons {spp} spp {rays} rays: {r['seconds']:.1f} s, relRMSE {r['rel_rmse']:.4f}")
+    for photons, spp, rays, cache in ours_cfgs:
+        r = ours(scene, frames, refs, photons, spp, rays, cache)
+        log(f"ours {photons:,} photons {spp} spp {rays} rays{' cache' if cache else ''}: {r['seconds']:.1f} s, "
+            f"relRMSE {r['rel_rmse']:.4f}")
         out["ours"].append(r)
-    photons, spp, rays = ours_cfgs[-1 if args.quick else 1]
+    photons, spp, rays, _ = ours_cfgs[0 if args.quick else 1]
     out["ours_without_reuse"].append(ours_without_reuse(scene, frames, refs, photons, spp, rays))
     out["cycles"] = cycles(scene, frames, refs, cyc_spps)
     for r in out["cycles"]:

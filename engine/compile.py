@@ -53,6 +53,9 @@ class CompiledScene:
     bsdf: object = None             # bsdf.BsdfTables: albedo tables, layer and Fresnel per material
     # material textures (engine/texture.py TextureSet; empty when the scene has none)
     textures: object = None
+    # a render's irradiance-cache records over the traced light: (key, Records, info),
+    # made by the first render that asks (session.render_records), dropped by a photon pass
+    render_records: object = None
 
     def lightmap_bytes(self):
         lm = self.lightmaps

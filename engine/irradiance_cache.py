@@ -30,6 +30,7 @@ from their own lightmap. Mesh texels only: primitives and CSG solids keep the
 per-texel gather.
 """
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -39,6 +40,7 @@ from . import texel_gather as TG
 from . import parallel
 from .bake_gather import SCRATCH_ROWS, _add_caustic, point_indirect
 from .jit import CORE
+from .lightmap import MODE_BILINEAR as LM_MODE_BILINEAR
 from .photon_tracer import ray_epsilon
 from .raycast import STACK_WORDS, intersect_closest
 from .sampling import cosine_hemisphere, next_float, stream_state, to_world
@@ -248,7 +250,7 @@ def _interpolate_core(g, lmc, caustics, items, item_inst, item_lid, item_side, i
                     if item_side[it] * sgn < 0.0:
                         continue
                     fx, fy, fz = sgn * nx, sgn * ny, sgn * nz
-                    wsum, vs = _lookup(px, py, pz, fx, fy, fz, rec_pos, rec_nrm, rec_E, rec_se, rec_R, cell,
+                    wsum, vs = lookup(px, py, pz, fx, fy, fz, rec_pos, rec_nrm, rec_E, rec_se, rec_R, cell,
                                        mask, gstart, gentries, tmp)
                     if wsum <= 0.0:
                         if miss[it] == 0:
@@ -274,7 +276,7 @@ def _interpolate_core(g, lmc, caustics, items, item_inst, item_lid, item_side, i
 
 
 @njit(**CORE)
-def _lookup(px, py, pz, nx, ny, nz, rec_pos, rec_nrm, rec_E, rec_se, rec_R, cell, mask, gstart, gentries, out):
+def lookup(px, py, pz, nx, ny, nz, rec_pos, rec_nrm, rec_E, rec_se, rec_R, cell, mask, gstart, gentries, out):
     """Ward's weighted mean of the records that reach x -> (weight sum, variance of
     the mean from the records' errors); out[bands] the irradiance (0 weights: none)."""
     nb = out.shape[0]
@@ -400,6 +402,13 @@ def cached_mesh_gather(cs, fixed, cat, n_points, n_rays, stream):
     """The gather of the mesh items `cat` (bake_gather's packed mesh texels) through
     the irradiance cache -> (E (K, B), var (K,), fallback items, info): the items in
     `fallback` were not reached by any record and must be gathered per texel."""
+    out, var, missed, info, _ = _build(cs, fixed, cat, n_points, n_rays, stream)
+    return out, var, missed, info
+
+
+def _build(cs, fixed, cat, n_points, n_rays, stream):
+    """Records placed for the items of `cat`, round by round -> (E, var, missed, info,
+    (cache, grid)) with E and var interpolated at every item's points."""
     nb = cs.n_bands
     K = cat["texel"].size
     size = _texel_sizes(cat)
@@ -417,15 +426,17 @@ def cached_mesh_gather(cs, fixed, cat, n_points, n_rays, stream):
     # added, a last pass interpolates every item with all of them.
     args = (cat["inst"], cat["lid"], cat["side"], cat["key"], cat["local"], cat["start"], cat["tri"], cat["area"],
             cat["nv"], cat["bary"], int(n_points), stream)
+    grid = [None]
 
     def interpolate(items):
-        grid = Grid(cache.pos, cache.R)
-        clamped = _clamp_radii(cache.pos, cache.R, grid.cell, grid.mask, grid.start, grid.entries)
+        grid[0] = Grid(cache.pos, cache.R)
+        clamped = _clamp_radii(cache.pos, cache.R, grid[0].cell, grid[0].mask, grid[0].start, grid[0].entries)
         if not np.array_equal(clamped, cache.R):
             cache.R = clamped
-            grid = Grid(cache.pos, cache.R)
+            grid[0] = Grid(cache.pos, cache.R)
+        gr = grid[0]
         parallel.run(_interpolate, items.size, g, lmc, caustics, items, *args, cache.pos, cache.nrm, cache.E,
-                     cache.se, cache.R, grid.cell, grid.mask, grid.start, grid.entries, out, var, miss, miss_pos,
+                     cache.se, cache.R, gr.cell, gr.mask, gr.start, gr.entries, out, var, miss, miss_pos,
                      miss_nrm)
         return items[miss[items] > 0]
 
@@ -439,4 +450,34 @@ def cached_mesh_gather(cs, fixed, cat, n_points, n_rays, stream):
         missed = interpolate(np.arange(K, dtype=np.int64))
     info = dict(records=int(cache.pos.shape[0]), rounds=rounds, record_rays=int(cache.rays),
                 fallback_items=int(missed.size), items=int(K))
-    return out, var, missed, info
+    return out, var, missed, info, (cache, grid[0])
+
+
+# --------------------------------------------------------------------------------------
+# Renders: one cache over every mesh lightmap, read at the camera's diffuse hits
+# --------------------------------------------------------------------------------------
+
+Records = namedtuple("Records", ["pos", "nrm", "E", "se", "R", "cell", "mask", "start", "entries"])
+
+
+def no_records(nb):
+    """The renderer's argument when no cache is used (nothing is ever reached)."""
+    return Records(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, nb)), np.zeros(0), np.zeros(0), 1.0, 1,
+                   np.zeros(3, np.int64), np.zeros(0, np.int64))
+
+
+RENDER_POINTS = 16        # texel points that test where records reach while placing them
+
+
+def scene_records(cs, rays, seed=0):
+    """The records of every mesh lightmap of a traced compiled scene (the photon
+    pass recorded direct light, as the final gather needs) -> (Records, info).
+    View-independent: a camera animation builds them once."""
+    from . import bake_gather as BG
+    ids = sorted({int(l) for lids in cs.instance_lightmaps for l in lids})
+    tex = BG._Texels(cs, ids, (), RENDER_POINTS, LM_MODE_BILINEAR, seed)
+    if tex.mesh is None:
+        return no_records(cs.n_bands), dict(records=0)
+    _, _, _, info, (cache, grid) = _build(cs, tex.fixed, tex.mesh, RENDER_POINTS, int(rays), BG.STREAM_XOR)
+    return Records(cache.pos, cache.nrm, cache.E, cache.se, cache.R, float(grid.cell), int(grid.mask),
+                   grid.start, grid.entries), info

@@ -254,6 +254,8 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     if n_photons < 0:
         raise ValueError(f"photon count must be non-negative, got {n_photons}")
     nb = cs.n_bands
+    if hasattr(cs, "render_records"):
+        cs.render_records = None      # made over the light this pass adds to
     stats = PhotonStats(emitted=np.zeros(nb), absorbed=np.zeros(nb), escaped=np.zeros(nb),
                         truncated=np.zeros(nb))
     if n_photons == 0 or cs.lights.total_power <= 0.0:

@@ -29,6 +29,7 @@ from . import light_hits as LH
 from . import materials as MT
 from . import environment as ENV
 from . import final_gather as FG
+from . import irradiance_cache as IC
 from . import parallel
 from .lights import EMISSIVE, sample_light_radiance
 from .photon_tracer import Cancelled, ray_epsilon
@@ -153,13 +154,15 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
 
 @njit(cache=True, nogil=True)
 def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed, mode,
-                 max_depth, indirect, gather, out, rays, start, stop):
+                 max_depth, indirect, gather, rec, out, rays, start, stop):
     """Pixels start..stop-1 of the tile (parallel.run spreads them over threads):
-    the block's scratch, then the core. rays[y, x]: the rays a pixel traced."""
+    the block's scratch, then the core. rays[y, x]: the rays a pixel traced.
+    rec: irradiance-cache records (irradiance_cache.Records; none: gather rays
+    everywhere) that a diffuse hit reads before it gathers."""
     nb = out.shape[2]
     sc = np.empty((16, nb))
     _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed,
-                      mode, max_depth, indirect, gather, out, rays, start, stop, np.empty(STACK_WORDS, np.int32),
+                      mode, max_depth, indirect, gather, rec, out, rays, start, stop, np.empty(STACK_WORDS, np.int32),
                       np.zeros(0, np.int64), sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7], sc[8],
                       sc[9], sc[10], sc[11], sc[12], sc[13], sc[14], sc[15], np.empty(BS.P_SIZE),
                       np.empty(BS.P_SIZE), np.zeros(1, np.int64))
@@ -169,8 +172,8 @@ def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw,
 # scene tuples is an atomic incref and decref that the threads contend for.
 @njit(**CORE)
 def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed,
-                      mode, max_depth, indirect, gather, out, rays, start, stop, stack, no_sides, acc, tp, e, lg,
-                      ind, f, kd, ks, kt, rad, kd2, ks2, kt2, tp2, f2, rad2, pc, pc2, count):
+                      mode, max_depth, indirect, gather, rec, out, rays, start, stop, stack, no_sides, acc, tp, e,
+                      lg, ind, f, kd, ks, kt, rad, kd2, ks2, kt2, tp2, f2, rad2, pc, pc2, count):
     # Samples s0 <= s < s1 of the pixel's spp, each weighted 1/spp: the passes of a
     # progressive render add up to the one-pass image (the same streams).
     nb = out.shape[2]
@@ -244,9 +247,18 @@ def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0
                     state = direct_light(g, ls, stack, pc, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz,
                                          sx, sy, sz, lox, loy, loz, state, e, lg, f, rad, count)
                 if pd > 0.0 and indirect and n_gather > 0:
-                    state = FG.gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, no_sides, stack, px, py, pz,
-                                                 fx, fy, fz, sx, sy, sz, n_gather, mode, state,
-                                                 kd2, ks2, kt2, pc2, ind, tp2, f2, rad2, e, count)
+                    reached = False
+                    if rec.pos.shape[0] > 0:
+                        wsum, _ = IC.lookup(px, py, pz, fx, fy, fz, rec.pos, rec.nrm, rec.E, rec.se, rec.R,
+                                            rec.cell, rec.mask, rec.start, rec.entries, ind)
+                        if wsum > 0.0:
+                            reached = True
+                            for b in range(nb):
+                                e[b] += ind[b]
+                    if not reached:
+                        state = FG.gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, no_sides, stack, px, py, pz,
+                                                     fx, fy, fz, sx, sy, sz, n_gather, mode, state,
+                                                     kd2, ks2, kt2, pc2, ind, tp2, f2, rad2, e, count)
                     n_gather = max(1, n_gather // 4)
                 elif pd > 0.0 and indirect and OL.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
                                                                      nx, ny, nz, mode, ind):
@@ -299,7 +311,7 @@ def progressive_passes(samples):
 
 
 def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
-           indirect=True, gather=0, progress=None, passes=None):
+           indirect=True, gather=0, progress=None, passes=None, records=None):
     """Renders cs.camera to a (height, width, n_bands) float array of radiance.
 
     gather: final-gather rays per sample at the first diffuse hit (0: read the
@@ -313,6 +325,9 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
 
     progress(x0, y0, tile_image, image) is called after each tile, with both
     scaled to the samples done so far; returning False cancels (raises Cancelled).
+
+    records (irradiance_cache.scene_records; with gather > 0): a diffuse hit that
+    records reach reads their interpolated irradiance instead of gathering.
     """
     gather = int(gather)
     samples = int(samples)
@@ -338,7 +353,7 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
             if progress is not None and progress(x0, y0, shown[y0:y0 + th, x0:x0 + tw], shown) is False:
                 raise Cancelled("render cancelled")
         rays += add_samples(cs, img, samples, s0, s0 + n, seed=seed, mode=mode, max_depth=max_depth,
-                            tile=tile, indirect=indirect, gather=gather, on_tile=on_tile)
+                            tile=tile, indirect=indirect, gather=gather, on_tile=on_tile, records=records)
         s0 += n
     cs.timings["render"] = time.perf_counter() - t0
     cs.rays["render"] = rays
@@ -346,7 +361,7 @@ def render(cs, samples=4, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
 
 
 def add_samples(cs, img, samples, start, stop, seed=0, mode=LM.MODE_BILINEAR, max_depth=8, tile=64,
-                indirect=True, gather=0, on_tile=None):
+                indirect=True, gather=0, on_tile=None, records=None):
     """Adds samples start..stop-1 of a `samples`-sample render of cs.camera to `img`
     ((height, width, n_bands), each sample weighted 1/samples): after every sample
     has been added, img is render(cs, samples, seed, ...). A progressive host (the
@@ -357,6 +372,7 @@ def add_samples(cs, img, samples, start, stop, seed=0, mode=LM.MODE_BILINEAR, ma
     ol = cs.orientation if cs.orientation is not None else OL.empty_maps(cs.geometry.inst_proto.shape[0])
     # photons the caustic lightmaps hold are in no other lightmap (photon_tracer)
     lmc = cs.caustics if getattr(cs, "caustics_traced", False) else cs.lightmaps
+    rec = records if records is not None else IC.no_records(cs.n_bands)
     traced = 0
     for y0 in range(0, cam.height, tile):
         for x0 in range(0, cam.width, tile):
@@ -366,7 +382,7 @@ def add_samples(cs, img, samples, start, stop, seed=0, mode=LM.MODE_BILINEAR, ma
             parallel.run(_render_tile, tw * th, cs.geometry, cs.materials, cs.bsdf, cs.textures,
                          cs.lights, cs.lightmaps, lmc, lmc is not cs.lightmaps, ol, cam, env,
                          x0, y0, tw, th, int(samples), int(start), int(stop), np.uint64(seed), int(mode),
-                         int(max_depth), bool(indirect), max(int(gather), 0), out, rays)
+                         int(max_depth), bool(indirect), max(int(gather), 0), rec, out, rays)
             img[y0:y0 + th, x0:x0 + tw] += out
             traced += int(rays.sum())
             if on_tile is not None:

@@ -33,8 +33,9 @@ class Settings:
     bake_target_error: float = 0.0  # > 0: texels above this relative error get more gather rays
     bake_max_rays: int = 4096       # the most gather rays per texel and lit side, adaptive included
     bake_time: float = 0.0          # > 0: seconds a bake should take; the gather spends what is left
-    # bakes: mesh texels read the gather from a sparse irradiance cache (engine/irradiance_cache.py)
-    bake_irradiance_cache: bool = False
+    # final gather through a sparse irradiance cache (engine/irradiance_cache.py): bakes' mesh
+    # texels and renders' diffuse hits read interpolated records
+    irradiance_cache: bool = False
     denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/denoise.py)
 
     @classmethod
@@ -183,7 +184,7 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
                                     max_rays=max(1, int(settings.bake_max_rays) // DIRECT_SAMPLES),
                                     direct=direct_E,
                                     time_budget=None if deadline is None else deadline - time.perf_counter(),
-                                    cached=bool(settings.bake_irradiance_cache), info=cache_info)
+                                    cached=bool(settings.irradiance_cache), info=cache_info)
     if cache_info:
         cs.info["irradiance_cache"] = cache_info
     BG.set_gathered(cs.lightmaps, direct_E, indirect)
@@ -232,15 +233,34 @@ def render(cs, settings, *, tile=64, progress=None, passes=None, waiting=None):
     if settings.denoise:
         from . import denoise
         denoise.require()
+    records = render_records(cs, settings) if gather and settings.irradiance_cache else None
     img = render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
                        max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress,
-                       passes=passes)
+                       passes=passes, records=records)
     _kernels_done(cs, "render")
     if settings.denoise:
         t0 = time.perf_counter()
         img = denoise_render(cs, img, settings)
         cs.timings["denoise"] = time.perf_counter() - t0
     return img
+
+
+def render_records(cs, settings):
+    """The irradiance-cache records a gathering render reads (engine/irradiance_cache.py),
+    made once per traced light and kept on cs: every frame of a camera animation
+    that reuses the light reads the same records. Timed in cs.timings["records"]
+    (0 when they were kept)."""
+    from . import irradiance_cache as IC
+    key = (int(settings.seed), int(settings.bake_gather_rays))
+    kept = cs.render_records
+    if kept is not None and kept[0] == key:
+        cs.timings["records"] = 0.0
+        return kept[1]
+    t0 = time.perf_counter()
+    records, info = IC.scene_records(cs, settings.bake_gather_rays, seed=int(settings.seed))
+    cs.render_records = (key, records, info)
+    cs.timings["records"] = time.perf_counter() - t0
+    return records
 
 
 def denoise_render(cs, img, settings):

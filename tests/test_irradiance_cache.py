@@ -155,3 +155,28 @@ def test_same_result_on_any_thread_count(cornell):
         numba.set_num_threads(before)
     np.testing.assert_array_equal(one.E, cached.E)
     np.testing.assert_array_equal(one.se, cached.se)
+
+
+def test_render_reads_the_records_and_keeps_the_mean():
+    """A gathering render with the cache on: the image mean within 0.5 % of the
+    render that gathers at every hit (measured: within 0.12 %), far fewer rays, and
+    the records made once per photon pass (a second render, or another camera
+    on the same light, reads the kept ones)."""
+    from photon_lightmaps.engine import light_reuse
+    s = demo_scenes.cornell_box(width=64, height=64)
+    cs = session.compile(s)
+    st = session.Settings(photons=300_000, seed=1, samples=8, gather_rays=8)
+    session.render_photon_pass(cs, st)
+    full = session.render(cs, st)
+    full_rays = cs.rays["render"]
+    cached = session.render(cs, replace(st, irradiance_cache=True))
+    assert cs.render_records is not None and cs.timings["records"] > 0.0
+    ratio = cached.mean(axis=(0, 1)) / full.mean(axis=(0, 1))
+    print(f"\nrender mean cached / gathered: {np.round(ratio, 4)}; rays {cs.rays['render']:,} / {full_rays:,}")
+    assert np.all(np.abs(ratio - 1.0) < 0.005), ratio
+    assert cs.rays["render"] < 0.5 * full_rays
+    other = light_reuse.with_camera(cs, replace(s.camera, width=24, height=24))
+    session.render(other, replace(st, irradiance_cache=True))
+    assert other.timings["records"] == 0.0
+    session.render_photon_pass(cs, st)
+    assert cs.render_records is None            # a new photon pass: new light, new records

@@ -81,7 +81,7 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         sub.active = s.indirect == "GATHER"
         sub.prop(s, "gather_rays")
         sub.prop(s, "bake_gather_rays")
-        sub.prop(s, "bake_irradiance_cache")
+        sub.prop(s, "irradiance_cache")
         sub.prop(s, "bake_target_error")
         row = sub.row()
         row.active = s.bake_target_error > 0.0 or s.bake_time > 0.0

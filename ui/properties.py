@@ -114,11 +114,12 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         subtype='FACTOR', precision=3,
         description="Adaptive bake gather: texels whose estimated relative error is above this "
                     "get more gather rays, up to Bake Max Rays (0: every texel gets Bake Gather Rays)")
-    bake_irradiance_cache: BoolProperty(
-        name="Irradiance Cache", default=_D.bake_irradiance_cache,
-        description="Bakes: gather at a sparse set of points placed densest where light changes "
-                    "(contact, corners) and interpolate between them, instead of at every texel: "
-                    "several times fewer gather rays, no seams between charts or objects")
+    irradiance_cache: BoolProperty(
+        name="Irradiance Cache", default=_D.irradiance_cache,
+        description="Final gather from a sparse set of points placed densest where light changes "
+                    "(contact, corners), interpolated, instead of at every texel (bakes) or every "
+                    "camera hit (renders, made once per photon pass and kept across the frames of "
+                    "a camera animation): several times fewer gather rays, no seams")
     bake_max_rays: IntProperty(
         name="Bake Max Rays", default=_D.bake_max_rays, min=1, soft_max=65536,
         description="The most final-gather rays a texel and lit side can get with a target error")

@@ -132,6 +132,9 @@ def build_parser():
     r.add_argument("--indirect", choices=("gather", "lookup"), default=None,
                    help="indirect light by final gather or by the hit's own lightmap")
     r.add_argument("--gather-rays", type=_count(1), default=None, help="final-gather rays per sample")
+    r.add_argument("--irradiance-cache", action=argparse.BooleanOptionalAction, default=None,
+                   help="final gather through a sparse irradiance cache, made once per photon pass "
+                        "(default: scene setting)")
     r.add_argument("--frames", type=_frames, default=None, metavar="A-B",
                    help="render frames A to B (one image each: a run of '#' in --out is the frame "
                         "number, else _#### goes before the extension); where only the camera moves, "
@@ -332,7 +335,7 @@ def render_main(args):
         raise InputError(f"scene '{scene.name}': no camera; add one and set it as the scene camera "
                          "(Scene Properties > Camera)")
     settings = scene.photon_lightmaps
-    for name in ("photons", "samples", "seed", "gather_rays", "denoise"):
+    for name in ("photons", "samples", "seed", "gather_rays", "denoise", "irradiance_cache"):
         value = getattr(args, name, None)
         if value is not None:
             setattr(settings, name, value)
@@ -340,7 +343,8 @@ def render_main(args):
         settings.indirect = args.indirect.upper()
     t_load = time.perf_counter()
     used = {k: getattr(settings, k) for k in ("photons", "max_bounces", "texel_density", "reconstruction",
-                                              "samples", "seed", "indirect", "gather_rays", "denoise")}
+                                              "samples", "seed", "indirect", "gather_rays", "denoise",
+                                              "irradiance_cache")}
     if args.frames is not None:
         report = _render_frames(scene, out, args.frames)
     else:

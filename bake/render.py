@@ -298,6 +298,8 @@ def _run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=No
                    "total": t_render - t0}
     if "denoise" in cs.timings:     # part of "render" (session.render denoises the finished image)
         run.seconds["denoise"] = cs.timings["denoise"]
+    if "records" in cs.timings:     # part of "render": the irradiance cache's records (0: kept)
+        run.seconds["records"] = cs.timings["records"]
     return run
 
 

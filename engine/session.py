@@ -233,6 +233,7 @@ def render(cs, settings, *, tile=64, progress=None, passes=None, waiting=None):
     if settings.denoise:
         from . import denoise
         denoise.require()
+    cs.timings.pop("records", None)
     records = render_records(cs, settings) if gather and settings.irradiance_cache else None
     img = render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
                        max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress,

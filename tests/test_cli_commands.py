@@ -93,16 +93,19 @@ def test_render(demo, tmp_path):
 
 def test_render_frames(demo, tmp_path):
     """--frames renders one image per frame; the demo's camera does not move, so
-    the second frame reuses the first's light."""
+    the second frame reuses the first's light (and its irradiance cache)."""
     out, _ = demo
     rep = tmp_path / "f.json"
     r = run("render", out / "demo.blend", "--out", tmp_path / "f_##.png", "--json", rep, *TINY,
-            "--samples", "1", "--frames", "1-2")
+            "--samples", "1", "--frames", "1-2", "--irradiance-cache")
     report = json.loads(rep.read_text())
     assert [read_png(tmp_path / f"f_0{f}.png") for f in (1, 2)] == [(24, 16)] * 2
     assert [f["frame"] for f in report["frames"]] == [1, 2]
     assert [f["light_from_frame"] for f in report["frames"]] == [None, 1]
     assert report["frames_reusing_light"] == 1 and "light of frame 1 reused" in r.stdout
+    # the irradiance cache's records are made with the light, and kept with it
+    assert report["settings"]["irradiance_cache"] is True
+    assert report["frames"][0]["seconds"]["records"] > 0.0 and report["frames"][1]["seconds"]["records"] == 0.0
     assert set(report["seconds"]) >= {"load", "pipeline", "total", "photon_pass", "render"}
 
 

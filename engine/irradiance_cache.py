@@ -52,6 +52,7 @@ MIN_RADIUS_TEXELS = 3.0
 MAX_RADIUS_TEXELS = 12.0
 REFINE_ROUNDS = 3
 BATCHES = 4               # a record's rays in this many batches: its standard error
+CLAMP_PASSES = 8          # neighbour clamping, repeated until it changes nothing (at most)
 STREAM_RECORD = np.uint64(0x9E6C63D0676A9A99)
 
 
@@ -161,7 +162,9 @@ def _build_grid(pos, reach, cell, mask):
 def _clamp_radii(pos, R, cell, mask, start, entries):
     """Neighbour clamping (Křivánek et al. 2006): R_i <= R_j + |x_i - x_j| for every
     record j within i's reach, so a record next to one that sees nearby geometry
-    (a shadow edge, a contact) cannot reach across it with a larger radius."""
+    (a shadow edge, a contact) cannot reach across it with a larger radius.
+    start/entries: each record hashed to the one cell holding its position
+    (_build_grid with no reach), so a query visits each candidate once."""
     out = R.copy()
     for i in range(pos.shape[0]):
         reach = ACCURACY * R[i]
@@ -427,12 +430,20 @@ def _build(cs, fixed, cat, n_points, n_rays, stream):
     args = (cat["inst"], cat["lid"], cat["side"], cat["key"], cat["local"], cat["start"], cat["tri"], cat["area"],
             cat["nv"], cat["bary"], int(n_points), stream)
     grid = [None]
+    clamped_for = [-1]       # the record count the radii were last clamped for
 
     def interpolate(items):
-        grid[0] = Grid(cache.pos, cache.R)
-        clamped = _clamp_radii(cache.pos, cache.R, grid[0].cell, grid[0].mask, grid[0].start, grid[0].entries)
-        if not np.array_equal(clamped, cache.R):
-            cache.R = clamped
+        if clamped_for[0] != cache.pos.shape[0]:        # records were added: clamp again
+            cell = max(float(np.median(ACCURACY * cache.R)), 1e-9)
+            mask = (1 << max(int(math.ceil(math.log2(max(2 * cache.R.size, 2)))), 1)) - 1
+            start, entries = _build_grid(cache.pos, np.zeros(cache.R.size), cell, mask)
+            for _ in range(CLAMP_PASSES):   # until every neighbour pair obeys it (a chain needs passes)
+                clamped = _clamp_radii(cache.pos, cache.R, cell, mask, start, entries)
+                done = np.array_equal(clamped, cache.R)
+                cache.R = clamped
+                if done:
+                    break
+            clamped_for[0] = cache.pos.shape[0]
             grid[0] = Grid(cache.pos, cache.R)
         gr = grid[0]
         parallel.run(_interpolate, items.size, g, lmc, caustics, items, *args, cache.pos, cache.nrm, cache.E,

@@ -225,7 +225,7 @@ TexelPieces = namedtuple("TexelPieces", [
 ])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _triangle_texel_pieces(uv, area3d, width, height):
     # The same rasteriser as _triangle_texel_areas (_uv_triangle, _clip_into_texels,
     # the same shares), so the pieces of a texel add up to the area it gets there.
@@ -274,6 +274,27 @@ def _triangle_texel_pieces(uv, area3d, width, height):
     return p_tri[:n_p], p_tex[:n_p], p_area[:n_p], p_nv[:n_p], p_b[:n_p]
 
 
+# Triangles per block of the clipping: a dense mesh's clipping is split over the
+# threads (the kernel releases the GIL); a small one stays in one call.
+PIECES_BLOCK = 16384
+
+
+def _pieces_in_blocks(uv, area3d, width, height):
+    """_triangle_texel_pieces over blocks of triangles on the pool, joined in
+    triangle order: the same arrays one call gives."""
+    from . import parallel
+    if uv.shape[0] < 2 * PIECES_BLOCK:
+        return _triangle_texel_pieces(uv, area3d, width, height)
+    parts = {}
+
+    def block(start, stop):
+        parts[start] = _triangle_texel_pieces(uv[start:stop], area3d[start:stop], width, height)
+    parallel.run(block, uv.shape[0], min_block=PIECES_BLOCK)
+    starts = sorted(parts)
+    tri = np.concatenate([parts[a][0] + a for a in starts])
+    return (tri,) + tuple(np.concatenate([parts[a][k] for a in starts]) for k in range(1, 5))
+
+
 def triangle_texel_pieces(uv, area3d, width, height):
     """The parts of the UV triangles inside each texel of a W×H atlas (for
     integrating over a texel's surface, e.g. direct light at bake time).
@@ -286,7 +307,7 @@ def triangle_texel_pieces(uv, area3d, width, height):
     texel's area from `triangle_texel_areas`.
     """
     uv, area3d, width, height = _atlas_inputs(uv, area3d, width, height)
-    tri, tex, area, nv, bary = _triangle_texel_pieces(uv, area3d, width, height)
+    tri, tex, area, nv, bary = _pieces_in_blocks(uv, area3d, width, height)
     order = np.argsort(tex, kind="stable")
     start = np.zeros(width * height + 1, np.int64)
     np.cumsum(np.bincount(tex, minlength=width * height), out=start[1:])

@@ -213,3 +213,22 @@ def test_texel_pieces_add_up_to_texel_areas():
         j = int(np.searchsorted(pcs.start, p, side="right") - 1)
         if np.abs(np.cross(t[1] - t[0], t[2] - t[0])) > 1e-9:
             assert np.all(np.floor(q.mean(axis=0) * [9, 7]) == [j % 9, j // 9])
+
+
+def test_dense_mesh_pieces_split_over_threads_match_one_call():
+    """A mesh of more than 2 x PIECES_BLOCK triangles is clipped in blocks on the
+    thread pool; joined in triangle order, the pieces are those of one call."""
+    rng = np.random.default_rng(5)
+    n = 2 * TA.PIECES_BLOCK + 1234
+    centre = rng.random((n, 1, 2))
+    uv = centre + rng.normal(scale=0.004, size=(n, 3, 2))
+    area3d = rng.random(n) + 0.1
+    one = TA._triangle_texel_pieces(*TA._atlas_inputs(uv, area3d, 64, 64))
+    pcs = TA.triangle_texel_pieces(uv, area3d, 64, 64)
+    order = np.argsort(one[1], kind="stable")
+    np.testing.assert_array_equal(pcs.tri, one[0][order])
+    np.testing.assert_array_equal(pcs.area, one[2][order])
+    np.testing.assert_array_equal(pcs.nv, one[3][order])
+    used = np.arange(TA.MAX_PIECE_VERTICES)[None, :] < pcs.nv[:, None]
+    np.testing.assert_array_equal(pcs.bary[used], one[4][order][used])
+    assert pcs.tri.max() > 2 * TA.PIECES_BLOCK      # the last block's rows are offset back

@@ -434,15 +434,16 @@ def _build(cs, fixed, cat, n_points, n_rays, stream):
 
     def interpolate(items):
         if clamped_for[0] != cache.pos.shape[0]:        # records were added: clamp again
-            cell = max(float(np.median(ACCURACY * cache.R)), 1e-9)
-            mask = (1 << max(int(math.ceil(math.log2(max(2 * cache.R.size, 2)))), 1)) - 1
-            start, entries = _build_grid(cache.pos, np.zeros(cache.R.size), cell, mask)
-            for _ in range(CLAMP_PASSES):   # until every neighbour pair obeys it (a chain needs passes)
-                clamped = _clamp_radii(cache.pos, cache.R, cell, mask, start, entries)
-                done = np.array_equal(clamped, cache.R)
-                cache.R = clamped
-                if done:
-                    break
+            if cache.R.size:
+                cell = max(float(np.median(ACCURACY * cache.R)), 1e-9)
+                mask = (1 << max(int(math.ceil(math.log2(max(2 * cache.R.size, 2)))), 1)) - 1
+                start, entries = _build_grid(cache.pos, np.zeros(cache.R.size), cell, mask)
+                for _ in range(CLAMP_PASSES):   # until every neighbour pair obeys it (a chain needs passes)
+                    clamped = _clamp_radii(cache.pos, cache.R, cell, mask, start, entries)
+                    done = np.array_equal(clamped, cache.R)
+                    cache.R = clamped
+                    if done:
+                        break
             clamped_for[0] = cache.pos.shape[0]
             grid[0] = Grid(cache.pos, cache.R)
         gr = grid[0]

@@ -180,3 +180,16 @@ def test_render_reads_the_records_and_keeps_the_mean():
     assert other.timings["records"] == 0.0
     session.render_photon_pass(cs, st)
     assert cs.render_records is None            # a new photon pass: new light, new records
+
+
+def test_no_lattice_texel_still_gets_records(cornell, monkeypatch):
+    """Where no texel of a lightmap sits on the first records' lattice (a small
+    mesh), the rounds place every record; nothing is left without light."""
+    from photon_lightmaps.engine import irradiance_cache as IC
+    cs, full, _, _ = cornell
+    monkeypatch.setattr(IC, "_first_sites", lambda cs, cat: np.zeros(0, np.int64))
+    info = {}
+    got = gather(cs, True, info)
+    assert info["records"] > 0 and np.all(np.isfinite(got.E))
+    ratio = object_means(cs, got) / object_means(cs, full)
+    assert np.all(np.abs(ratio - 1.0) < 0.02), ratio

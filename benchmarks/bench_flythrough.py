@@ -140,7 +140,7 @@ def ours(scene, frames, refs, photons, samples, gather_rays, cache=False):
         with quiet():
             report = headless._render_frames(scene, pathlib.Path(tmp) / "f_###.exr", (1, frames))
         total = time.perf_counter() - t0
-        errs = {f: Scorer(*refs[f])(_read(pathlib.Path(tmp) / f"f_{f:03d}.exr"))["rel_rmse"] for f in refs}
+        errs = {f: Scorer(*refs[f])(M.read_rgb(pathlib.Path(tmp) / f"f_{f:03d}.exr"))["rel_rmse"] for f in refs}
     per = [r["seconds"]["total"] for r in report["frames"]]
     return dict(photons=photons, samples=samples, gather_rays=gather_rays, irradiance_cache=cache, seconds=total,
                 first_frame_seconds=per[0], later_frame_seconds=float(np.mean(per[1:])) if len(per) > 1 else 0.0,
@@ -162,17 +162,6 @@ def ours_without_reuse(scene, frames, refs, photons, samples, gather_rays):
             secs.append(time.perf_counter() - t0)
     return dict(photons=photons, samples=samples, gather_rays=gather_rays,
                 seconds=float(np.mean(secs)) * frames, frame_seconds=float(np.mean(secs)))
-
-
-def _read(path):
-    img = bpy.data.images.load(str(path), check_existing=False)
-    try:
-        w, h = img.size
-        px = np.empty(w * h * 4, np.float32)
-        img.pixels.foreach_get(px)
-        return px.reshape(h, w, 4)[::-1, :, :3].copy()
-    finally:
-        bpy.data.images.remove(img)
 
 
 def cycles(scene, frames, refs, spps):

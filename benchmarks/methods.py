@@ -112,13 +112,20 @@ def render_still(scene):
         t0 = time.perf_counter()
         bpy.ops.render.render(write_still=True)
         seconds = time.perf_counter() - t0
-        img = bpy.data.images.load(r.filepath)
+        out = read_rgb(r.filepath)
+    return out, seconds
+
+
+def read_rgb(path):
+    """An image file -> (H, W, 3) float32, rows top-down (EXR: linear)."""
+    img = bpy.data.images.load(str(path), check_existing=False)
+    try:
         w, h = img.size
         px = np.empty(w * h * img.channels, np.float32)
         img.pixels.foreach_get(px)
-        out = px.reshape(h, w, img.channels)[::-1, :, :3].copy()
+        return px.reshape(h, w, img.channels)[::-1, :, :3].copy()
+    finally:
         bpy.data.images.remove(img)
-    return out, seconds
 
 
 # --------------------------------------------------------------------------------------

@@ -241,20 +241,10 @@ def accumulate_kernel(lm, texel_ids, powers):
     flux = lm.flux
     flux_sq = lm.flux_sq
     hits = lm.hits
-    nb = flux.shape[1]
-    inv_b = 1.0 / nb
     for k in range(texel_ids.shape[0]):
         i = texel_ids[k]
-        if i < 0:
-            continue
-        m = 0.0
-        for b in range(nb):
-            p = powers[k, b]
-            flux[i, b] += p
-            m += p
-        m *= inv_b
-        flux_sq[i] += m * m
-        hits[i] += 1
+        if i >= 0:
+            _add_record(flux, flux_sq, hits, i, powers[k])
 
 
 def accumulate_records(lm, fine, rec_texel, rec_power, n_rows, n_main):
@@ -272,33 +262,29 @@ def accumulate_records(lm, fine, rec_texel, rec_power, n_rows, n_main):
 @njit(cache=True, nogil=True)
 def _accumulate_records(flux, flux_sq, hits, f_flux, f_flux_sq, f_hits, rec_texel, rec_power, n_rows, n_main):
     n = 0
-    nb = flux.shape[1]
-    inv_b = 1.0 / nb
     for r in range(n_rows):
         for j in range(rec_texel.shape[1]):
             i = rec_texel[r, j]
             if i < 0:
                 continue
-            m = 0.0
             if i < n_main:
-                for b in range(nb):
-                    p = rec_power[r, j, b]
-                    flux[i, b] += p
-                    m += p
-                m *= inv_b
-                flux_sq[i] += m * m
-                hits[i] += 1
+                _add_record(flux, flux_sq, hits, i, rec_power[r, j])
             else:
-                i -= n_main
-                for b in range(nb):
-                    p = rec_power[r, j, b]
-                    f_flux[i, b] += p
-                    m += p
-                m *= inv_b
-                f_flux_sq[i] += m * m
-                f_hits[i] += 1
+                _add_record(f_flux, f_flux_sq, f_hits, i - n_main, rec_power[r, j])
             n += 1
     return n
+
+
+@njit(cache=True, inline="always")
+def _add_record(flux, flux_sq, hits, i, power):
+    nb = flux.shape[1]
+    m = 0.0
+    for b in range(nb):
+        flux[i, b] += power[b]
+        m += power[b]
+    m *= 1.0 / nb
+    flux_sq[i] += m * m
+    hits[i] += 1
 
 
 def accumulate(lm, texel_ids, powers):

@@ -65,7 +65,11 @@ def test_object_means_match_the_per_texel_gather(cornell):
 
 def test_records_trace_far_fewer_rays(cornell):
     cs, full, cached, info = cornell
-    full_rays = int((full.rays * POINTS * np.where(cs.lightmaps.area[full.ids] > 0, 2, 2)).sum())
+    ids = sorted({int(l) for lids in cs.instance_lightmaps for l in lids})
+    cat = BG._Texels(cs, ids, (), POINTS, 0, 1).mesh
+    assert np.array_equal(cat["texel"], full.ids)
+    sides = np.where(cat["side"] == 0, 2, 1)         # side 0: gathered on both sides
+    full_rays = int((full.rays * POINTS * sides).sum())
     print(f"\n{info}; per-texel gather: {full_rays:,} rays")
     assert info["fallback_items"] < 0.05 * info["items"]
     assert info["record_rays"] < 0.5 * full_rays

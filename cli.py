@@ -438,6 +438,7 @@ def bake_main(args):
         "blend": str(blend),
         "photons": int(stats.photons) if stats else 0,
         "rays": int(stats.rays) if stats else 0,
+        "photons_aimed_at": stats.as_dict()["aimed_at"] if stats else None,
         "seconds": {"photon_pass": res.seconds.get("photon_pass", 0.0),
                     "direct": res.seconds.get("direct", 0.0),
                     "gather": res.seconds.get("gather", 0.0),

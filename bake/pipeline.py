@@ -463,7 +463,8 @@ def compute_bake(job, progress=None, phase=None):
 
     phase("scene", f"{len(job.scene.instances):,} objects")
     with kernel_watch.watching(on_compile):
-        cs, stats = session.compile_and_trace_bake(job.scene, job.settings, progress=progress)
+        cs, stats = session.compile_and_trace_bake(job.scene, job.settings, progress=progress,
+                                                   aim_at=list(job.targets.values()))
     result.stats = stats
     result.lightmap_bytes = cs.lightmap_bytes()
     result.environment = cs.info.get("environment")

@@ -23,6 +23,7 @@ import numpy as np
 from numba import njit
 
 from . import environment as E
+from . import photon_aim as A
 from . import primitives as P
 from .affine import apply_linear, apply_point, apply_transposed
 from .jit import CORE, INLINE
@@ -37,7 +38,8 @@ LightSet = namedtuple("LightSet", [
     "kind", "pos", "axis_u", "axis_v", "normal", "shape", "radius", "soft", "cos_half", "smooth",
     "radiance", "flux", "area", "two_sided", "inst", "shape_id",
     "cell_start", "cell_count", "cell_face", "cell_u0", "cell_v0", "cell_du", "cell_dv",
-    "cell_cdf", "power_cdf", "center", "bound_radius", "total_power"]
+    "cell_cdf", "power_cdf", "center", "bound_radius", "total_power",
+    "aim_center", "aim_radius", "aim_fraction"]     # importance emission (photon_aim.py)
     # the world (environment.EnvMap) field by field: parallel kernels take no nested tuples
     + ["env_" + f for f in E.FIELDS])
 
@@ -163,7 +165,10 @@ def compile_lights(scene, geom, materials, bounds):
         cell_count=i32("cell_count"), cell_face=c["face"], cell_u0=c["u0"], cell_v0=c["v0"],
         cell_du=c["du"], cell_dv=c["dv"], cell_cdf=c["cdf"],
         power_cdf=cdf.astype(np.float64), center=center, bound_radius=float(bound_radius),
-        total_power=float(cdf[-1]) if n else 0.0, **{"env_" + f: v for f, v in zip(E.FIELDS, ev)})
+        total_power=float(cdf[-1]) if n else 0.0,
+        # aimed at the scene itself: only lights outside it aim (a bake narrows it)
+        aim_center=center.copy(), aim_radius=float(bound_radius), aim_fraction=A.AIMED,
+        **{"env_" + f: v for f, v in zip(E.FIELDS, ev)})
 
 
 def environment_map(ls):
@@ -364,7 +369,8 @@ def emit_photon(ls, g, state):
 
     The photon's power is weight * ls.flux[light] * total_power / power(light) / N:
     lights are chosen in proportion to power, so photons carry similar power.
-    weight is 0 when the sample is rejected (it then carries nothing).
+    weight is 0 when the sample is rejected (it then carries nothing); it is
+    p_light / p_mixture for photons aimed at the aim sphere (photon_aim.py).
     """
     state, u0 = next_float(state)
     li = sample_discrete(ls.power_cdf, u0)
@@ -381,10 +387,13 @@ def emit_photon(ls, g, state):
         if k == SPOT:
             # Uniform in the cone, weighted by the falloff over its mean: the expected
             # power matches the exact spot flux and no photon is wasted on rejection.
+            nx, ny, nz = ls.normal[li, 0], ls.normal[li, 1], ls.normal[li, 2]
             lx, ly, lz = uniform_cone(u1, u2, ls.cos_half[li])
-            dx, dy, dz = to_world(lx, ly, lz, ls.normal[li, 0], ls.normal[li, 1], ls.normal[li, 2])
+            dx, dy, dz = to_world(lx, ly, lz, nx, ny, nz)
+            state, dx, dy, dz, weight = A.aim_direction(ls, state, cx, cy, cz, dx, dy, dz, A.CONE,
+                                                        nx, ny, nz, ls.cos_half[li])
             mean_mask = spot_flux_mean(ls, li)
-            weight = spot_mask(ls, li, dx, dy, dz) / mean_mask if mean_mask > 0.0 else 0.0
+            weight *= spot_mask(ls, li, dx, dy, dz) / mean_mask if mean_mask > 0.0 else 0.0
             if r > 0.0:
                 nx, ny, nz = uniform_sphere(u3, u4)
                 if nx * dx + ny * dy + nz * dz < 0.0:
@@ -395,13 +404,21 @@ def emit_photon(ls, g, state):
             nx, ny, nz = uniform_sphere(u1, u2)
             lx, ly, lz = cosine_hemisphere(u3, u4)
             dx, dy, dz = to_world(lx, ly, lz, nx, ny, nz)
-            return state, li, cx + r * nx, cy + r * ny, cz + r * nz, dx, dy, dz, weight
+            ox, oy, oz = cx + r * nx, cy + r * ny, cz + r * nz
+            state, dx, dy, dz, weight = A.aim_direction(ls, state, ox, oy, oz, dx, dy, dz, A.COSINE,
+                                                        nx, ny, nz, 0.0)
+            return state, li, ox, oy, oz, dx, dy, dz, weight
         dx, dy, dz = uniform_sphere(u1, u2)
+        state, dx, dy, dz, weight = A.aim_direction(ls, state, cx, cy, cz, dx, dy, dz, A.UNIFORM,
+                                                    0.0, 0.0, 1.0, 0.0)
         return state, li, cx, cy, cz, dx, dy, dz, weight
     if k == AREA:
         ox, oy, oz = _area_point(ls, li, u1, u2)
+        nx, ny, nz = ls.normal[li, 0], ls.normal[li, 1], ls.normal[li, 2]
         lx, ly, lz = cosine_hemisphere(u3, u4)
-        dx, dy, dz = to_world(lx, ly, lz, ls.normal[li, 0], ls.normal[li, 1], ls.normal[li, 2])
+        dx, dy, dz = to_world(lx, ly, lz, nx, ny, nz)
+        state, dx, dy, dz, weight = A.aim_direction(ls, state, ox, oy, oz, dx, dy, dz, A.COSINE,
+                                                    nx, ny, nz, 0.0)
         return state, li, ox, oy, oz, dx, dy, dz, weight
     if k == SUN:
         lx, ly, lz = uniform_cone(u3, u4, ls.cos_half[li])
@@ -413,6 +430,7 @@ def emit_photon(ls, g, state):
         ox = ls.center[0] + R * (a * tx + b * bx) - 2.0 * R * dx
         oy = ls.center[1] + R * (a * ty + b * by) - 2.0 * R * dy
         oz = ls.center[2] + R * (a * tz + b * bz) - 2.0 * R * dz
+        state, ox, oy, oz, weight = A.aim_disk(ls, state, dx, dy, dz, R, ox, oy, oz)
         return state, li, ox, oy, oz, dx, dy, dz, weight
     if k == ENVIRONMENT and not ls.env_constant:
         # Direction towards the world by the map's CDF, then a point on the disk of the
@@ -420,18 +438,30 @@ def emit_photon(ls, g, state):
         # weight L/pdf * pi R^2 / flux is 1 in the mean band by construction of the pdf;
         # photon_tint gives the per-band colour of the direction.
         wx, wy, wz, pdf = E.sample(_env(ls), u1, u2)
-        if not pdf > 0.0:
-            weight = 0.0
         a, b = concentric_disk(u3, u4)
         R = ls.radius[li]
         tx, ty, tz, bx, by, bz = orthonormal_basis(wx, wy, wz)
         ox = ls.center[0] + R * (a * tx + b * bx) + 2.0 * R * wx
         oy = ls.center[1] + R * (a * ty + b * by) + 2.0 * R * wy
         oz = ls.center[2] + R * (a * tz + b * bz) + 2.0 * R * wz
+        state, ox, oy, oz, weight = A.aim_disk(ls, state, -wx, -wy, -wz, R, ox, oy, oz)
+        if not pdf > 0.0:
+            weight = 0.0
         return state, li, ox, oy, oz, -wx, -wy, -wz, weight
     if k == ENVIRONMENT:
-        nx, ny, nz = uniform_sphere(u1, u2)
         R = ls.radius[li]
+        if ls.aim_fraction > 0.0 and ls.aim_radius < R:
+            # Aimed: the same photons as below, parametrised as for a map (a uniform
+            # direction, then a point on the disk facing it) so the disk can be aimed.
+            wx, wy, wz = uniform_sphere(u1, u2)
+            a, b = concentric_disk(u3, u4)
+            tx, ty, tz, bx, by, bz = orthonormal_basis(wx, wy, wz)
+            ox = ls.center[0] + R * (a * tx + b * bx) + 2.0 * R * wx
+            oy = ls.center[1] + R * (a * ty + b * by) + 2.0 * R * wy
+            oz = ls.center[2] + R * (a * tz + b * bz) + 2.0 * R * wz
+            state, ox, oy, oz, weight = A.aim_disk(ls, state, -wx, -wy, -wz, R, ox, oy, oz)
+            return state, li, ox, oy, oz, -wx, -wy, -wz, weight
+        nx, ny, nz = uniform_sphere(u1, u2)
         lx, ly, lz = cosine_hemisphere(u3, u4)
         dx, dy, dz = to_world(lx, ly, lz, -nx, -ny, -nz)
         return (state, li, ls.center[0] + R * nx, ls.center[1] + R * ny, ls.center[2] + R * nz,
@@ -444,7 +474,8 @@ def emit_photon(ls, g, state):
             nx, ny, nz = -nx, -ny, -nz
     lx, ly, lz = cosine_hemisphere(u3, u4)
     dx, dy, dz = to_world(lx, ly, lz, nx, ny, nz)
-    return state, li, px, py, pz, dx, dy, dz, w
+    state, dx, dy, dz, weight = A.aim_direction(ls, state, px, py, pz, dx, dy, dz, A.COSINE, nx, ny, nz, 0.0)
+    return state, li, px, py, pz, dx, dy, dz, w * weight
 
 
 @njit(cache=True)

@@ -100,19 +100,20 @@ def _kernels_done(cs, pass_):
 
 
 def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=None, caustics=False,
-                gather=False):
+                gather=False, aim=None):
     """Traces the photons into cs.lightmaps -> PhotonStats. Raises Cancelled.
 
     record_direct=False keeps first hits out (the direct part is gathered per
     texel instead, see gather_direct); orientation-lightmap bakes record them.
     caustics=True (renders): caustic photons go to the finer cs.caustics.
     gather=True: final-gather rays read the lightmaps, so they keep one bounce
-    less (trace_photons).
+    less (trace_photons). aim: the sphere photons are aimed at (photon_aim.py).
     """
     from .photon_tracer import trace_photons
     n = settings.photons if photons is None else photons
     return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
-                         record_direct=record_direct, progress=progress, caustics=caustics, gather=gather)
+                         record_direct=record_direct, progress=progress, caustics=caustics, gather=gather,
+                         aim=aim)
 
 
 def render_photon_pass(cs, settings, *, progress=None):
@@ -122,24 +123,35 @@ def render_photon_pass(cs, settings, *, progress=None):
                        gather=settings.gathers)
 
 
-def compile_and_trace(scene, settings, *, record_direct=False, progress=None):
-    """compile + photon_pass -> (compiled scene, PhotonStats)."""
+def compile_and_trace(scene, settings, *, record_direct=False, progress=None, aim_at=None):
+    """compile + photon_pass -> (compiled scene, PhotonStats); aim_at: see
+    compile_and_trace_bake."""
     cs = compile(scene)
-    return cs, photon_pass(cs, settings, record_direct=record_direct, progress=progress)
+    return cs, photon_pass(cs, settings, record_direct=record_direct, progress=progress,
+                           aim=_aim(cs, aim_at))
 
 
-def compile_and_trace_bake(scene, settings, *, progress=None):
+def _aim(cs, instances):
+    from . import photon_aim
+    return None if instances is None else photon_aim.sphere_around(cs.geometry, instances)
+
+
+def compile_and_trace_bake(scene, settings, *, progress=None, aim_at=None):
     """compile + the photon pass a bake needs -> (compiled scene, PhotonStats).
 
     A lookup bake keeps first hits out (its direct part is gathered per texel);
     a gathering bake records them, since gather rays read total irradiance one
     bounce away, and keeps caustics apart (gather rays cannot find them). Its
     caustic lightmaps need no finer texels than the bake's own: they are
-    averaged over each baked texel."""
+    averaged over each baked texel.
+
+    aim_at: the instance ids baked; photons are aimed at the space around them
+    (importance emission, photon_aim.py). None aims at the whole scene."""
     if not settings.bake_gathers:
-        return compile_and_trace(scene, settings, progress=progress)
+        return compile_and_trace(scene, settings, progress=progress, aim_at=aim_at)
     cs = compile(replace(scene, caustic_resolution=1.0), ahead=("bake",))
-    return cs, photon_pass(cs, settings, record_direct=True, progress=progress, caustics=True, gather=True)
+    return cs, photon_pass(cs, settings, record_direct=True, progress=progress, caustics=True, gather=True,
+                           aim=_aim(cs, aim_at))
 
 
 def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline=None, phase=None):

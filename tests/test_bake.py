@@ -528,3 +528,30 @@ def test_cli_bake_writes_exr_and_report(tmp_path):
     assert np.all(ex[..., 0][a == 0] == 0) and rel.min() >= 0
     assert rel.max() == pytest.approx(info["error"]["rel_error_max"], rel=1e-5)
     assert rel.mean() == pytest.approx(info["error"]["rel_error_mean"], rel=1e-3)
+
+
+def test_a_bake_of_one_object_aims_its_photons_at_it():
+    """A 1 m cube on a 60 m ground under the sun: baking the cube alone aims the
+    photons at the sphere around it (importance emission); baking both aims at
+    nothing narrower than the scene. The CLI report says where they went."""
+    scene = demo_blend._reset()
+    grey = demo_blend.principled("grey", (0.6, 0.6, 0.6))
+    v, f = demo_blend.box_mesh_data()
+    ground = demo_blend.mesh_object("ground", v, f, grey)
+    ground.scale, ground.location = (30.0, 30.0, 0.05), (0.0, 0.0, -0.05)
+    cube = demo_blend.mesh_object("cube", v, f, grey)
+    cube.scale, cube.location = (0.5, 0.5, 0.5), (0.0, 0.0, 0.5)
+    demo_blend.add_light(scene, "SUN", "sun", power=3.0, rotation=(0.0, math.radians(40.0), 0.0))
+    bpy.context.view_layer.update()
+    aims = []
+    for objects in ([cube], [cube, ground]):
+        job = B.prepare_bake(bpy.context, objects, photons=20_000, seed=0, resolution=8)
+        try:
+            B.compute_bake(job)
+        finally:
+            B.rollback_bake(job)
+        aims.append(job.result.stats.aim)
+    centre, radius = aims[0]
+    np.testing.assert_allclose(centre, [0.0, 0.0, 0.5], atol=1e-5)
+    assert radius == pytest.approx(0.5 * math.sqrt(3.0), rel=1e-5)
+    assert aims[1] is None

@@ -54,7 +54,7 @@ def point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack, px,
         fx, fy, fz = sgn * nx, sgn * ny, sgn * nz
         state = gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, isd, stack, px, py, pz, fx, fy, fz,
                                   fx, fy, fz, n_rays, mode, state, sc[0], sc[1], sc[2], pc, sc[3],
-                                  sc[4], sc[5], sc[6], out, count)
+                                  sc[4], sc[5], sc[6], out, count, 0, sc, sc[0])
     return state
 
 

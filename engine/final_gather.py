@@ -43,7 +43,7 @@ CHAIN = 3          # vertices a gather ray follows through glossy lobes
 
 @njit(**CORE)
 def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, pz, fx, fy, fz, sx, sy, sz,
-                      n_rays, mode, state, kd, ks, kt, pc, ind, tp, f, rad, out, count):
+                      n_rays, mode, state, kd, ks, kt, pc, ind, tp, f, rad, out, count, rings, cell_e, cell_t):
     """Indirect irradiance at p from n_rays gather rays into out[bands] (added).
 
     inst_side (one per instance, or empty: no test): the lit side of a closed
@@ -55,7 +55,14 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
     cosine-distributed about s; those that leave below f count zero, as the
     direct light's do). kd, ks, kt, pc, ind, tp, f, rad: scratch arrays; count[0]
     gains the rays traced (glossy chains included). A
-    randomly shifted rank-1 lattice stratifies the rays; it stays unbiased."""
+    randomly shifted rank-1 lattice stratifies the rays; it stays unbiased.
+
+    rings > 0 (irradiance-cache records): the hemisphere about s is cut into
+    `rings` rings of equal cosine-weighted measure by n_rays // rings sectors
+    of azimuth, one jittered ray per cell (Ward & Heckbert's split), and each
+    ray's own estimate and the distance to what it met first (inf: nothing)
+    also go to cell_e[i] and cell_t[i], for the record's gradients. Otherwise
+    cell_e and cell_t are not touched (any arrays of their types do)."""
     nb = out.shape[0]
     eps = ray_epsilon(px, py, pz)
     ox0, oy0, oz0 = px + eps * fx, py + eps * fy, pz + eps * fz
@@ -65,16 +72,30 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
     # texture footprint at q: a gather ray stands for about 1/N of the hemisphere
     spread = 2.0 / math.sqrt(n_rays)
     env_li = LH.environment_light(ls)
+    sectors = n_rays // rings if rings > 0 else 0
     for i in range(n_rays):
-        u1 = (i + o1) * w
-        u2 = (o2 + i * GOLDEN) % 1.0
-        lx, ly, lz = cosine_hemisphere(u1, u2)
+        dst = out
+        if rings > 0:
+            state, u1 = next_float(state)
+            state, u2 = next_float(state)
+            s2 = ((i // sectors) + u1) / rings
+            st = math.sqrt(s2)
+            phi = 2.0 * math.pi * ((i % sectors) + u2) / sectors
+            lx, ly, lz = st * math.cos(phi), st * math.sin(phi), math.sqrt(max(1.0 - s2, 0.0))
+            dst = cell_e[i]
+            for b in range(nb):
+                dst[b] = 0.0
+            cell_t[i] = math.inf
+        else:
+            u1 = (i + o1) * w
+            u2 = (o2 + i * GOLDEN) % 1.0
+            lx, ly, lz = cosine_hemisphere(u1, u2)
         dx, dy, dz = to_world(lx, ly, lz, sx, sy, sz)
         if dx * fx + dy * fy + dz * fz <= 0.0:
             continue
         ox, oy, oz = ox0, oy0, oz0
         for b in range(nb):
-            tp[b] = w
+            tp[b] = w if rings == 0 else 1.0
         sharp = True         # every lobe followed so far was sharp: lights seen are caustics
         for k in range(CHAIN):
             count[0] += 1
@@ -82,12 +103,14 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
                 g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
             if k > 0 and not sharp:
                 # the "irradiance" here is radiance weighted by cos/pdf (tp): lights met count
-                LH.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf, 0.0, typed(True), tp, out)
+                LH.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf, 0.0, typed(True), tp, dst)
+            if k == 0 and rings > 0 and hit:
+                cell_t[i] = t
             if not hit:
                 if k > 0 and not sharp and env_li >= 0:
                     ENV.radiance(env, dx, dy, dz, rad)
                     for b in range(nb):
-                        out[b] += tp[b] * rad[b]
+                        dst[b] += tp[b] * rad[b]
                 break
             cos_dn = dx * nx + dy * ny + dz * nz
             if k == 0 and inst_side.shape[0] > 0 and inst_side[inst] * cos_dn > 0.0:
@@ -95,7 +118,7 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
             m = g.shape_material[shape]
             if k > 0 and not sharp:
                 for b in range(nb):
-                    out[b] += tp[b] * ms.emission[m, b]
+                    dst[b] += tp[b] * ms.emission[m, b]
             qx, qy, qz = ox + t * dx, oy + t * dy, oz + t * dz
             rough, ior, _ = MT.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, spread * t, kd, ks, kt)
             cos_o = min(abs(cos_dn), 1.0)
@@ -105,7 +128,7 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
             if pd > 0.0 and ds > 0.0 and OL.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
                                                                nx, ny, nz, mode, ind):
                 for b in range(nb):
-                    out[b] += tp[b] * kd[b] * ds * ind[b]
+                    dst[b] += tp[b] * kd[b] * ds * ind[b]
             if ps + pm + pg <= 0.0 or k == CHAIN - 1:
                 break
             # on through the glossy lobes, in the frame of the face towards the ray
@@ -129,4 +152,7 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
             e2 = ray_epsilon(qx, qy, qz)
             side = e2 if (dx * nx + dy * ny + dz * nz) > 0.0 else -e2
             ox, oy, oz = qx + side * nx, qy + side * ny, qz + side * nz
+        if rings > 0:
+            for b in range(nb):
+                out[b] += w * dst[b]
     return state

@@ -250,7 +250,7 @@ def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0
                     reached = False
                     if rec.pos.shape[0] > 0:
                         wsum, _ = IC.lookup(px, py, pz, fx, fy, fz, rec.pos, rec.nrm, rec.E, rec.se, rec.R,
-                                            rec.cell, rec.mask, rec.start, rec.entries, ind)
+                                            rec.gt, rec.gr, rec.cell, rec.mask, rec.start, rec.entries, ind)
                         if wsum > 0.0:
                             reached = True
                             for b in range(nb):
@@ -258,7 +258,8 @@ def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0
                     if not reached:
                         state = FG.gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, no_sides, stack, px, py, pz,
                                                      fx, fy, fz, sx, sy, sz, n_gather, mode, state,
-                                                     kd2, ks2, kt2, pc2, ind, tp2, f2, rad2, e, count)
+                                                     kd2, ks2, kt2, pc2, ind, tp2, f2, rad2, e, count,
+                                                     0, rec.E, rec.R)
                     n_gather = max(1, n_gather // 4)
                 elif pd > 0.0 and indirect and OL.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
                                                                      nx, ny, nz, mode, ind):

@@ -81,7 +81,8 @@ def _many(cs_g, ms, bt, ts, ls, lm, ol, env, p, f, n_rays, n_trials, mode, out, 
         for b in range(nb):
             e[b] = 0.0
         FG.gather_irradiance(cs_g, ms, bt, ts, ls, lm, ol, env, np.zeros(0, np.int64), stack, p[0], p[1], p[2], f[0], f[1], f[2],
-                             f[0], f[1], f[2], n_rays, mode, state, kd, ks, kt, pc, ind, tp, fw, rad, e, count)
+                             f[0], f[1], f[2], n_rays, mode, state, kd, ks, kt, pc, ind, tp, fw, rad, e, count,
+                             0, out, rad)
         for b in range(nb):
             out[k, b] = e[b]
 

@@ -197,3 +197,44 @@ def test_no_lattice_texel_still_gets_records(cornell, monkeypatch):
     assert info["records"] > 0 and np.all(np.isfinite(got.E))
     ratio = object_means(cs, got) / object_means(cs, full)
     assert np.all(np.abs(ratio - 1.0) < 0.02), ratio
+
+
+def test_gradients_match_finite_differences(cornell):
+    """Ward & Heckbert's gradients of records on the Cornell floor against central
+    differences of records 5 cm to either side (96 records of 1024 rays at each
+    place, so the differences' own noise is about 0.004): the translational
+    ones within 30 % (measured: 1-23 %, largest toward the open front), the
+    rotational one (the normal tilted 0.15 rad) within 10 % (measured: 4-8 %)."""
+    from photon_lightmaps.engine import irradiance_cache as IC
+    cs = cornell[0]
+    ids = sorted({int(l) for lids in cs.instance_lightmaps for l in lids})
+    tex = BG._Texels(cs, ids, (), POINTS, 0, 1)
+    S = 96
+
+    def records(points, normals):
+        c = IC.Cache(cs.n_bands)
+        P = np.repeat(np.asarray(points, float), S, axis=0)
+        N = np.repeat(np.asarray(normals, float), S, axis=0)
+        c.add(tex.fixed, P, N, np.full(len(P), 7, np.uint64), np.full(len(P), 0.05), 1024, 0)
+        return c.E.mean(axis=1).reshape(-1, S).mean(axis=1), c.gt.mean(axis=1), c.gr.mean(axis=1)
+
+    d = 0.05
+    for x0 in (0.0, 0.6, 0.85):
+        for axis in (0, 1):
+            pts = np.tile([x0, 0.3, 0.0], (3, 1))
+            pts[:, axis] += np.array([-d, 0.0, d])
+            E, gt, _ = records(pts, np.tile([0.0, 0.0, 1.0], (3, 1)))
+            fd = (E[2] - E[0]) / (2 * d)
+            grad = gt[S:2 * S, axis].mean()
+            print(f"\nfloor ({x0}, 0.3) d/d{'xy'[axis]}: gradient {grad:+.4f}, differences {fd:+.4f}")
+            if abs(fd) > 0.05:
+                assert abs(grad / fd - 1.0) < 0.3
+            else:
+                assert abs(grad - fd) < 0.015
+    a = 0.15
+    tilts = [[np.sin(s * a), 0.0, np.cos(s * a)] for s in (-1, 0, 1)]
+    E, _, gr = records(np.tile([0.5, 0.0, 0.0], (3, 1)), tilts)
+    fd = (E[2] - E[0]) / (2 * a)          # a tilt about +y
+    rot = gr[S:2 * S, 1].mean()
+    print(f"rotation about y: gradient {rot:+.4f}, differences {fd:+.4f}")
+    assert abs(rot / fd - 1.0) < 0.1

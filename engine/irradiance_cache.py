@@ -413,11 +413,17 @@ def _first_sites(cs, cat):
     return np.flatnonzero((x % RECORD_STRIDE == 0) & (y % RECORD_STRIDE == 0))
 
 
-def _texel_sizes(cat):
-    """World size of each item's texel: the square root of its area."""
+def _texel_sizes(cs, cat):
+    """World size of each item's texel: the square root of a whole texel's area.
+    A texel on a chart's border covers only part of its square; its covered area
+    over its coverage is what a whole one would hold. Radii are clamped in these
+    units, and a sliver's own small area made records there reach almost nothing
+    (and neighbour clamping spread that: thin walls ended with more records than
+    texels)."""
     area = np.add.reduceat(cat["area"], cat["start"][:-1]) if cat["area"].size else np.zeros(0)
     area[np.diff(cat["start"]) == 0] = 0.0
-    return np.sqrt(np.maximum(area, 0.0))
+    cover = cs.lightmaps.coverage[cat["texel"]] if cat["texel"].size else np.zeros(0)
+    return np.sqrt(np.maximum(area, 0.0) / np.maximum(cover, 0.05))
 
 
 def _site_points(cs, cat, items, stream):
@@ -510,7 +516,7 @@ def _build(cs, fixed, cat, n_points, n_rays, stream):
     (cache, grid)) with E and var interpolated at every item's points."""
     nb = cs.n_bands
     K = cat["texel"].size
-    size = _texel_sizes(cat)
+    size = _texel_sizes(cs, cat)
     cache = Cache(nb)
     pos, nrm, key, owner = _site_points(cs, cat, _first_sites(cs, cat), stream)
     cache.add(fixed, pos, nrm, key, size[owner], n_rays, 0)

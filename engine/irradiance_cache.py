@@ -7,8 +7,8 @@ sparse set of *records* instead, and every texel point interpolates the records
 around it, as Ward's irradiance cache and Unreal's Lightmass do:
 
 * A record is a world point, the side it gathers on (its normal), its
-  irradiance from about `rays` gather rays (the per-texel gather's rays,
-  final_gather.gather_ray, one per cell of a stratified hemisphere), the
+  irradiance from about `rays` gather rays (the per-texel gather's own,
+  final_gather.gather_irradiance, one per cell of a stratified hemisphere), the
   standard error of that, its radius R: the harmonic mean distance of those
   rays to what surrounds it, clamped to [MIN_RADIUS_TEXELS, MAX_RADIUS_TEXELS]
   texels (near a wall, in a corner or where an object rests on the floor, R is
@@ -59,7 +59,6 @@ MAX_RADIUS_TEXELS = 12.0
 REFINE_ROUNDS = 3
 # |n_i x n| at the edge of a record's reach in normal (1 - cos = ACCURACY²)
 MAX_TILT = math.sqrt(1.0 - (1.0 - ACCURACY ** 2) ** 2)
-GRADIENTS = True          # records carry Ward & Heckbert's gradients (False: constant records)
 CLAMP_PASSES = 8          # neighbour clamping, repeated until it changes nothing (at most)
 STREAM_RECORD = np.uint64(0x9E6C63D0676A9A99)
 
@@ -491,8 +490,6 @@ class Cache:
         keyed = key ^ (np.arange(first_id, first_id + n, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15))
         n_theta, n_phi = strata(n_rays)
         parallel.run(_records, n, *fixed, pos, nrm, keyed, size, n_theta, n_phi, E, se, R, gt, gr)
-        if not GRADIENTS:
-            gt[:], gr[:] = 0.0, 0.0
         self.pos = np.concatenate([self.pos, pos])
         self.nrm = np.concatenate([self.nrm, nrm])
         self.E = np.concatenate([self.E, E])

@@ -426,10 +426,7 @@ def emit_photon(ls, g, state):
         # A disk of the scene's bounding radius facing the sun, just outside the scene.
         a, b = concentric_disk(u1, u2)
         R = ls.bound_radius
-        tx, ty, tz, bx, by, bz = orthonormal_basis(dx, dy, dz)
-        ox = ls.center[0] + R * (a * tx + b * bx) - 2.0 * R * dx
-        oy = ls.center[1] + R * (a * ty + b * by) - 2.0 * R * dy
-        oz = ls.center[2] + R * (a * tz + b * bz) - 2.0 * R * dz
+        ox, oy, oz = _disk_point(ls, R, dx, dy, dz, a, b, -2.0 * R)
         state, ox, oy, oz, weight = A.aim_disk(ls, state, dx, dy, dz, R, ox, oy, oz)
         return state, li, ox, oy, oz, dx, dy, dz, weight
     if k == ENVIRONMENT and not ls.env_constant:
@@ -440,10 +437,7 @@ def emit_photon(ls, g, state):
         wx, wy, wz, pdf = E.sample(_env(ls), u1, u2)
         a, b = concentric_disk(u3, u4)
         R = ls.radius[li]
-        tx, ty, tz, bx, by, bz = orthonormal_basis(wx, wy, wz)
-        ox = ls.center[0] + R * (a * tx + b * bx) + 2.0 * R * wx
-        oy = ls.center[1] + R * (a * ty + b * by) + 2.0 * R * wy
-        oz = ls.center[2] + R * (a * tz + b * bz) + 2.0 * R * wz
+        ox, oy, oz = _disk_point(ls, R, wx, wy, wz, a, b, 2.0 * R)
         state, ox, oy, oz, weight = A.aim_disk(ls, state, -wx, -wy, -wz, R, ox, oy, oz)
         if not pdf > 0.0:
             weight = 0.0
@@ -455,10 +449,7 @@ def emit_photon(ls, g, state):
             # direction, then a point on the disk facing it) so the disk can be aimed.
             wx, wy, wz = uniform_sphere(u1, u2)
             a, b = concentric_disk(u3, u4)
-            tx, ty, tz, bx, by, bz = orthonormal_basis(wx, wy, wz)
-            ox = ls.center[0] + R * (a * tx + b * bx) + 2.0 * R * wx
-            oy = ls.center[1] + R * (a * ty + b * by) + 2.0 * R * wy
-            oz = ls.center[2] + R * (a * tz + b * bz) + 2.0 * R * wz
+            ox, oy, oz = _disk_point(ls, R, wx, wy, wz, a, b, 2.0 * R)
             state, ox, oy, oz, weight = A.aim_disk(ls, state, -wx, -wy, -wz, R, ox, oy, oz)
             return state, li, ox, oy, oz, -wx, -wy, -wz, weight
         nx, ny, nz = uniform_sphere(u1, u2)
@@ -476,6 +467,16 @@ def emit_photon(ls, g, state):
     dx, dy, dz = to_world(lx, ly, lz, nx, ny, nz)
     state, dx, dy, dz, weight = A.aim_direction(ls, state, px, py, pz, dx, dy, dz, A.COSINE, nx, ny, nz, 0.0)
     return state, li, px, py, pz, dx, dy, dz, w * weight
+
+
+@njit(**INLINE)
+def _disk_point(ls, R, ux, uy, uz, a, b, shift):
+    """Point (a, b) of the unit disk on the disk of radius R about the scene's
+    centre facing u, moved `shift` along u: where parallel photons start."""
+    tx, ty, tz, bx, by, bz = orthonormal_basis(ux, uy, uz)
+    return (ls.center[0] + R * (a * tx + b * bx) + shift * ux,
+            ls.center[1] + R * (a * ty + b * by) + shift * uy,
+            ls.center[2] + R * (a * tz + b * bz) + shift * uz)
 
 
 @njit(cache=True)

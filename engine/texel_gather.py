@@ -61,9 +61,9 @@ DEFAULT_SAMPLES = 16
 @njit(cache=True)
 def direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, out):
     """Adds the direct irradiance at p (normal n facing the viewer) into out[bands]
-    (direct_irradiance_stratum with no stratum)."""
+    (direct_irradiance_stratum with no stratum, one side)."""
     return direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, -1, 0,
-                                     np.empty(out.shape[0]))
+                                     np.empty(out.shape[0]), 1)
 
 
 # Sample s of a texel takes light stratum (37 s) mod k²: a fixed shuffle, so the
@@ -72,25 +72,28 @@ _STRATUM_SHUFFLE = 37
 
 
 @njit(**INLINE)
-def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, s, k, rad):
-    """Adds the direct irradiance at p (normal n facing the viewer) into out[bands];
-    rad[bands]: scratch. Inlined into the per-texel kernels, so no sample pays
-    for a call that passes the scene's tuples.
+def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, s, k, rad, sides):
+    """Adds the direct irradiance at p into out[bands]: of the side facing n
+    (sides 1), or of both sides summed (sides 2: an open surface, whose photons
+    from either side meet in one texel); rad[bands]: scratch. Inlined into the
+    per-texel kernels, so no sample pays for a call that passes the scene's tuples.
 
     With few lights every light gets one sample; with many, four are drawn in
-    proportion to power (unbiased either way). The sample's radiance comes per
-    band: an environment map's depends on the direction, and it is sampled by MIS of
-    the map and the receiver's cosine (lights.sample_environment_diffuse); every
-    other light, and a constant world, gives exactly the numbers of sample_light.
-    With s >= 0 (sample s of a texel's k x k grid), the map's two random numbers are
-    jittered in a stratum of their own, so a texel's samples cover the map's CDF evenly
-    (a sun or a bright window is hit a near-fixed number of times, not a binomial one).
+    proportion to power (unbiased either way). A light's sample does not depend
+    on the receiver's normal, so one sample serves both sides: it lights the side
+    it falls on, with |cos|, for one shadow ray. An environment map is sampled by
+    MIS of the map and the receiver's cosine (lights.sample_environment_diffuse),
+    so it takes a sample per side. The radiance comes per band; every light
+    other than a map gives exactly the numbers of sample_light. With s >= 0
+    (sample s of a texel's k x k grid), the map's two random numbers are
+    jittered in a stratum of their own, so a texel's samples cover the map's CDF
+    evenly (a sun or a bright window is hit a near-fixed number of times, not a
+    binomial one).
     """
     n_lights = ls.kind.shape[0]
     if n_lights == 0:
         return state
     eps = ray_epsilon(px, py, pz)
-    ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
     all_lights = n_lights <= 8
     n_samples = n_lights if all_lights else 4
     total = ls.power_cdf[n_lights - 1]
@@ -106,28 +109,46 @@ def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, 
                 li += 1
             p_li = (ls.power_cdf[li] - (ls.power_cdf[li - 1] if li > 0 else 0.0)) / total
             w_sel = 1.0 / (n_samples * p_li)
+        if ls.kind[li] == ENVIRONMENT and not ls.env_constant:
+            for side in range(sides):
+                sg = 1.0 - 2.0 * side
+                state, u1 = next_float(state)
+                state, u2 = next_float(state)
+                if 0 <= s < k * k:
+                    u1, u2 = _jitter((s * _STRATUM_SHUFFLE) % (k * k), k, u1, u2)
+                wx, wy, wz, scale, ok = sample_environment_diffuse(ls, li, sg * nx, sg * ny, sg * nz,
+                                                                   u1, u2, rad)
+                if ok:
+                    _add_unshadowed(g, stack, px, py, pz, sg * nx, sg * ny, sg * nz, eps, wx, wy, wz,
+                                    math.inf, scale * w_sel, rad, out)
+            continue
         state, u1 = next_float(state)
         state, u2 = next_float(state)
         state, u3 = next_float(state)
-        if ls.kind[li] == ENVIRONMENT and not ls.env_constant:
-            if 0 <= s < k * k:
-                u1, u2 = _jitter((s * _STRATUM_SHUFFLE) % (k * k), k, u1, u2)
-            wx, wy, wz, scale, ok = sample_environment_diffuse(ls, li, nx, ny, nz, u1, u2, rad)
-            dist = math.inf
-        else:
-            wx, wy, wz, dist, scale, ok = sample_light_radiance(ls, g, li, px, py, pz, u1, u2, u3, rad)
+        wx, wy, wz, dist, scale, ok = sample_light_radiance(ls, g, li, px, py, pz, u1, u2, u3, rad)
         if not ok:
             continue
-        cos_r = wx * nx + wy * ny + wz * nz
-        if cos_r <= 0.0:
-            continue
-        tmax = dist * (1.0 - 1e-6) - eps if dist < math.inf else math.inf
-        if tmax <= 0.0 or occluded(g, stack, ox, oy, oz, wx, wy, wz, 0.0, tmax):
-            continue
-        c = cos_r * scale * w_sel
-        for b in range(out.shape[0]):
-            out[b] += rad[b] * c
+        sg = 1.0
+        if sides == 2 and wx * nx + wy * ny + wz * nz < 0.0:
+            sg = -1.0
+        _add_unshadowed(g, stack, px, py, pz, sg * nx, sg * ny, sg * nz, eps, wx, wy, wz, dist,
+                        scale * w_sel, rad, out)
     return state
+
+
+@njit(**INLINE)
+def _add_unshadowed(g, stack, px, py, pz, nx, ny, nz, eps, wx, wy, wz, dist, scale, rad, out):
+    """out += rad · cos · scale when direction w reaches distance dist from p
+    (offset along n, the lit side) unoccluded and above that side."""
+    cos_r = wx * nx + wy * ny + wz * nz
+    if cos_r <= 0.0:
+        return
+    tmax = dist * (1.0 - 1e-6) - eps if dist < math.inf else math.inf
+    if tmax <= 0.0 or occluded(g, stack, px + eps * nx, py + eps * ny, pz + eps * nz, wx, wy, wz, 0.0, tmax):
+        return
+    c = cos_r * scale
+    for b in range(out.shape[0]):
+        out[b] += rad[b] * c
 
 
 @njit(cache=True, inline="always")
@@ -277,8 +298,7 @@ def _gather_mesh_core(g, ls, item_inst, item_key, item_local, pstart, ptri, pare
             if not ok:
                 continue
             # both sides: photons from either side add into the one texel
-            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k, rad)
-            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e, s, k, rad)
+            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k, rad, 2)
         inv = 1.0 / n_samples
         for b in range(nb):
             out[it, b] = e[b] * inv
@@ -319,9 +339,7 @@ def _gather_prim_core(g, ls, item_lm, item_face, item_x, item_y, item_key, item_
                 continue
             for b in range(nb):
                 e[b] = 0.0
-            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k, rad)
-            if sides == 2:
-                state = direct_irradiance_stratum(g, ls, stack, px, py, pz, -nx, -ny, -nz, state, e, s, k, rad)
+            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k, rad, sides)
             for b in range(nb):
                 ew[b] += jac * e[b]
             wsum += jac
@@ -394,9 +412,7 @@ class _MeshTexels:
                          area=[], nv=[], bary=[])
         self.n_pieces = 0
 
-    def add(self, g, inst, lid, side, key, off, local, rows, xf, w, h):
-        area3d = TA.triangle_world_areas(g.tri_p[rows], xf[:, :3])
-        pcs = TA.triangle_texel_pieces(g.tri_uv[rows], area3d, w, h)
+    def add(self, inst, lid, side, key, off, local, rows, pcs):
         cnt = pcs.start[local + 1] - pcs.start[local]
         # Piece rows of the measured texels, in texel order (vectorised CSR gather).
         sel = np.arange(int(cnt.sum())) + np.repeat(pcs.start[local] - (np.cumsum(cnt) - cnt), cnt)
@@ -517,11 +533,25 @@ def _collect_texels(cs, owners, lightmap_ids, seed, with_sides=False):
                 # mesh_texel_point's normal is the world edges' cross product: det(M) times the hit normal
                 det = np.linalg.det(xf[:, :3])
                 sides[inst] = lit_sides(cs, inst) * (1 if det >= 0.0 else -1) if with_sides else 0
-            mesh.add(cs.geometry, inst, lid, sides[inst], key, off, local, np.asarray(data, np.int64),
-                     xf, w, h)
+            mesh.add(inst, lid, sides[inst], key, off, local, np.asarray(data, np.int64),
+                     texel_pieces(cs, lid, data, xf, w, h))
         else:
             prim.add(cs, lid, key, off, local, int(data), xf, w, f)
     return mesh, prim
+
+
+def texel_pieces(cs, lid, rows, xf, w, h):
+    """Lightmap lid's TexelPieces (its mesh triangles `rows` under world map xf,
+    clipped to its W×H texels), made once per compiled scene: a bake's direct
+    light, its gather and its irradiance cache all walk the same pieces, and on
+    a dense mesh the clipping costs as much as a pass of direct light."""
+    memo = cs.__dict__.setdefault("_texel_pieces", {})
+    if lid not in memo:
+        rows = np.asarray(rows, np.int64)
+        g = cs.geometry
+        area3d = TA.triangle_world_areas(g.tri_p[rows], xf[:, :3])
+        memo[lid] = TA.triangle_texel_pieces(g.tri_uv[rows], area3d, w, h)
+    return memo[lid]
 
 
 def lit_sides(cs, inst):

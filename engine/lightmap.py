@@ -186,7 +186,9 @@ def texel_index(lm, lm_id, face, s, t):
     return lm.offset[lm_id] + y * w + f * r + x
 
 
-@njit(cache=True)
+# Inlined into the per-hit loops: a call would copy the Geometry and Lightmaps
+# tuples for a few array reads.
+@njit(cache=True, inline="always")
 def lightmap_slot(g, lm, inst, shape, face, u, v):
     """(lightmap id, face, s, t) where hit (inst, shape, face, u, v) lands; id -1 if none."""
     base = g.inst_lm_base[inst]
@@ -203,7 +205,7 @@ def lightmap_slot(g, lm, inst, shape, face, u, v):
     return base + slot, face, u, v
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def record_slot(g, lm, inst, shape, face, u, v):
     """lightmap_slot for recording a photon: -1 on a triangle without UV area,
     which owns no texel area, so a photon counted anywhere would be misplaced."""

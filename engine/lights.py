@@ -363,7 +363,9 @@ def spot_mask(ls, li, dx, dy, dz):
     return _spot_mask_of(ls.normal, ls.cos_half, ls.smooth, li, dx, dy, dz)
 
 
-@njit(cache=True)
+# Inlined into the photon loop, once per photon: a call would copy the LightSet
+# and Geometry tuples.
+@njit(**INLINE)
 def emit_photon(ls, g, state):
     """Samples a photon: returns (state, light, ox,oy,oz, dx,dy,dz, weight).
 
@@ -615,7 +617,7 @@ def _environment_sample(pixels, constant, lum, row_cdf, col_cdf, sin_edges, tota
     return wx, wy, wz, math.inf, 1.0 / pdf, True
 
 
-@njit(cache=True)
+@njit(**INLINE)
 def photon_tint(ls, li, dx, dy, dz, out):
     """Per-band factor for a photon of light li leaving along d: the environment map's
     colour in that direction relative to its flux colour (expectation 1 per band, see

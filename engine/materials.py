@@ -11,7 +11,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from .jit import CORE
+from .jit import CORE, INLINE
 from .scene import SceneError, _bands
 from .texture import lod_for, sample4, sample_mean4
 
@@ -149,7 +149,12 @@ def _unit01(x):
     return min(max(x, 0.0), 1.0)
 
 
-@njit(**CORE)
+# Per-hit functions are INLINE façades: an untextured material (most hits) is
+# answered from a few arrays of the material set inside the caller, and only a
+# textured one calls a body that takes the scene tuples (a call that passes a
+# tuple of dozens of arrays copies it: lights.py measures what that costs).
+
+@njit(**INLINE)
 def surface_inputs(ms, ts, g, inst, m, shape, face, u, v, footprint, kd, ks, kt):
     """Lobe weights of material m at a hit into kd, ks, kt (n_bands each);
     returns (roughness, ior, specular_level).
@@ -160,15 +165,22 @@ def surface_inputs(ms, ts, g, inst, m, shape, face, u, v, footprint, kd, ks, kt)
     (the metal's F0 colour), transmission = B(1-M)T. (inst, shape, face, u, v)
     are the hit as raycast.intersect_closest returns it; `footprint` the ray's
     width at the hit in world metres (see hit_tex_uv)."""
-    nb = kd.shape[0]
     tex = ms.tex
-    rough = ms.roughness[m]
-    if (tex[m, 0] < 0 and tex[m, 1] < 0 and tex[m, 2] < 0 and tex[m, 3] < 0):
-        for b in range(nb):
+    if tex[m, 0] < 0 and tex[m, 1] < 0 and tex[m, 2] < 0 and tex[m, 3] < 0:
+        for b in range(kd.shape[0]):
             kd[b] = ms.diffuse[m, b]
             ks[b] = ms.specular[m, b]
             kt[b] = ms.transmission[m, b]
-        return rough, ms.ior[m], ms.specular_level[m]
+        return ms.roughness[m], ms.ior[m], ms.specular_level[m]
+    return _textured_inputs(ms, ts, g, inst, m, shape, face, u, v, footprint, kd, ks, kt)
+
+
+@njit(**CORE)
+def _textured_inputs(ms, ts, g, inst, m, shape, face, u, v, footprint, kd, ks, kt):
+    """surface_inputs of a material with a texture on one of its lobe inputs."""
+    nb = kd.shape[0]
+    tex = ms.tex
+    rough = ms.roughness[m]
     ok, s, t, f_uv = hit_tex_uv(g, inst, shape, u, v, footprint)
     if tex[m, TEX_ROUGHNESS] >= 0:
         rough = _unit01(_lookup(ts, tex[m, TEX_ROUGHNESS], ok, s, t, f_uv)[0])
@@ -201,7 +213,7 @@ def surface_inputs(ms, ts, g, inst, m, shape, face, u, v, footprint, kd, ks, kt)
     return rough, ms.ior[m], ms.specular_level[m]
 
 
-@njit(cache=True)
+@njit(**INLINE)
 def shading_normal(ms, ts, g, inst, m, shape, face, u, v, footprint, nx, ny, nz):
     """The normal-mapped world-space shading normal of a hit (unit), or n itself.
 
@@ -212,11 +224,15 @@ def shading_normal(ms, ts, g, inst, m, shape, face, u, v, footprint, nx, ny, nz)
     sign * (n x T), sign from dP/dv (MikkTSpace's frame for a flat triangle).
     Only mesh triangles with texture UVs are mapped; primitives, CSG and
     L-system shapes return n."""
-    if m < 0:
+    if m < 0 or ms.tex[m, TEX_NORMAL] < 0:
         return nx, ny, nz
+    return _mapped_normal(ms, ts, g, inst, m, shape, u, v, footprint, nx, ny, nz)
+
+
+@njit(cache=True)
+def _mapped_normal(ms, ts, g, inst, m, shape, u, v, footprint, nx, ny, nz):
+    """shading_normal of a material with a normal map."""
     tid = ms.tex[m, TEX_NORMAL]
-    if tid < 0:
-        return nx, ny, nz
     ok, s, t, f_uv = hit_tex_uv(g, inst, shape, u, v, footprint)
     if not ok:
         return nx, ny, nz

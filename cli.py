@@ -418,7 +418,8 @@ def bake_main(args):
                              bake_gather_rays=args.bake_gather_rays,
                              bake_target_error=args.target_error, bake_time=args.time,
                              irradiance_cache=args.irradiance_cache)
-    photons, seed = settings.photons, settings.seed
+    photons = settings.photons if args.photons is not None else settings.bake_photon_count
+    seed = settings.seed
     objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
     out_dir = os.path.abspath(args.out)
     check_writable(out_dir)

@@ -230,6 +230,9 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error,
                                      bake_time=bake_time, bake_error_images=error_images,
                                      irradiance_cache=irradiance_cache)
+    if photons is None:
+        # the scene's count for this kind of bake: Bake Photons when it gathers
+        job.settings.photons = job.settings.bake_photon_count
     if job.settings.bake_gathers:
         for inst, rec in zip(job.scene.instances, job.recording):
             inst.lightmap = inst.lightmap or rec

@@ -40,6 +40,7 @@ from photon_lightmaps import registration  # noqa: E402
 from photon_lightmaps.engine import denoise as DN  # noqa: E402
 from photon_lightmaps.engine import lightmap as LM  # noqa: E402
 from photon_lightmaps.engine.compile import compile_scene  # noqa: E402
+from photon_lightmaps.engine.session import Settings  # noqa: E402
 from photon_lightmaps.engine.photon_tracer import trace_photons  # noqa: E402
 
 from benchmarks import luxcore_peer as LX  # noqa: E402
@@ -49,9 +50,11 @@ from benchmarks import references as R  # noqa: E402
 from benchmarks import scenes as S  # noqa: E402
 from benchmarks.quiet import quiet  # noqa: E402
 
-# Our default bake: the add-on's default photon count, and 32 texels per side
-# (16 texels/m, the default density, on the 2 m walls).
-DEFAULT_PHOTONS = 1_000_000
+# Our default bakes: the add-on's default photon counts (a lookup bake traces
+# Photons, a gathered one Bake Photons), and 32 texels per side (16 texels/m, the
+# default density, on the 2 m walls).
+DEFAULT_PHOTONS = Settings().photons
+DEFAULT_BAKE_PHOTONS = Settings().bake_photons
 DEFAULT_RES = 32
 RENDER_SPP = 16       # our camera samples: direct light and anti-aliasing only
 # The *_oidn curves (the same bakes and renders plus OIDN, its time added) need pyoidn.
@@ -374,16 +377,18 @@ def headlines(points):
         h = {}
         # lookup: the thesis's bake; gather: the add-on's default (final gather)
         # each of ours against the Cycles curve of its kind: plain, or both denoised
-        for key, c, peer in (("speedup_vs_cycles_bake", ours, cyc),
-                             ("speedup_vs_cycles_bake_gather", curve("ours_bake_gather"), cyc),
-                             ("speedup_vs_cycles_bake_cache", curve("ours_bake_cache"), cyc),
-                             ("speedup_oidn_vs_cycles_bake_oidn", curve("ours_bake_oidn"),
-                              curve("cycles_bake_oidn")),
-                             ("speedup_gather_oidn_vs_cycles_bake_oidn", curve("ours_bake_gather_oidn"),
-                              curve("cycles_bake_oidn"))):
+        lookup_n, gather_n = DEFAULT_PHOTONS, DEFAULT_BAKE_PHOTONS
+        for key, c, peer, n_default in (
+                ("speedup_vs_cycles_bake", ours, cyc, lookup_n),
+                ("speedup_vs_cycles_bake_gather", curve("ours_bake_gather"), cyc, gather_n),
+                ("speedup_vs_cycles_bake_cache", curve("ours_bake_cache"), cyc, gather_n),
+                ("speedup_oidn_vs_cycles_bake_oidn", curve("ours_bake_oidn"), curve("cycles_bake_oidn"),
+                 lookup_n),
+                ("speedup_gather_oidn_vs_cycles_bake_oidn", curve("ours_bake_gather_oidn"),
+                 curve("cycles_bake_oidn"), gather_n)):
             if not (c and peer):
                 continue
-            d = min(c, key=lambda p: abs(math.log(p["knob"] / DEFAULT_PHOTONS)))
+            d = min(c, key=lambda p: abs(math.log(p["knob"] / n_default)))
             t_cyc, extra = loglog_interp([p["seconds"] for p in peer], [p["rel_rmse"] for p in peer],
                                          d["rel_rmse"])
             h[key] = dict(
@@ -497,6 +502,7 @@ def main(argv=None):
     h = headlines(points)
     result = dict(quick=bool(args.quick), config={k: v for k, v in cfg.items() if k != "ref"},
                   reference_settings=cfg["ref"], default_photons=DEFAULT_PHOTONS,
+                  default_bake_photons=DEFAULT_BAKE_PHOTONS,
                   default_resolution=DEFAULT_RES, render_spp=RENDER_SPP, photon_map_k="clip(0.2 sqrt(N), 50, 200)",
                   blender=bpy.app.version_string, scenes=infos, points=points, headlines=h,
                   seconds_total=None)

@@ -30,6 +30,10 @@ class Settings:
     indirect: str = "GATHER"        # renders and bakes: "GATHER" (final gather) or "LOOKUP" (the thesis's)
     gather_rays: int = 8            # final-gather rays per camera sample
     bake_gather_rays: int = 256     # final-gather rays per baked texel and lit side
+    # Photons a gathered bake traces. Its gather rays average the photon lightmaps'
+    # noise, so its error stops falling at a few hundred thousand photons (a lookup
+    # bake, which reads each texel's own photons, traces `photons`).
+    bake_photons: int = 300_000
     bake_target_error: float = 0.0  # > 0: texels above this relative error get more gather rays
     bake_max_rays: int = 4096       # the most gather rays per texel and lit side, adaptive included
     bake_time: float = 0.0          # > 0: seconds a bake should take; the gather spends what is left
@@ -62,6 +66,11 @@ class Settings:
     def bake_gathers(self):
         """Bakes use the final gather (engine/bake_gather.py)."""
         return self.indirect == "GATHER" and self.bake_gather_rays > 0
+
+    @property
+    def bake_photon_count(self):
+        """Photons a bake traces: bake_photons when it gathers, else photons."""
+        return self.bake_photons if self.bake_gathers else self.photons
 
     @property
     def bake_rays_per_point(self):

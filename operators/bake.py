@@ -64,7 +64,8 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         description="Bake the selected mesh objects; off: every mesh object of the scene")
     photons: IntProperty(
         name="Photons", default=0, min=0, soft_max=100_000_000,
-        description="Photons to shoot; 0 uses the scene's Photon Lightmaps setting")
+        description="Photons to shoot; 0 uses the scene's setting (Bake Photons when the bake "
+                    "gathers, Photons for a Lookup bake)")
     resolution: IntProperty(
         name="Resolution", default=0, min=0, soft_max=4096,
         description="Force R x R texels per object; 0 uses each object's setting or the texel density")

@@ -117,7 +117,7 @@ RES = 64
 # indirect photon noise of single texels (ceiling, indirect only: 0.16), so the
 # 5 % bound still needs 16 M photons; the default is held to its measured level.
 PHOTONS = 16_000_000
-DEFAULT_PHOTONS = Settings().photons
+DEFAULT_PHOTONS = Settings().bake_photons     # what a gathered bake traces by default
 DEFAULT_MAX_RMSE = 0.07   # the gathered default measured 0.052 (the lookup default was held to 0.11)
 CYCLES_SPP = 512
 

@@ -75,7 +75,7 @@ def test_gathered_bake_is_unbiased(scene):
             f"lookup/Cycles {lk[name][0] / lk[name][1] - 1:+.4f}  "
             f"gather/lookup {g[name][0] / lk[name][0] - 1:+.4f}  "
             f"cached/Cycles {c[name][0] / c[name][1] - 1:+.4f}" for name in sorted(g)]
-    print(f"\n{scene} ({Settings().photons:,} photons gathered, {LOOKUP_PHOTONS:,} lookup, Cycles "
+    print(f"\n{scene} ({Settings().bake_photons:,} photons gathered, {LOOKUP_PHOTONS:,} lookup, Cycles "
           f"{2 * meta['samples_per_half']} spp):\n  " + "\n  ".join(rows))
     assert set(g) == {ob.name for ob in objs}
     for name in g:

@@ -196,6 +196,22 @@ def test_registration_round_trip():
     assert bpy.context.scene.photon_lightmaps.photons == 1_000_000
 
 
+def test_scene_properties_default_to_the_engine_settings():
+    """Every engine setting is a scene property with the engine's default, so a
+    new .blend, the CLI and a script without Blender bake and render alike."""
+    import dataclasses
+    from photon_lightmaps.engine.session import Settings
+    props = bpy.types.Scene.bl_rna.properties["photon_lightmaps"].fixed_type.bl_rna.properties
+    for f in dataclasses.fields(Settings):
+        assert f.name in props, f"Scene.photon_lightmaps has no '{f.name}'"
+        prop = props[f.name]
+        default = prop.default
+        if prop.type == "FLOAT":
+            assert default == pytest.approx(f.default, rel=1e-6), f.name
+        else:
+            assert default == f.default, f.name
+
+
 def _png_size(path):
     data = pathlib.Path(path).read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"

@@ -80,6 +80,7 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         sub = col.column()
         sub.active = s.indirect == "GATHER"
         sub.prop(s, "gather_rays")
+        sub.prop(s, "bake_photons")
         sub.prop(s, "bake_gather_rays")
         sub.prop(s, "irradiance_cache")
         sub.prop(s, "bake_target_error")

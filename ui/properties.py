@@ -105,6 +105,10 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
     gather_rays: IntProperty(
         name="Gather Rays", default=_D.gather_rays, min=1, soft_max=256,
         description="Final-gather rays per camera sample at the first diffuse hit")
+    bake_photons: IntProperty(
+        name="Bake Photons", default=_D.bake_photons, min=0, soft_max=100_000_000,
+        description="Photons a gathered bake shoots. Its gather rays average the photon noise, "
+                    "so more photons than this rarely lower its error (a Lookup bake shoots Photons)")
     bake_gather_rays: IntProperty(
         name="Bake Gather Rays", default=_D.bake_gather_rays, min=1, soft_max=4096,
         description="Final-gather rays per baked texel and lit side: its indirect noise falls "

@@ -66,13 +66,24 @@ def direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, out):
                                      np.empty(out.shape[0]), 1)
 
 
-# Sample s of a texel takes light stratum (37 s) mod k²: a fixed shuffle, so the
-# light strata are not tied to the position strata of the same k x k grid.
+# Sample s of a texel takes light stratum (37 s + shift) mod k², the shift drawn
+# once per texel: every sample keeps its own light stratum (the texel's samples
+# cover the light evenly), the strata are not tied to the position strata of the
+# same k x k grid, and the random shift makes each sample's light stratum
+# uniform, so the pairing stays unbiased (a fixed one would not be).
 _STRATUM_SHUFFLE = 37
 
 
+@njit(cache=True, inline="always")
+def light_stratum(s, k, shift):
+    """Light stratum of sample s of a texel's k x k grid (-1 past k², none)."""
+    if s >= k * k:
+        return -1
+    return (s * _STRATUM_SHUFFLE + shift) % (k * k)
+
+
 @njit(**INLINE)
-def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, s, k, rad, sides):
+def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, stratum, k, rad, sides):
     """Adds the direct irradiance at p into out[bands]: of the side facing n
     (sides 1), or of both sides summed (sides 2: an open surface, whose photons
     from either side meet in one texel); rad[bands]: scratch. Inlined into the
@@ -84,11 +95,11 @@ def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, 
     it falls on, with |cos|, for one shadow ray. An environment map is sampled by
     MIS of the map and the receiver's cosine (lights.sample_environment_diffuse),
     so it takes a sample per side. The radiance comes per band; every light
-    other than a map gives exactly the numbers of sample_light. With s >= 0
-    (sample s of a texel's k x k grid), the map's two random numbers are
-    jittered in a stratum of their own, so a texel's samples cover the map's CDF
-    evenly (a sun or a bright window is hit a near-fixed number of times, not a
-    binomial one).
+    other than a map gives exactly the numbers of sample_light. With stratum >= 0
+    (light_stratum of the sample), the light's two random numbers are jittered
+    in that cell of a k x k grid, so a texel's samples cover an area light, a
+    sphere, a sun's disc or a map's CDF evenly: its soft shadows and a window's
+    bright patch are hit a near-fixed number of times, not a binomial one.
     """
     n_lights = ls.kind.shape[0]
     if n_lights == 0:
@@ -114,8 +125,8 @@ def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, 
                 sg = 1.0 - 2.0 * side
                 state, u1 = next_float(state)
                 state, u2 = next_float(state)
-                if 0 <= s < k * k:
-                    u1, u2 = _jitter((s * _STRATUM_SHUFFLE) % (k * k), k, u1, u2)
+                if stratum >= 0:
+                    u1, u2 = _jitter(stratum, k, u1, u2)
                 wx, wy, wz, scale, ok = sample_environment_diffuse(ls, li, sg * nx, sg * ny, sg * nz,
                                                                    u1, u2, rad)
                 if ok:
@@ -125,6 +136,8 @@ def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, 
         state, u1 = next_float(state)
         state, u2 = next_float(state)
         state, u3 = next_float(state)
+        if stratum >= 0:
+            u1, u2 = _jitter(stratum, k, u1, u2)
         wx, wy, wz, dist, scale, ok = sample_light_radiance(ls, g, li, px, py, pz, u1, u2, u3, rad)
         if not ok:
             continue
@@ -289,6 +302,8 @@ def _gather_mesh_core(g, ls, item_inst, item_key, item_local, pstart, ptri, pare
             continue
         xf = g.inst_xf[item_inst[it]]
         state = stream_state(item_key[it], item_local[it])
+        state, us = next_float(state)
+        shift = min(int(us * k * k), k * k - 1)
         for s in range(n_samples):
             state, j1 = next_float(state)
             state, j2 = next_float(state)
@@ -298,7 +313,8 @@ def _gather_mesh_core(g, ls, item_inst, item_key, item_local, pstart, ptri, pare
             if not ok:
                 continue
             # both sides: photons from either side add into the one texel
-            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k, rad, 2)
+            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e,
+                                              light_stratum(s, k, shift), k, rad, 2)
         inv = 1.0 / n_samples
         for b in range(nb):
             out[it, b] = e[b] * inv
@@ -327,6 +343,8 @@ def _gather_prim_core(g, ls, item_lm, item_face, item_x, item_y, item_key, item_
         inv_r = 1.0 / lm_res[l]
         sides = lm_sides[l]
         state = stream_state(item_key[it], item_local[it])
+        state, us = next_float(state)
+        shift = min(int(us * k * k), k * k - 1)
         wsum = 0.0
         for s in range(n_samples):
             state, j1 = next_float(state)
@@ -339,7 +357,8 @@ def _gather_prim_core(g, ls, item_lm, item_face, item_x, item_y, item_key, item_
                 continue
             for b in range(nb):
                 e[b] = 0.0
-            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e, s, k, rad, sides)
+            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e,
+                                              light_stratum(s, k, shift), k, rad, sides)
             for b in range(nb):
                 ew[b] += jac * e[b]
             wsum += jac

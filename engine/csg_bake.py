@@ -31,9 +31,8 @@ from . import lightmap as LM
 from . import texel_areas as TA
 from . import primitives as P
 from .raycast import STACK_WORDS
-from .texel_gather import direct_irradiance
 from .sampling import next_float, stream_state
-from .texel_gather import _grid_side, _jitter
+from .texel_gather import _grid_side, _jitter, direct_irradiance_stratum, light_stratum
 from . import parallel
 
 GUTTER = 1   # texels around each leaf block
@@ -249,7 +248,10 @@ def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, 
         l = item_lm[it]
         inv_r = 1.0 / lm_res[l]
         sgn = -1.0 if lm_flip[l] else 1.0
+        rad = np.empty(nb)
         state = stream_state(item_key[it], item_local[it])
+        state, us = next_float(state)
+        shift = min(int(us * k * k), k * k - 1)
         for s in range(n_samples):
             state, j1 = next_float(state)
             state, j2 = next_float(state)
@@ -262,7 +264,8 @@ def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, 
                 continue
             for bb in range(nb):
                 e[bb] = 0.0
-            state = direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, e)
+            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e,
+                                              light_stratum(s, k, shift), k, rad, 1)
             for bb in range(nb):
                 acc[row, bb] += jac * e[bb]
             wsum[row] += jac

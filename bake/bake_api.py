@@ -11,6 +11,7 @@ import numpy as np
 
 from ..engine import lightmap as LM  # first: the engine package picks numba's cache folder
 from numba import njit, prange  # noqa: E402
+from ..engine import open_area as OA  # noqa: E402
 from ..engine import session  # noqa: E402
 from ..engine.photon_tracer import Cancelled  # noqa: E402
 from ..engine.scene import SceneError  # noqa: E402
@@ -129,6 +130,17 @@ def _bake_lightmaps(depsgraph, modes, progress, report, stats=lambda text: None)
         session.add_direct(lm, (ids, E))
         passes[mode] = (cs, lm)
     return scene, emap, passes
+
+
+def _whole_texels(lm):
+    """The lightmaps as means over whole texels, buried parts included (open_area.baked):
+    what Blender's bake pixels average, as the texels of a bake's images do."""
+    if np.all(lm.open == 1.0):
+        return lm
+    out = LM.Lightmaps(*(a.copy() for a in lm))
+    out.irradiance[...] = OA.baked(lm, slice(None))
+    out.open[:] = 1.0
+    return out
 
 
 def _band3(x, nb):
@@ -260,6 +272,9 @@ def _bake_pixels(self, depsgraph, obj, pass_type, pass_filter, raw):
     light = None
     if want_light:
         cs, lm = passes[modes[0]]
+        if ("whole", modes[0]) not in passes:     # once per bake, not per object
+            passes["whole", modes[0]] = _whole_texels(lm)
+        lm = passes["whole", modes[0]]
         light = np.zeros((k.shape[0], nb))
         _sample_bilinear(lm, cs.instance_lightmaps[inst][0], st[:, 0].copy(),
                          st[:, 1].copy(), light)

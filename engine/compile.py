@@ -59,7 +59,7 @@ class CompiledScene:
 
     def lightmap_bytes(self):
         lm = self.lightmaps
-        return int(sum(a.nbytes for a in (lm.area, lm.coverage, lm.flux, lm.flux_sq, lm.hits,
+        return int(sum(a.nbytes for a in (lm.area, lm.coverage, lm.open, lm.flux, lm.flux_sq, lm.hits,
                                           lm.irradiance, lm.state, lm.split, lm.split_first,
                                           lm.split_cell)))
 

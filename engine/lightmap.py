@@ -42,10 +42,11 @@ Lightmaps = namedtuple("Lightmaps", [
     "tiles",       # int32[L]   face tiles side by side (1 for a mesh atlas)
     "area",        # float64[N] exact world area of each texel (m²)
     "coverage",    # float64[N] covered fraction of the texel's UV square (alpha for baking)
+    "open",        # float64[N] fraction of the texel's area outside every closed solid (open_area.py)
     "flux",        # float64[N, B] accumulated photon power (W)
     "flux_sq",     # float64[N] sum of squared band-mean photon powers (variance estimate)
     "hits",        # int64[N]
-    "irradiance",  # float64[N, B] E = flux / area after finalize(), dilated into empty texels
+    "irradiance",  # float64[N, B] E = flux / (area·open) after finalize(), dilated into empty texels
     "state",       # int8[N]    STATE_EMPTY / STATE_MEASURED / STATE_DILATED
     # CSG texel splitting (thesis 5.2.2, engine/csg.py): a texel cut into several
     # disjoint visible regions keeps region 0 and gets sub-texel rows for the rest
@@ -86,7 +87,7 @@ def allocate(layouts, n_bands):
         width[l], height[l], tiles[l], offset[l] = w, h, f, n
         n += w * h
     return Lightmaps(offset, width, height, tiles,
-                     np.zeros(n), np.zeros(n), np.zeros((n, n_bands)), np.zeros(n),
+                     np.zeros(n), np.zeros(n), np.ones(n), np.zeros((n, n_bands)), np.zeros(n),
                      np.zeros(n, np.int64), np.zeros((n, n_bands)), np.zeros(n, np.int8),
                      np.full(n, -1, np.int32), np.zeros(0, np.int64), np.zeros((0, 64), np.int8))
 
@@ -326,15 +327,16 @@ def _owner(offset, i):
 # Parallel kernels take the texel arrays one by one: numba (0.68) silently drops
 # writes made through a namedtuple field inside a prange loop.
 @njit(cache=True, parallel=True)
-def _irradiance(offset, area, flux, threshold, irradiance, state):
+def _irradiance(offset, area, open_, flux, threshold, irradiance, state):
     n = area.shape[0]
     nb = flux.shape[1]
     for i in prange(n):
         l = _owner(offset, i)
-        a = area[i]
-        if a > threshold[l] and a > 0.0:
+        # a texel buried whole (open 0) holds no surface: empty, filled by dilation
+        ao = area[i] * open_[i]
+        if ao > threshold[l] and ao > 0.0:
             for b in range(nb):
-                irradiance[i, b] = flux[i, b] / a
+                irradiance[i, b] = flux[i, b] / ao
             state[i] = STATE_MEASURED
         else:
             for b in range(nb):
@@ -405,7 +407,8 @@ def is_measured(lm, lm_id, threshold=None):
 
 
 def finalize(lm, passes=DILATION_PASSES):
-    """Irradiance E = flux / area per texel, then `passes` rings of dilation.
+    """Irradiance E = flux / (area·open) per texel, then `passes` rings of dilation:
+    what a ray landing on the texel's open surface reads (open_area.py).
 
     Texels with (near-)zero area get E = 0 and are marked empty; dilation then
     fills empty texels next to valid ones (within the same tile only), so that
@@ -415,7 +418,7 @@ def finalize(lm, passes=DILATION_PASSES):
     threshold = empty_thresholds(lm)
     if lm.area.shape[0] == 0:
         return
-    _irradiance(lm.offset, lm.area, lm.flux, threshold, lm.irradiance, lm.state)
+    _irradiance(lm.offset, lm.area, lm.open, lm.flux, threshold, lm.irradiance, lm.state)
     for _ in range(int(passes)):
         irr_prev = lm.irradiance.copy()
         state_prev = lm.state.copy()

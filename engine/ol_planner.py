@@ -68,7 +68,7 @@ class Proposal:
 def bytes_per_texel(lm):
     """Memory of one texel in the flat lightmap arrays (areas, flux, hits, irradiance, ...)."""
     n = max(LM.n_texels(lm), 1)
-    return sum(a.nbytes for a in (lm.area, lm.coverage, lm.flux, lm.flux_sq, lm.hits,
+    return sum(a.nbytes for a in (lm.area, lm.coverage, lm.open, lm.flux, lm.flux_sq, lm.hits,
                                   lm.irradiance, lm.state, lm.split)) / n
 
 

@@ -262,7 +262,7 @@ def report(cs):
         row = dict(entry)
         row.update(photons=int(lm.hits[sl].sum()),
                    flux=lm.flux[sl].sum(axis=0).tolist(),
-                   memory_bytes=int(sum(a[sl].nbytes for a in (lm.area, lm.coverage, lm.flux,
+                   memory_bytes=int(sum(a[sl].nbytes for a in (lm.area, lm.coverage, lm.open, lm.flux,
                                                                 lm.flux_sq, lm.hits, lm.irradiance,
                                                                 lm.state, lm.split))))
         out.append(row)

@@ -117,8 +117,12 @@ def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=Non
     caustics=True (renders): caustic photons go to the finer cs.caustics.
     gather=True: final-gather rays read the lightmaps, so they keep one bounce
     less (trace_photons). aim: the sphere photons are aimed at (photon_aim.py).
+    The texels' open areas are estimated first, once per compiled scene
+    (open_area.py): finalize() divides by them.
     """
+    from . import open_area
     from .photon_tracer import trace_photons
+    open_area.estimate(cs, seed=int(settings.seed))
     n = settings.photons if photons is None else photons
     return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
                          record_direct=record_direct, progress=progress, caustics=caustics, gather=gather,

@@ -159,8 +159,8 @@ def build_parser():
                    help="bake in about S seconds: after one pass of gather rays everywhere, the time "
                         "left goes to the texels with the highest estimated error")
     b.add_argument("--irradiance-cache", action=argparse.BooleanOptionalAction, default=None,
-                   help="gather mesh texels through a sparse irradiance cache (several times fewer "
-                        "rays; default: scene setting)")
+                   help="gather mesh texels through a sparse irradiance cache (fewer rays, lower "
+                        "error; default: the scene's Bake Irradiance Cache, on)")
     b.add_argument("--error-images", action="store_true",
                    help="also write DIR/<object>_error.exr: each texel's estimated relative error "
                         "(gathered bakes)")
@@ -417,7 +417,7 @@ def bake_main(args):
                              indirect=args.indirect.upper() if args.indirect else None,
                              bake_gather_rays=args.bake_gather_rays,
                              bake_target_error=args.target_error, bake_time=args.time,
-                             irradiance_cache=args.irradiance_cache)
+                             bake_irradiance_cache=args.irradiance_cache)
     photons = settings.photons if args.photons is not None else settings.bake_photon_count
     seed = settings.seed
     objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
@@ -432,7 +432,7 @@ def bake_main(args):
                        bake_gather_rays=settings.bake_gather_rays,
                        bake_target_error=settings.bake_target_error, bake_time=settings.bake_time,
                        error_images=args.error_images or None,
-                       irradiance_cache=settings.irradiance_cache)
+                       irradiance_cache=settings.bake_irradiance_cache)
     print(file=sys.stderr)
     stats = res.stats
     report = {

@@ -229,7 +229,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      indirect_only=indirect_only, denoise=denoise, indirect=indirect,
                                      bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error,
                                      bake_time=bake_time, bake_error_images=error_images,
-                                     irradiance_cache=irradiance_cache)
+                                     bake_irradiance_cache=irradiance_cache)
     if photons is None:
         # the scene's count for this kind of bake: Bake Photons when it gathers
         job.settings.photons = job.settings.bake_photon_count
@@ -583,7 +583,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     `bake_gather_rays` per texel, more where a texel's error is above
     `bake_target_error` or in the time left of `bake_time` seconds; None: the
     scene's settings; `irradiance_cache` gathers mesh texels through the sparse
-    irradiance cache; `error_images` also writes each texel's estimated relative
+    irradiance cache (None: the scene's Bake Irradiance Cache); `error_images` also writes each texel's estimated relative
     error as an image, BakeResult.error_maps). `resolution` forces
     R x R texels per object; otherwise the object's own setting or the scene's
     texel density decides. `denoise` (None: the scene's setting) runs OIDN over

@@ -53,15 +53,16 @@ STREAM_XOR = np.uint64(0x94D049BB133111EB)
 
 @njit(cache=True, nogil=True)
 def _open_mesh(g, inst_side, item_inst, item_side, item_key, item_local, pstart, ptri, parea, pnv, pb,
-               n_samples, n_more, out, start, stop):
+               n_samples, n_rays, n_more, n_more_rays, out, start, stop):
     """Open fraction of mesh texels start..stop: the block's scratch, then the core."""
     _open_mesh_core(g, inst_side, item_inst, item_side, item_key, item_local, pstart, ptri, parea, pnv, pb,
-                    n_samples, n_more, out, start, stop, np.empty(STACK_WORDS, np.int32))
+                    n_samples, n_rays, n_more, n_more_rays, out, start, stop, np.empty(STACK_WORDS, np.int32))
 
 
 @njit(**CORE)
 def _open_mesh_core(g, inst_side, item_inst, item_side, item_key, item_local, pstart, ptri, parea, pnv, pb,
-                    n_samples, n_more, out, start, stop, stack):
+                    n_samples, n_rays, n_more, n_more_rays, out, start, stop, stack):
+    # the counts arrive as arguments, not constants: one signature of _count_open, not two
     for it in range(start, stop):
         p0 = pstart[it]
         p1 = pstart[it + 1]
@@ -75,12 +76,12 @@ def _open_mesh_core(g, inst_side, item_inst, item_side, item_key, item_local, ps
         side = item_side[it]
         state = stream_state(item_key[it] ^ STREAM_XOR, item_local[it])
         state, n_ok, n_open = _count_open(g, inst_side, stack, xf, side, ptri, parea, pnv, pb, p0, p1, total,
-                                          n_samples, 1, state)
+                                          n_samples, n_rays, state)
         if 0 < n_open < n_ok:
             # a mixed texel (or a buried one that a ray left through a touching face):
             # counted again, finer and with RAYS rays per point
             state, n_ok, n_open = _count_open(g, inst_side, stack, xf, side, ptri, parea, pnv, pb, p0, p1,
-                                              total, n_more, RAYS, state)
+                                              total, n_more, n_more_rays, state)
         if n_ok > 0:
             out[it] = n_open / n_ok
 
@@ -174,7 +175,7 @@ def estimate(cs, seed=0, samples=SAMPLES, more=MORE_SAMPLES):
             out = np.ones(cat["texel"].size)
             parallel.run(_open_mesh, out.size, g, inst_side, cat["inst"], cat["side"], cat["key"],
                          cat["local"], cat["start"], cat["tri"], cat["area"], cat["nv"], cat["bary"],
-                         int(samples), int(more), out)
+                         int(samples), 1, int(more), RAYS, out)
             lm.open[cat["texel"]] = out
     cs.__dict__["_open_area_done"] = True
     seconds = time.perf_counter() - t0

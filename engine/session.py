@@ -37,8 +37,11 @@ class Settings:
     bake_target_error: float = 0.0  # > 0: texels above this relative error get more gather rays
     bake_max_rays: int = 4096       # the most gather rays per texel and lit side, adaptive included
     bake_time: float = 0.0          # > 0: seconds a bake should take; the gather spends what is left
-    # final gather through a sparse irradiance cache (engine/irradiance_cache.py): bakes' mesh
-    # texels and renders' diffuse hits read interpolated records
+    # final gather through a sparse irradiance cache (engine/irradiance_cache.py): a bake's
+    # mesh texels read interpolated records (3-4x Cycles' speed at equal error over the
+    # per-texel gather, benchmarks/README.md); a render's diffuse hits too, where it is
+    # off by default: its error stops near a texel's scale, above the per-pixel gather's
+    bake_irradiance_cache: bool = True
     irradiance_cache: bool = False
     denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/denoise.py)
 
@@ -209,7 +212,7 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
                                     max_rays=max(1, int(settings.bake_max_rays) // DIRECT_SAMPLES),
                                     direct=direct_E,
                                     time_budget=None if deadline is None else deadline - time.perf_counter(),
-                                    cached=bool(settings.irradiance_cache), info=cache_info)
+                                    cached=bool(settings.bake_irradiance_cache), info=cache_info)
     if cache_info:
         cs.info["irradiance_cache"] = cache_info
     BG.set_gathered(cs.lightmaps, direct_E, indirect)

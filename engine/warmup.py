@@ -35,8 +35,9 @@ TREE = "axiom: F\nderivation length: 2\nangle: 25.7\nproduction:\nF --> F[+F]F[-
 
 def _room(with_primitives=True, ol=True):
     s = demo_scenes.cornell_box(width=8, height=8, with_primitives=with_primitives)
-    if ol:      # the walls' first one shares an orientation lightmap: the OL kernels too
-        s.orientation_lightmaps.append(OrientationLightmap("wall", [0], resolution=4, samples=2000))
+    if ol:      # the ceiling shares an orientation lightmap: the OL kernels too (the floor
+        # keeps its lightmap: the tall box standing on it compiles the open-area kernels)
+        s.orientation_lightmaps.append(OrientationLightmap("wall", [1], resolution=4, samples=2000))
     return s
 
 

@@ -118,12 +118,16 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         subtype='FACTOR', precision=3,
         description="Adaptive bake gather: texels whose estimated relative error is above this "
                     "get more gather rays, up to Bake Max Rays (0: every texel gets Bake Gather Rays)")
+    bake_irradiance_cache: BoolProperty(
+        name="Bake Irradiance Cache", default=_D.bake_irradiance_cache,
+        description="Bakes gather from a sparse set of points placed densest where light changes "
+                    "(contact, corners), interpolated at every texel: several times fewer gather "
+                    "rays and lower error than gathering at every texel, no seams")
     irradiance_cache: BoolProperty(
-        name="Irradiance Cache", default=_D.irradiance_cache,
-        description="Final gather from a sparse set of points placed densest where light changes "
-                    "(contact, corners), interpolated, instead of at every texel (bakes) or every "
-                    "camera hit (renders, made once per photon pass and kept across the frames of "
-                    "a camera animation): several times fewer gather rays, no seams")
+        name="Render Irradiance Cache", default=_D.irradiance_cache,
+        description="Renders gather from the same sparse, interpolated points instead of at every "
+                    "camera hit (made once per photon pass and kept across the frames of a camera "
+                    "animation): faster, but its error stops near a texel's scale")
     bake_max_rays: IntProperty(
         name="Bake Max Rays", default=_D.bake_max_rays, min=1, soft_max=65536,
         description="The most final-gather rays a texel and lit side can get with a target error")

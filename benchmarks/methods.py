@@ -90,6 +90,13 @@ def cycles_bake(objs, res, samples, seed):
     return maps, seconds
 
 
+def cycles_bake_ss(objs, res, ss, samples, seed):
+    """Cycles' Diffuse bake at ss times the resolution, each ss x ss block of pixels
+    averaged into one texel: the texel means a lightmap holds -> ({name: (res, res, 3)}, seconds)."""
+    maps, seconds = cycles_bake(objs, res * ss, samples, seed)
+    return {n: a.reshape(res, ss, res, ss, 3).mean(axis=(1, 3)) for n, a in maps.items()}, seconds
+
+
 def cycles_render(samples, seed):
     """Cycles camera render -> ((H, W, 3) rows top-down, seconds)."""
     scene = bpy.context.scene

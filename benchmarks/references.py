@@ -24,8 +24,14 @@ COMMITTED = HERE / "references"
 
 # Two halves each; the residual noise is estimated and removed from every score,
 # so these need not be noise-free, only much less noisy than the points measured.
-FULL = dict(bake_res=32, bake_spp=1024, render_spp=512, fine_res=128, fine_spp=512)
-QUICK = dict(bake_res=32, bake_spp=256, render_spp=64, fine_res=64, fine_spp=128)
+# Baked references are means over each texel: Cycles bakes bake_ss x bake_ss pixels
+# per texel and they are averaged (methods.cycles_bake_ss). Its bake samples a
+# pixel near the pixel's centre where the texel is long and thin (its jitter must
+# stay inside the centre's triangle; measured on the window room's sill, where a
+# sun edge crosses texels 0.49 m long: 0.00 at 32 x 32, where the texel's mean is
+# 0.18, and 0.20 at 4 x 4 pixels per texel), so the reference takes 8 x 8.
+FULL = dict(bake_res=32, bake_ss=8, bake_spp=64, render_spp=512, fine_res=128, fine_spp=512)
+QUICK = dict(bake_res=32, bake_ss=2, bake_spp=64, render_spp=64, fine_res=64, fine_spp=128)
 # Scene whose floor carries a sharp sun-shadow edge: the texel-resolution (bias) study.
 FINE_SCENE, FINE_OBJECT = "window", "floor"
 
@@ -41,7 +47,7 @@ def _load(path):
 
 def load_or_make(name, cfg, log=print, allow_make=True):
     """Reference arrays for the scene currently built as `name`: dict with
-    'bake_A/<obj>', 'bake_B/<obj>' (res, res, 3), 'render_A', 'render_B' (H, W, 3),
+    'bake_A/<obj>', 'bake_B/<obj>' (res, res, 3) texel means, 'render_A', 'render_B' (H, W, 3),
     and for FINE_SCENE 'fine_A', 'fine_B'. Returns (dict, source)."""
     k = key(name, cfg)
     for folder, src in ((CACHE, "cache"), (COMMITTED, "committed")):
@@ -55,8 +61,9 @@ def load_or_make(name, cfg, log=print, allow_make=True):
     out = {}
     for half, seed in (("A", 1001), ("B", 2002)):
         with quiet():
-            maps, t = M.cycles_bake(objs, cfg["bake_res"], cfg["bake_spp"], seed)
-        log(f"    bake {half}: {cfg['bake_spp']} spp at {cfg['bake_res']}^2, {t:.1f} s")
+            maps, t = M.cycles_bake_ss(objs, cfg["bake_res"], cfg["bake_ss"], cfg["bake_spp"], seed)
+        log(f"    bake {half}: {cfg['bake_spp']} spp at {cfg['bake_res'] * cfg['bake_ss']}^2 "
+            f"averaged to {cfg['bake_res']}^2, {t:.1f} s")
         for o, a in maps.items():
             out[f"bake_{half}/{o}"] = a
         with quiet():

@@ -32,7 +32,7 @@ from . import texel_areas as TA
 from . import primitives as P
 from .raycast import STACK_WORDS
 from .sampling import next_float, stream_state
-from .texel_gather import _grid_side, _jitter, direct_irradiance_stratum, light_stratum
+from .texel_gather import _grid_side, _jitter, direct_irradiance_stratum, light_stratum, texel_shift
 from . import parallel
 
 GUTTER = 1   # texels around each leaf block
@@ -250,8 +250,7 @@ def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, 
         sgn = -1.0 if lm_flip[l] else 1.0
         rad = np.empty(nb)
         state = stream_state(item_key[it], item_local[it])
-        state, us = next_float(state)
-        shift = min(int(us * k * k), k * k - 1)
+        state, shift = texel_shift(state, k)
         for s in range(n_samples):
             state, j1 = next_float(state)
             state, j2 = next_float(state)

@@ -35,7 +35,7 @@ from .lights import EMISSIVE, sample_light_radiance
 from .photon_tracer import Cancelled, ray_epsilon
 from .raycast import STACK_WORDS, intersect_closest, occluded
 from .sampling import next_float, sample_discrete, stream_state
-from .texel_gather import _grid_side, _jitter, light_stratum
+from .texel_gather import _grid_side, _jitter, light_stratum, texel_shift
 
 CameraData = namedtuple("CameraData", "xf kind sx sy width height")
 
@@ -215,8 +215,7 @@ def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0
         # A pixel's samples are stratified on a k x k grid, and so are their first
         # hits' light samples (shifted per pixel, texel_gather.light_stratum).
         k = _grid_side(spp)
-        _, us = next_float(stream_state(seed ^ PIXEL_SHIFT_XOR, pixel))
-        shift = min(int(us * k * k), k * k - 1)
+        _, shift = texel_shift(stream_state(seed ^ PIXEL_SHIFT_XOR, pixel), k)
         for s in range(s0, s1):
             state, jx, jy = _pixel_sample(seed, pixel, spp, s, k)
             ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)

@@ -47,6 +47,9 @@ def _solid_room(ol=True):
                     Primitive("sphere", transform=scale(0.38)), name="block")
     s.prototypes.append(Prototype(name="block", csg=[block]))
     s.instances.append(Instance(len(s.prototypes) - 1, translate(0.0, 0.0, 0.5), name="block"))
+    # a closed mesh resting on the floor: the open-area kernels compile for this kind too
+    s.add_object(demo_scenes.uv_sphere_mesh(0.15, 6, 12), transform=translate(0.6, -0.6, 0.15),
+                 name="pebble", lightmap=False)
     return s
 
 

@@ -403,6 +403,22 @@ def _pack_blas(proto_root, n_nodes, blas_min, blas_max, blas_a, blas_count, shap
     return rec_parts, proto_slot, blas_need, tri4, lane_shape, shape_ref, n_packets
 
 
+def box_corners(lo, hi, xf):
+    """The 8 corners (I, 8, 3) of boxes lo..hi (I, 3) through affine maps xf (I, 3, 4)."""
+    sel = np.arange(8)
+    corners = np.stack([np.where(((sel >> k) & 1)[None, :], hi[:, None, k], lo[:, None, k])
+                        for k in range(3)], axis=-1)
+    return np.einsum("ijk,ilk->ilj", xf[:, :, :3], corners) + xf[:, None, :, 3]
+
+
+def instance_boxes(g):
+    """Each instance's world box (lo (I, 3), hi (I, 3)): its prototype's root box through its transform."""
+    roots = np.asarray(g.proto_root, np.int64)[np.asarray(g.inst_proto, np.int64)]
+    world = box_corners(np.asarray(g.blas_min, np.float64)[roots], np.asarray(g.blas_max, np.float64)[roots],
+                        np.asarray(g.inst_xf, np.float64))
+    return world.min(axis=1), world.max(axis=1)
+
+
 def _place_instances(scene, proto_root, proto_n_surfaces, blas_min, blas_max):
     """Validated instance transforms, lightmap bases (running sum of surfaces)
     and padded world boxes; refuses an instance beyond MAX_COORDINATE by name."""
@@ -420,15 +436,11 @@ def _place_instances(scene, proto_root, proto_n_surfaces, blas_min, blas_max):
         if inst.lightmap:
             inst_lm_base[i] = n_lightmaps
             n_lightmaps += int(proto_n_surfaces[inst_proto[i]])
-    # World boxes: the 8 corners of each prototype's root box through its instance.
     roots = np.asarray(proto_root, np.int64)[inst_proto] if n_inst else np.zeros(0, np.int64)
     lo = blas_min[roots].astype(np.float64)
     hi = blas_max[roots].astype(np.float64)
     live = np.all(lo <= hi, axis=1)
-    sel = np.arange(8)
-    corners = np.stack([np.where(((sel >> k) & 1)[None, :], hi[:, None, k], lo[:, None, k])
-                        for k in range(3)], axis=-1)                       # (I, 8, 3)
-    world = np.einsum("ijk,ilk->ilj", inst_xf[:, :, :3], corners) + inst_xf[:, None, :, 3]
+    world = box_corners(lo, hi, inst_xf)
     if n_inst:
         t_lo[live], t_hi[live] = _pad(world.min(axis=1)[live], world.max(axis=1)[live])
         far = live & (np.maximum(np.abs(t_lo), np.abs(t_hi)).max(axis=1) > MAX_COORDINATE)

@@ -40,6 +40,7 @@ from numba import njit
 
 from . import parallel
 from . import texel_gather as TG
+from .geometry import instance_boxes
 from .jit import CORE
 from .photon_tracer import ray_epsilon
 from .raycast import STACK_WORDS, intersect_closest
@@ -126,24 +127,12 @@ def _count_open(g, inst_side, stack, xf, side, ptri, parea, pnv, pb, p0, p1, tot
     return state, n_ok, n_open
 
 
-def _world_boxes(g):
-    """Each instance's world box (I, 3) lo and hi, from its prototype's root box."""
-    roots = np.asarray(g.proto_root, np.int64)[np.asarray(g.inst_proto, np.int64)]
-    lo = np.asarray(g.blas_min, np.float64)[roots]
-    hi = np.asarray(g.blas_max, np.float64)[roots]
-    sel = np.arange(8)
-    corners = np.stack([np.where(((sel >> k) & 1)[None, :], hi[:, None, k], lo[:, None, k])
-                        for k in range(3)], axis=-1)
-    world = np.einsum("ijk,ilk->ilj", g.inst_xf[:, :, :3], corners) + g.inst_xf[:, None, :, 3]
-    return world.min(axis=1), world.max(axis=1)
-
-
 def _touching(g, inst_side):
     """bool per instance: its world box meets the box of a closed solid other than itself."""
     n = g.inst_proto.shape[0]
     if n == 0:
         return np.zeros(0, bool)
-    lo, hi = _world_boxes(g)
+    lo, hi = instance_boxes(g)
     pad = 1e-6 * (1.0 + np.abs(np.concatenate([lo, hi], axis=1)).max(axis=1))
     lo, hi = lo - pad[:, None], hi + pad[:, None]
     closed = np.flatnonzero(inst_side != 0)

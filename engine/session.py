@@ -38,8 +38,8 @@ class Settings:
     bake_max_rays: int = 4096       # the most gather rays per texel and lit side, adaptive included
     bake_time: float = 0.0          # > 0: seconds a bake should take; the gather spends what is left
     # final gather through a sparse irradiance cache (engine/irradiance_cache.py): a bake's
-    # mesh texels read interpolated records (3-4x Cycles' speed at equal error over the
-    # per-texel gather, benchmarks/README.md); a render's diffuse hits too, where it is
+    # mesh texels read interpolated records (about 4x the per-texel gather's speed against
+    # Cycles at equal error, benchmarks/README.md); a render's diffuse hits too, where it is
     # off by default: its error stops near a texel's scale, above the per-pixel gather's
     bake_irradiance_cache: bool = True
     irradiance_cache: bool = False

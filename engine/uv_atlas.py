@@ -30,6 +30,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 from collections import OrderedDict, namedtuple
 
 import numpy as np
@@ -51,6 +52,11 @@ _to_original_order = _W.to_original_order  # re-exported: the tests call it dire
 _WORKER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "xatlas_worker.py")
 # How often a waiting parent asks should_stop(): cheap, and Esc still feels immediate.
 _POLL_S = 0.05
+# A job (or a worker's start) that runs past this is taken as stuck: xatlas can
+# hang as well as crash. About 30x the time xatlas takes here on 2 loaded cores
+# (0.3 ms per triangle at 10^5 triangles), so a slow machine never meets it.
+_STALL_BASE_S = 120.0
+_STALL_S_PER_TRIANGLE = 0.01
 _ADVICE = "add a UV layer named 'Lightmap' to the mesh, or simplify it (e.g. a Decimate modifier)"
 _START_ADVICE = ("check that the add-on's xatlas package is installed (reinstall Photon Lightmaps), "
                  "or add a UV layer named 'Lightmap' to the mesh")
@@ -288,9 +294,16 @@ def _read_result(folder, i):
     return _Failure(f"xatlas failed ({out['error']})") if "error" in out else out
 
 
-def _watch_worker(folder, start, out, should_stop, on_done):
+def stall_limit(triangles):
+    """Seconds after which a job of this many triangles is taken as stuck."""
+    return _STALL_BASE_S + _STALL_S_PER_TRIANGLE * triangles
+
+
+def _watch_worker(folder, start, out, should_stop, on_done, limits):
     """One child running jobs start.. of the batch; fills `out` as jobs finish.
-    -> (a job was started, the job running when it ended or None, return code, stderr tail)."""
+    limits[i]: seconds job i may run (the child's start counts toward its first job).
+    -> (a job was started, the job running when it ended or None, return code,
+    stderr tail, it was killed as stuck)."""
     global worker_launches
     err_path = os.path.join(folder, f"stderr_{start}.txt")
     try:
@@ -300,12 +313,13 @@ def _watch_worker(folder, start, out, should_stop, on_done):
                 stderr=err, env=_worker_env(),
                 creationflags=getattr(subprocess, "CREATE_NO_WINDOW", 0))
     except OSError as e:
-        return False, None, None, str(e)
+        return False, None, None, str(e), False
     worker_launches += 1
     lines = queue.Queue()
     # A thread reads the pipe so that the loop below can wake up for should_stop().
     threading.Thread(target=_pump, args=(proc.stdout, lines), daemon=True).start()
-    started, running = False, None
+    started, running, stuck = False, None, False
+    deadline = time.monotonic() + limits[start]
     try:
         while True:
             try:
@@ -317,11 +331,16 @@ def _watch_worker(folder, start, out, should_stop, on_done):
                 raise Cancelled("UV unwrap cancelled")
             if line is None:
                 break
+            if time.monotonic() > deadline:
+                stuck = True
+                break
             parts = line.split()
             if len(parts) != 3 or parts[0] != _W.TAG or not parts[2].isdigit():
                 continue  # anything else a host interpreter prints (Blender's banner)
             i = int(parts[2])
             if parts[1] == "start":
+                if started:
+                    deadline = time.monotonic() + limits[i]
                 started, running = True, i
             elif parts[1] == "done":
                 running = None
@@ -332,26 +351,46 @@ def _watch_worker(folder, start, out, should_stop, on_done):
         if proc.poll() is None:
             proc.kill()
         rc = proc.wait()
-    return started, running, rc, _tail(err_path)
+    return started, running, rc, _tail(err_path), stuck
 
 
 def _run_jobs(arrays, n, should_stop=None, on_done=None):
     """Runs n worker jobs (the jobs.npz entries `arrays`, see xatlas_worker) in a
     child process -> per job a dict of result arrays or a _Failure.
-    A job that kills the child fails; a new child runs the jobs after it."""
+    A job that kills the child fails; a new child runs the jobs after it. A job
+    that runs past its stall_limit is tried once more in a new child (a hang
+    need not repeat), then fails."""
     out = [None] * n
+    limits = [stall_limit(len(arrays[f"t_{i}"])) for i in range(n)]
+    retried = set()
     folder = tempfile.mkdtemp(prefix="photon_lightmaps_xatlas_")
     try:
         with open(os.path.join(folder, _W.JOBS_FILE), "wb") as fh:
             np.savez(fh, n=np.array(n), **arrays)
         start = 0
         while start < n:
-            started, running, rc, err = _watch_worker(folder, start, out, should_stop, on_done)
+            started, running, rc, err, stuck = _watch_worker(folder, start, out, should_stop,
+                                                             on_done, limits)
             rest = [i for i in range(start, n) if out[i] is None]
             if not rest:
                 break
             failed = []
-            if running is not None:
+            if stuck:
+                job = rest[0] if running is None else running
+                if job not in retried:
+                    retried.add(job)
+                    start = job
+                    continue
+                if started:
+                    out[job] = _Failure(f"xatlas did not finish within {limits[job]:.0f} s, twice",
+                                        _ADVICE, err)
+                    failed, start = [job], job + 1
+                else:
+                    why = f"the xatlas worker did not start within {limits[job]:.0f} s, twice"
+                    for i in rest:
+                        out[i] = _Failure(why, _START_ADVICE, err)
+                    failed, start = rest, n
+            elif running is not None:
                 why = _exit_reason(rc) if rc else "the xatlas worker stopped unexpectedly"
                 out[running] = _Failure(why, _ADVICE, err)
                 failed, start = [running], running + 1

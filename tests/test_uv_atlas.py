@@ -275,6 +275,52 @@ def test_worker_that_cannot_start_raises(cache, torus, monkeypatch):
     assert UA.unwrap(v, tri).shape == (tri.shape[0], 3, 2)
 
 
+_HANGING_WORKER = """
+import os, runpy, sys, time
+folder, start = sys.argv[1], sys.argv[2]
+marker = os.path.join({mark!r}, "hung_once")
+if start == "0" and ({always!r} or not os.path.exists(marker)):
+    open(marker, "w").close()
+    print({tag!r}, "start", 0, flush=True)
+    time.sleep(600)
+sys.argv = [{real!r}, folder, start]
+runpy.run_path({real!r}, run_name="__main__")
+"""
+
+
+def _hanging_worker(monkeypatch, folder, always):
+    """A worker whose job 0 hangs (once, or every time); the rest run for real."""
+    path = folder / "hanging_worker.py"
+    path.write_text(_HANGING_WORKER.format(mark=str(folder), always=always, tag=UA._W.TAG,
+                                           real=UA._WORKER))
+    monkeypatch.setattr(UA, "_WORKER", str(path))
+    monkeypatch.setattr(UA, "_STALL_BASE_S", 2.0)
+    monkeypatch.setattr(UA, "_STALL_S_PER_TRIANGLE", 0.0)
+
+
+def test_a_hung_job_is_killed_and_tried_again(cache, torus, monkeypatch):
+    v, tri = torus
+    ref = UA.unwrap_atlas(v, tri, resolution=32, use_cache=False)
+    _hanging_worker(monkeypatch, cache, always=False)
+    launches = UA.worker_launches
+    t0 = time.perf_counter()
+    out = UA.unwrap_many([(v, tri, 32), (v * 2, tri, 32)])
+    assert 2.0 < time.perf_counter() - t0 < 30.0
+    assert UA.worker_launches == launches + 2           # the stuck one, then one for both
+    assert out[0].uv.tobytes() == ref.uv.tobytes() and np.all(out[1].chart >= 0)
+
+
+def test_a_job_that_hangs_twice_fails_and_the_batch_goes_on(cache, torus, monkeypatch):
+    v, tri = torus
+    _hanging_worker(monkeypatch, cache, always=True)
+    launches = UA.worker_launches
+    bad, good = UA.unwrap_many([(v, tri, 32), (v * 2, tri, 32)])
+    assert UA.worker_launches == launches + 3
+    assert isinstance(bad, UA.UnwrapError) and bad.reason == "xatlas did not finish within 2 s, twice"
+    assert f"unwrapping {tri.shape[0]:,} triangles" in str(bad)
+    assert isinstance(good, UA.AtlasResult) and np.all(good.chart >= 0)
+
+
 def test_pack_islands_in_the_worker(cache, torus):
     v, tri = torus
     res = UA.unwrap_atlas(v, tri, resolution=32)

@@ -180,7 +180,7 @@ def build_parser():
     w.set_defaults(func=warmup_main)
 
     ls = sub.add_parser("lsystem", help="count an L-system grammar file through its scene graph (JSON)")
-    ls.add_argument("grammar", metavar="FILE", help="grammar text (see the README's L-system section)")
+    ls.add_argument("grammar", metavar="FILE", help="grammar text (see docs/lsystems.md)")
     ls.add_argument("--json", metavar="REPORT", nargs="?", const="-", default="-",
                     help="write the JSON report here (default: standard output)")
     ls.add_argument("--string", action="store_true", help="include the derived string")
@@ -594,7 +594,8 @@ def save_image(rgb, path):
 def lsystem_main(args):
     """CLI: the grammar's counts, bounds and scene-graph statistics as JSON (no bpy)."""
     from .bake.render import peak_rss_bytes
-    from .engine import lsystem, lsystem_stats
+    from .engine.lsystem import grammar as lsystem
+    from .engine import lsystem_stats
     from .messages import InputError
     try:
         grammar = lsystem.load(args.grammar)
@@ -662,7 +663,7 @@ def write_report(path, text):
 
 
 def compile_line(tracker, clock=time.perf_counter):
-    """An on_compile callback (engine/kernel_watch.py) that redraws one stderr line
+    """An on_compile callback (engine/core/kernel_watch.py) that redraws one stderr line
     while kernels compile, so a first run says why it waits."""
     t0 = []
 
@@ -682,7 +683,7 @@ _WATCH = []
 
 
 def main(argv=None):
-    from .engine import kernel_watch
+    from .engine.core import kernel_watch
     args = build_parser().parse_args(argv)
     stderr = sys.stderr
     sys.stderr = tracker = _LineTracker(stderr)

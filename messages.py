@@ -1,7 +1,7 @@
 """What the user is told when a run fails or warns: one text for the CLI and for Blender.
 
 A user error (bad scene data, a missing file, an option value out of range) is
-a SceneError (engine/scene.py; InputError below is one for what is not scene
+a SceneError (engine/core/scene.py; InputError below is one for what is not scene
 data). Its message starts with the culprit, "<object or setting>: <what is
 wrong and what to do>", and is shown as it is: the CLI prints
 "error: <message>" and exits 2 (cli.main), Blender shows it with report() or
@@ -13,7 +13,7 @@ UI panel (ui/panels.py).
 """
 import time
 
-from .engine.scene import SceneError
+from .engine.core.scene import SceneError
 
 
 class InputError(SceneError):

@@ -9,7 +9,7 @@ then written to a float RGBA image:
   E = E_direct + E_indirect (thesis 3.5.2 / 8.2): photons are recorded only
   after their first bounce (indirect), and the direct part is gathered per
   texel by sampling the lights with shadow rays, averaged over the texel's
-  surface (engine/texel_gather.py), which takes the photon noise out of the
+  surface (engine/transport/texel_gather.py), which takes the photon noise out of the
   brightest component. `indirect_only` skips the direct gather.
 * A = the texel's UV coverage (0 where no UV triangle touches it). RGB next to
   the charts holds the lightmap's dilated values, so texture filtering at
@@ -47,7 +47,7 @@ analytic charts: F faces give F tiles of R x R side by side, which is the layout
 of its display mesh's generated `Lightmap` layer. A CSG solid (an object with
 Boolean modifiers, exported as an exact CSG tree) gets ONE image,
 "<base object>_Lightmap", in which the lightmap of every primitive leaf (F·R x R
-texels) is a block of one atlas (engine/csg_bake.py: shelf packing, square
+texels) is a block of one atlas (engine/transport/csg_bake.py: shelf packing, square
 texels, a 1-texel gutter repeating each block's border, alpha 0). A texel's
 alpha is the visible fraction of its surface (0 where the CSG operation removed
 all of it; RGB then holds the dilated neighbours). The direct light of leaf
@@ -71,7 +71,7 @@ one atlas (boolean_meshes.py). Operands passed as bake targets are skipped
 (they are part of their solid's image).
 
 Split texels. Where a CSG boundary cuts a texel into several visible regions,
-the engine keeps one sub-texel per region (engine/csg.py). An image texel holds
+the engine keeps one sub-texel per region (engine/geometry/csg.py). An image texel holds
 one value, so it shows the region with the largest visible area (if that
 region holds no measurement, the texel's own dilated value). This is not enough
 where the other regions matter: thin slivers or slots narrower than a texel,
@@ -93,4 +93,4 @@ from .pipeline import (BakeJob, BakeResult, BakeSettings, bake_objects, commit_b
                        layout_resolution, prepare_bake, rollback_bake, run_unwraps, unwrap_plan,
                        unwrap_seconds)
 from .bake_api import clear_cache  # noqa: F401,E402
-from ..engine.photon_tracer import Cancelled  # noqa: F401,E402  (what a cancelled bake raises)
+from ..engine.core.errors import Cancelled  # noqa: F401,E402  (what a cancelled bake raises)

@@ -9,12 +9,12 @@ import math
 
 import numpy as np
 
-from ..engine import lightmap as LM  # first: the engine package picks numba's cache folder
+from ..engine.lightmaps import lightmap  # first: the engine package picks numba's cache folder
 from numba import njit, prange  # noqa: E402
-from ..engine import open_area as OA  # noqa: E402
+from ..engine.transport import open_area  # noqa: E402
 from ..engine import session  # noqa: E402
-from ..engine.photon_tracer import Cancelled  # noqa: E402
-from ..engine.scene import SceneError  # noqa: E402
+from ..engine.core.errors import Cancelled  # noqa: E402
+from ..engine.core.scene import SceneError  # noqa: E402
 from ..engine.session import Settings  # noqa: E402
 from ..export import export_scene  # noqa: E402
 from ..messages import bug_text  # noqa: E402
@@ -33,7 +33,7 @@ FILTER_COLOR = 256
 @njit(cache=True, parallel=True)
 def _sample_bilinear(lm, lm_id, s, t, out):
     for i in prange(s.shape[0]):
-        LM.lookup_bilinear(lm, lm_id, 0, s[i], t[i], out[i])
+        lightmap.lookup_bilinear(lm, lm_id, 0, s[i], t[i], out[i])
 
 
 # One photon pass serves every object (and image) of a bake: keyed by a digest of
@@ -76,7 +76,7 @@ def _patch_missing_uvs(scene):
     The core would unwrap them anyway; doing it here keeps the UVs in Blender's
     loop-triangle order, which is what the bake API's primitive ids index.
     """
-    from ..engine.uv_atlas import unwrap
+    from ..engine.lightmaps.uv_atlas import unwrap
     for proto in scene.prototypes:
         for tm in proto.meshes:
             if tm.uvs is None:
@@ -124,7 +124,7 @@ def _bake_lightmaps(depsgraph, modes, progress, report, stats=lambda text: None)
             stats(f"Direct light | {texels:,} texels")
             passes["gathered"] = session.gather_direct(cs, mesh_lms, settings)
         ids, E = passes["gathered"]
-        lm = LM.Lightmaps(*(a.copy() for a in ind))
+        lm = lightmap.Lightmaps(*(a.copy() for a in ind))
         if mode == "direct":
             lm.flux[...] = 0.0
         session.add_direct(lm, (ids, E))
@@ -137,8 +137,8 @@ def _whole_texels(lm):
     what Blender's bake pixels average, as the texels of a bake's images do."""
     if np.all(lm.open == 1.0):
         return lm
-    out = LM.Lightmaps(*(a.copy() for a in lm))
-    out.irradiance[...] = OA.baked(lm, slice(None))
+    out = lightmap.Lightmaps(*(a.copy() for a in lm))
+    out.irradiance[...] = open_area.baked(lm, slice(None))
     out.open[:] = 1.0
     return out
 

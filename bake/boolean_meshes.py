@@ -20,8 +20,8 @@ they are (the user laid the atlas out); a mix is refused, naming the operand.
 """
 import numpy as np
 
-from ..engine.csg_bake import pack_atlas
-from ..engine.scene import SceneError
+from ..engine.transport.csg_bake import pack_atlas
+from ..engine.core.scene import SceneError
 from ..export import csg as csg_export
 from ..export import uv_layers
 
@@ -82,7 +82,7 @@ def _write_ours(mesh, uv):
     """Writes our layer's UVs and records them as ours (uv_layers.layer_is_ours)."""
     layer = mesh.uv_layers[uv_layers.LAYER_NAME]
     layer.uv.foreach_set("vector", uv.astype(np.float32).reshape(-1))
-    mesh[uv_layers.DIGEST_PROP] = uv_layers._digest(uv_layers.read_uvs(layer))
+    mesh[uv_layers.DIGEST_PROP] = uv_layers.uv_digest(uv_layers.read_uvs(layer))
     mesh.update()
 
 

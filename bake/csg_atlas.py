@@ -2,8 +2,8 @@
 itself, and moving each baked leaf's `Lightmap` layer into its block (see bake/__init__.py)."""
 import numpy as np
 
-from ..engine import csg_bake
-from ..engine import lightmap as LM
+from ..engine.transport import csg_bake
+from ..engine.lightmaps import lightmap
 from ..export import csg as csg_export
 from ..export import uv_layers
 from .images import BakedMap
@@ -22,7 +22,7 @@ def leaf_plan(proto, solid, others, warnings):
     """
     import bpy
 
-    from ..engine.scene import Primitive
+    from ..engine.core.scene import Primitive
     plan = {}
     taken = {leaf for p in others.values() for leaf, why in p.items() if why is None}
     for leaf in csg_export.tree_leaves(proto.csg[0]):
@@ -85,7 +85,7 @@ def atlas(cs, job, name, leaves, lightmaps=None):
         return None
     pairs = _leaf_blocks(cs, inst, leaves, lm)
     for d, (_, full) in zip(leaves, pairs):
-        sl = LM.texel_slice(lm, d["lightmap"])
+        sl = lightmap.texel_slice(lm, d["lightmap"])
         info["split_texels"] += int(np.count_nonzero(lm.split[sl] >= 0))
         info["boundary_texels"] += int(np.count_nonzero((lm.area[sl] < full.reshape(-1) * (1 - 1e-9))
                                                         & (lm.area[sl] > 0)))

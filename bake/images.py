@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine import lightmap as LM
-from ..engine import open_area as OA
-from ..engine.texture import srgb_to_linear
+from ..engine.lightmaps import lightmap
+from ..engine.transport import open_area
+from ..engine.shading.texture import srgb_to_linear
 from ..messages import InputError
 
 IMAGE_SUFFIX = "_Lightmap"
@@ -60,9 +60,9 @@ class BakedMap:
 
 def lightmap_rgba(lm, lm_id):
     """Lightmap `lm_id` as float32 (height, width, 4): RGB = E/pi, A = coverage."""
-    sl = LM.texel_slice(lm, lm_id)
+    sl = lightmap.texel_slice(lm, lm_id)
     w, h = int(lm.width[lm_id]), int(lm.height[lm_id])
-    e = OA.baked(lm, np.arange(sl.start, sl.stop))
+    e = open_area.baked(lm, np.arange(sl.start, sl.stop))
     rgba = np.zeros((h * w, 4), np.float32)
     nb = e.shape[1]
     rgba[:, :3] = (e if nb == 3 else np.repeat(e.mean(axis=1, keepdims=True), 3, axis=1)) / math.pi

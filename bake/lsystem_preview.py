@@ -39,10 +39,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import messages
-from ..engine import lsystem as LS
-from ..engine.scene import SceneError
-from ..engine.turtle import TurtleState, to_primitives
-from ..export import lsystems as L
+from ..engine.lsystem import grammar as LS
+from ..engine.core.scene import SceneError
+from ..engine.lsystem.turtle import TurtleState, to_primitives
+from ..export import lsystems
 
 # Rewritable symbols (distinct module and turtle state) the per-symbol Repeat Zone takes.
 MAX_PREVIEW_SYMBOLS = 48
@@ -227,7 +227,7 @@ class _Planner:
 
     def walk(self, succ, entries, dist):
         """Children and exit factors of a successor whose modules enter with `entries`."""
-        from ..engine.dcsg import M0    # the turtle's start frame; child -> parent is E @ M0
+        from ..engine.geometry.dcsg import M0  # the turtle's start frame; child -> parent is E @ M0
         it = iter(entries)
         F, stack, kids = [M0.copy()], [], []
         for c in succ:
@@ -273,7 +273,7 @@ class _Planner:
         return SymbolPlan(self.plan_syms, root)
 
 
-def symbol_plan(grammar, max_depth=L.MAX_PREVIEW_DEPTH, max_symbols=MAX_PREVIEW_SYMBOLS):
+def symbol_plan(grammar, max_depth=lsystems.MAX_PREVIEW_DEPTH, max_symbols=MAX_PREVIEW_SYMBOLS):
     """The per-symbol Repeat Zone plan of a context-free, deterministic grammar whose
     successors' structure does not depend on the depth, valid for every depth up to
     `max_depth` (every ABOP-style bracketed system; parametric ones whose parameters take
@@ -313,8 +313,8 @@ class FlatPreview:
 def flat_preview(grammar, depth, limit=MAX_PREVIEW_PRIMITIVES):
     """The engine's expansion at `depth` or, when that exceeds `limit` primitives, at the
     deepest depth below that fits. Raises LSystemError / SceneError as the engine would."""
-    from ..engine.dcsg import DCSG, DCSGUnsupported
-    from ..engine.primitives import KIND_IDS
+    from ..engine.geometry.dcsg import DCSG, DCSGUnsupported
+    from ..engine.geometry.primitives import KIND_IDS
     names = {v: k for k, v in KIND_IDS.items()}
     for d in range(depth, -1, -1):
         try:
@@ -333,7 +333,7 @@ def flat_preview(grammar, depth, limit=MAX_PREVIEW_PRIMITIVES):
             if d > 0:
                 continue
             raise
-        from ..engine.turtle import interpret
+        from ..engine.lsystem.turtle import interpret
         prims = to_primitives(interpret(der.modules, grammar.angle, grammar.width))
         if len(prims) > limit and d > 0:
             continue
@@ -446,7 +446,7 @@ def _trs(m):
     return t, euler, scale
 
 
-# Unit shapes in the engine's canonical frames (engine/primitives.py): Mesh Cone spans
+# Unit shapes in the engine's canonical frames (engine/geometry/primitives.py): Mesh Cone spans
 # z in [0, depth], so it is moved down by 1.
 _CONE_SHIFT = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, -1.0], [0, 0, 0, 1]])
 
@@ -522,8 +522,8 @@ def _clear(ng):
     ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
     ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
     s = ng.interface.new_socket(ITERATIONS, in_out="INPUT", socket_type="NodeSocketInt")
-    s.min_value, s.max_value = 0, L.MAX_PREVIEW_DEPTH
-    s.description = f"Preview depth (Blender shows at most {L.MAX_PREVIEW_DEPTH} nested levels)"
+    s.min_value, s.max_value = 0, lsystems.MAX_PREVIEW_DEPTH
+    s.description = f"Preview depth (Blender shows at most {lsystems.MAX_PREVIEW_DEPTH} nested levels)"
 
 
 def _join(tree, sockets, x):
@@ -756,7 +756,7 @@ def _editable(ob):
 def _preview_key(ob, src):
     """What the preview follows: the grammar text and the slot materials it carries."""
     mats = "|".join(f"{s.link}:{s.material.name if s.material else ''}" for s in ob.material_slots)
-    return L.text_hash(src + "\0" + mats)
+    return lsystems.text_hash(src + "\0" + mats)
 
 
 def update_preview(ob, force=True):
@@ -765,27 +765,27 @@ def update_preview(ob, force=True):
     and leaves the preview as it was; nothing raises for the user's input."""
     if not _editable(ob):
         return ""
-    text = L.grammar_text(ob)
+    text = lsystems.grammar_text(ob)
     if text is None:
-        msg = f"object '{ob.name}': no grammar Text (set one in the panel)" if L.is_lsystem(ob) else \
+        msg = f"object '{ob.name}': no grammar Text (set one in the panel)" if lsystems.is_lsystem(ob) else \
             "not an L-system object"
         _status(ob, msg)
         return msg
     src = text.as_string()
     h = _preview_key(ob, src)
-    meta = L.info(ob)
+    meta = lsystems.info(ob)
     if not force and meta.get("checked") == h:
         return ob.photon_lightmaps.lsystem.status
     meta["checked"] = h
-    settings = L.settings_of(ob)
+    settings = lsystems.settings_of(ob)
     try:
-        user, grammar = L.parse(src, text.name, settings)
-        depth = L.preview_depth(grammar, settings)
+        user, grammar = lsystems.parse(src, text.name, settings)
+        depth = lsystems.preview_depth(grammar, settings)
         try:
             plan = symbol_plan(grammar)
             expect = None
             if grammar.is_context_free:
-                from ..engine.dcsg import DCSG
+                from ..engine.geometry.dcsg import DCSG
                 expect = DCSG(grammar, steps=depth).implicit_primitives
             if expect is not None and plan_primitives(plan, depth) != expect:
                 raise PlanUnfit("the per-symbol plan disagrees with the engine's expansion")
@@ -794,12 +794,12 @@ def update_preview(ob, force=True):
             plan, why = None, str(exc)
             flat = flat_preview(grammar, depth)
         try:
-            stats = L.statistics(grammar, settings.steps, settings.cache_mb)
+            stats = lsystems.statistics(grammar, settings.steps, settings.cache_mb)
         except (LS.LSystemError, SceneError) as exc:
             stats = {"error": messages.describe(exc)}
     except (LS.LSystemError, SceneError) as exc:
         msg = messages.describe(exc)
-        ob[L.INFO_PROP] = meta
+        ob[lsystems.INFO_PROP] = meta
         _status(ob, msg)
         return msg
     mod = _ensure_modifier(ob, text)
@@ -811,7 +811,7 @@ def update_preview(ob, force=True):
     ng = mod.node_group
     approx = []             # where the preview differs from what a render traces
     if plan is not None:
-        build_symbol_tree(ng, plan, L.organ_resolver(ob),
+        build_symbol_tree(ng, plan, lsystems.organ_resolver(ob),
                           [s.material if s.link == "DATA" else None for s in ob.material_slots])
         ob.data.clear_geometry()
         path, labels, note = "symbols", [s.label for s in plan.symbols], ""
@@ -823,20 +823,20 @@ def update_preview(ob, force=True):
         if flat.depth < depth:
             approx.append(f"depth lowered to {flat.depth} to stay under {MAX_PREVIEW_PRIMITIVES:,} primitives")
             depth = flat.depth
-        if L.organ_names(src):
+        if lsystems.organ_names(src):
             approx.append("organs (~) are not shown on this path")
     ident = {i.name: i.identifier for i in ng.interface.items_tree
              if i.item_type == "SOCKET" and i.in_out == "INPUT"}
     mod[ident[ITERATIONS]] = int(depth)
-    steps = L.render_steps(grammar, settings)
+    steps = lsystems.render_steps(grammar, settings)
     if steps is not None and steps > depth:
         approx.append(f"shows depth {depth} of {steps}; renders with this engine trace all {steps}")
-    meta.update({"version": L.FORMAT_VERSION, "hash": L.text_hash(src), "path": path,
+    meta.update({"version": lsystems.FORMAT_VERSION, "hash": lsystems.text_hash(src), "path": path,
                  "depth": int(depth), "symbols": labels, "note": note, "approximate": approx, "stats": stats,
-                 "ol_stubs": L.ol_stub_lines(user), "organs": L.organ_names(src)})
-    ob[L.INFO_PROP] = meta
-    ng[L.INFO_PROP] = {k: meta[k] for k in ("version", "hash", "path", "depth")}
-    ng[L.TEXT_PROP] = text
+                 "ol_stubs": lsystems.ol_stub_lines(user), "organs": lsystems.organ_names(src)})
+    ob[lsystems.INFO_PROP] = meta
+    ng[lsystems.INFO_PROP] = {k: meta[k] for k in ("version", "hash", "path", "depth")}
+    ng[lsystems.TEXT_PROP] = text
     ob.data.update()
     ob.update_tag()
     _status(ob, "")
@@ -845,15 +845,15 @@ def update_preview(ob, force=True):
 
 def _ensure_modifier(ob, text):
     import bpy
-    mod = L.lsystem_modifier(ob)
+    mod = lsystems.lsystem_modifier(ob)
     if mod is None:
-        mod = ob.modifiers.new(L.MODIFIER_NAME, "NODES")
+        mod = ob.modifiers.new(lsystems.MODIFIER_NAME, "NODES")
     if mod.node_group is None:
         mod.node_group = bpy.data.node_groups.new(f"{ob.name} L-System", "GeometryNodeTree")
     ng = mod.node_group
-    if L.INFO_PROP not in ng.keys():
-        ng[L.INFO_PROP] = {"version": L.FORMAT_VERSION}
-    ng[L.TEXT_PROP] = text
+    if lsystems.INFO_PROP not in ng.keys():
+        ng[lsystems.INFO_PROP] = {"version": lsystems.FORMAT_VERSION}
+    ng[lsystems.TEXT_PROP] = text
     return mod
 
 
@@ -862,17 +862,17 @@ def new_lsystem_object(name=None, *, preset=None, text=None, location=(0.0, 0.0,
     the preset's), an empty mesh and the Geometry Nodes modifier, with its preview built."""
     import bpy
     if text is None:
-        preset = preset or L.presets()[0][0]
-        text = L.preset_text(preset)
-    label = next((lab for n, lab, _ in L.presets() if n == preset), None) if preset else None
+        preset = preset or lsystems.presets()[0][0]
+        text = lsystems.preset_text(preset)
+    label = next((lab for n, lab, _ in lsystems.presets() if n == preset), None) if preset else None
     name = name or (label.split(" (")[0] if label else "L-System")
     tb = bpy.data.texts.new(f"{name}.lsys")
     tb.from_string(text)
     me = bpy.data.meshes.new(name)
     ob = bpy.data.objects.new(name, me)
     ob.location = location
-    ob[L.TEXT_PROP] = tb
-    ob[L.INFO_PROP] = {"version": L.FORMAT_VERSION}
+    ob[lsystems.TEXT_PROP] = tb
+    ob[lsystems.INFO_PROP] = {"version": lsystems.FORMAT_VERSION}
     (collection or bpy.context.scene.collection).objects.link(ob)
     _ensure_modifier(ob, tb)
     update_preview(ob)
@@ -889,12 +889,12 @@ def check_texts(settle=False):
     preview is not rebuilt at every keystroke."""
     import bpy
     for ob in bpy.data.objects:
-        if L.INFO_PROP not in ob.keys() or not _editable(ob):
+        if lsystems.INFO_PROP not in ob.keys() or not _editable(ob):
             continue
-        text = L.grammar_text(ob)
+        text = lsystems.grammar_text(ob)
         if text is None:
             continue
         h = _preview_key(ob, text.as_string())
         previous, _SEEN[ob.name] = _SEEN.get(ob.name), h
-        if L.info(ob).get("checked") != h and (not settle or previous == h):
+        if lsystems.info(ob).get("checked") != h and (not settle or previous == h):
             update_preview(ob, force=False)

@@ -35,10 +35,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine import lightmap as LM
-from ..engine import orientation_lightmap as OL
+from ..engine.lightmaps import lightmap
+from ..engine.lightmaps import orientation_lightmap
 from ..engine import session
-from ..engine.scene import SceneError
+from ..engine.core.scene import SceneError
 from ..export import export_scene, is_orientation_lightmap
 from ..export.lsystems import is_lsystem
 from . import hooks, images
@@ -71,7 +71,7 @@ def summarize(row, names, source):
 
 def record_report(cs, scene_name, source, report=None):
     """Summaries of every OL of a traced compiled scene; kept in REPORTS, warnings reported."""
-    rows = OL.report(cs)
+    rows = orientation_lightmap.report(cs)
     names = [r["name"] for r in rows]
     out = [summarize(r, names, source) for r in rows]
     for s in out:
@@ -118,13 +118,13 @@ def ol_rgba(cs, k):
     hierarchy rule (noisy bins read the enclosing level), A = bin has area."""
     lm, ol = cs.lightmaps, cs.orientation
     rel = _rel_error(lm)
-    sl0 = LM.texel_slice(lm, int(ol.lid[k]))
+    sl0 = lightmap.texel_slice(lm, int(ol.lid[k]))
     n = sl0.stop - sl0.start
     r = int(lm.width[int(ol.lid[k])])
     idx = np.arange(n)
     level = np.full(n, k, np.int64)
-    # Walk up per bin exactly like OL.lookup: stop where the bin is good enough or at the top.
-    for _ in range(OL.MAX_LEVELS + 1):
+    # Walk up per bin exactly like orientation_lightmap.lookup: stop where the bin is good enough or at the top.
+    for _ in range(orientation_lightmap.MAX_LEVELS + 1):
         start = ol.lid[level]
         ti = lm.offset[start] + idx
         up = (ol.parent[level] >= 0) & (rel[ti] > ol.max_rel_error[level])
@@ -135,7 +135,7 @@ def ol_rgba(cs, k):
     e = lm.irradiance[ti].copy()
     # EEVEE looks bins up by smooth shading normals, which reach bins that no
     # flat face normal has: those take the value of the nearest bin in angle.
-    empty = lm.state[ti] == LM.STATE_EMPTY
+    empty = lm.state[ti] == lightmap.STATE_EMPTY
     full = ~empty
     if empty.any() and full.any():
         c = (np.arange(r) + 0.5) / r
@@ -202,8 +202,8 @@ def bake_orientation_lightmaps(context_or_depsgraph, *, photons=None, seed=None,
     """Bakes every OL of the scene to "<empty>_Lightmap" images (and files, and material hooks)."""
     import bpy
     t0 = time.perf_counter()
-    from .pipeline import BakeSettings, _depsgraph
-    depsgraph = _depsgraph(context_or_depsgraph)
+    from .pipeline import BakeSettings, evaluated_depsgraph
+    depsgraph = evaluated_depsgraph(context_or_depsgraph)
     bscene = depsgraph.scene
     settings = BakeSettings.read(getattr(bscene, "photon_lightmaps", None), photons=photons, seed=seed)
     if settings.photons < 0:

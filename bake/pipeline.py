@@ -11,10 +11,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine import lightmap as LM
+from ..engine.lightmaps import lightmap
 from ..engine import session
-from ..engine import texel_areas as TA
-from ..engine.scene import SceneError
+from ..engine.lightmaps import texel_areas
+from ..engine.core.scene import SceneError
 from ..export import csg as csg_export
 from ..export import uv_layers
 from ..export.ol_routing import OLRouter
@@ -56,7 +56,7 @@ class BakeResult:
     # "boundary_texels", "atlas": (w, h)}
     csg: dict = field(default_factory=dict)
     environment: dict = None    # the world's map (compiled info["environment"]), None: constant
-    gathered: bool = False      # indirect light by final gather (engine/bake_gather.py), not photon lookup
+    gathered: bool = False      # indirect light by final gather (engine/transport/bake_gather.py), not photon lookup
     # object name -> {"rel_error_mean", "rel_error_p95", "rel_error_max", "rays_mean"}: the gathered
     # texels' estimated relative standard error (engine/session.texel_error) and rays they got
     error: dict = field(default_factory=dict)
@@ -97,7 +97,7 @@ def _is_excluded(ob):
     return bool(props is not None and props.exclude)
 
 
-def _depsgraph(context_or_depsgraph):
+def evaluated_depsgraph(context_or_depsgraph):
     import bpy
     if isinstance(context_or_depsgraph, bpy.types.Depsgraph):
         return context_or_depsgraph
@@ -110,7 +110,7 @@ def _world_area(ob):
     if tv.shape[0] == 0:
         return 0.0
     M = np.array(ob.matrix_world, np.float64)[:3, :3]
-    return float(TA.triangle_world_areas(v[tv], M).sum())
+    return float(texel_areas.triangle_world_areas(v[tv], M).sum())
 
 
 def layout_resolution(ob, texel_density, resolution=None):
@@ -120,7 +120,7 @@ def layout_resolution(ob, texel_density, resolution=None):
     props = getattr(ob, "photon_lightmaps", None)
     if props is not None and int(props.lightmap_resolution) > 0:
         return int(props.lightmap_resolution)
-    return LM.resolution_for(_world_area(ob), texel_density)
+    return lightmap.resolution_for(_world_area(ob), texel_density)
 
 
 def _covering_ol(router, ob):
@@ -171,7 +171,7 @@ def unwrap_plan(context_or_depsgraph, objects, resolution=None):
     """The xatlas unwraps prepare_bake would run -> [(object name, vertices,
     triangles, lightmap side)]; reads the meshes, changes nothing. Run them with
     run_unwraps (any thread) first, and prepare_bake finds them cached."""
-    depsgraph = _depsgraph(context_or_depsgraph)
+    depsgraph = evaluated_depsgraph(context_or_depsgraph)
     density = session.Settings.read(bscene_props(depsgraph.scene)).texel_density
     plan = []
     for ob in _wanted(depsgraph, objects, {}):
@@ -190,8 +190,8 @@ def run_unwraps(plan, progress=None, should_stop=None):
     """Any thread: the plan's xatlas unwraps into the unwrap cache (a mesh xatlas
     fails on is remembered too). progress(done, total); should_stop() -> True
     kills the worker and raises Cancelled."""
-    from ..engine import uv_atlas as UA
-    UA.unwrap_many([dict(vertices=v, triangles=t, resolution=side) for _, v, t, side in plan],
+    from ..engine.lightmaps import uv_atlas
+    uv_atlas.unwrap_many([dict(vertices=v, triangles=t, resolution=side) for _, v, t, side in plan],
                    progress=progress, should_stop=should_stop)
 
 
@@ -204,7 +204,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     back (a failed or cancelled compute or commit)."""
     t0 = time.perf_counter()
     result = BakeResult()
-    depsgraph = _depsgraph(context_or_depsgraph)
+    depsgraph = evaluated_depsgraph(context_or_depsgraph)
     bscene = depsgraph.scene
     props = bscene_props(bscene)
     density = session.Settings.read(props).texel_density
@@ -239,7 +239,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     if job.settings.denoise:
         # Missing pyoidn is told now, not after the photon pass.
         try:
-            from ..engine import denoise as DN
+            from ..engine.transport import denoise as DN
             DN.require()
         except BaseException:
             _uv_restore(uv_undo)
@@ -252,7 +252,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
 def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution, booleans):
     """prepare_bake after choosing the objects: their Lightmap UV layers, then the export.
     booleans: {name: operands} of the wanted Booleans of plain meshes (boolean_meshes.py)."""
-    from ..engine.uv_atlas import UnwrapError
+    from ..engine.lightmaps.uv_atlas import UnwrapError
     from ..export import export_scene
     bscene = depsgraph.scene
     changed = False
@@ -410,7 +410,7 @@ def _error_stats(cs, job, solids):
     out = {}
     for name, i in job.targets.items():
         lids = [d["lightmap"] for d in solids[name]] if name in job.csg else [cs.instance_lightmaps[i][0]]
-        rows = np.concatenate([np.arange(LM.texel_slice(lm, l).start, LM.texel_slice(lm, l).stop)
+        rows = np.concatenate([np.arange(lightmap.texel_slice(lm, l).start, lightmap.texel_slice(lm, l).stop)
                                for l in lids]) if lids else np.zeros(0, np.int64)
         sel = np.isin(ids, rows)
         if not sel.any():
@@ -450,7 +450,7 @@ def compute_bake(job, progress=None, phase=None):
     detail) is told as each other part starts: "scene", "kernels" (a first run
     compiling, with how many so far), "direct" and "gather" (texels),
     "images", "denoise"."""
-    from ..engine import kernel_watch
+    from ..engine.core import kernel_watch
     result = job.result
     t0 = time.perf_counter()
     if not job.targets:
@@ -587,7 +587,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     error as an image, BakeResult.error_maps). `resolution` forces
     R x R texels per object; otherwise the object's own setting or the scene's
     texel density decides. `denoise` (None: the scene's setting) runs OIDN over
-    each map (engine/denoise.py). `progress(done, total)`
+    each map (engine/transport/denoise.py). `progress(done, total)`
     may return False to cancel: Cancelled is raised before any image changes.
     See the module docstring for image naming, overwriting and saving.
     """

@@ -13,8 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine import light_reuse, session, uv_atlas
-from ..engine.photon_tracer import Cancelled
+from ..engine import light_reuse, session
+from ..engine.lightmaps import uv_atlas
+from ..engine.core.errors import Cancelled
 from ..export import export_scene
 from ..messages import bug_text, describe, record
 
@@ -177,7 +178,7 @@ def _photons(cs, scene, settings, run, report, stats, progress, should_stop, lm_
 def _render(cs, settings, run, stats, progress, on_tile, should_stop, lm_text):
     """Phase 4: the render pass, progressive: the whole frame at 1 sample, then 2, 4, ...
     (each tile shown as it refines); the last pass gives the same image as one pass would."""
-    from ..engine.renderer import progressive_passes
+    from ..engine.transport.renderer import progressive_passes
     passes = progressive_passes(settings.samples)
     starts = np.cumsum([0] + passes)        # samples done before each pass
     n_tiles = max(1, -(-run.width // TILE) * -(-run.height // TILE))
@@ -216,7 +217,7 @@ def run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=Non
                camera_override=None, resolution=None):
     """_run_render, with the stats line saying so while kernels compile (a first
     run compiles for minutes; later runs load them from the cache)."""
-    from ..engine import kernel_watch
+    from ..engine.core import kernel_watch
     stats = stats or (lambda text: None)
     t0 = []
 
@@ -255,7 +256,7 @@ def _run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=No
     LAST_RUN = run
     t0 = time.perf_counter()
     if settings.denoise:
-        from ..engine import denoise
+        from ..engine.transport import denoise
         denoise.require()       # missing pyoidn: say so before the photon pass, not after
 
     def report(level, msg):

@@ -28,8 +28,8 @@ from dataclasses import replace
 import numpy as np
 
 from ..engine import session
-from ..engine.renderer import add_samples, compile_camera
-from ..engine.scene import Camera
+from ..engine.transport.renderer import add_samples, compile_camera
+from ..engine.core.scene import Camera
 
 PREVIEW_DIVISOR = 4         # the first image after a restart: a quarter of the resolution
 

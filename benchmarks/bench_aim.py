@@ -3,7 +3,7 @@
 A 1 m cube on a 60 x 60 m ground under a sun 40 degrees from the zenith; only
 the cube is baked (32 x 32 texels per face chart). Most of the sun's photons
 land on ground no texel asks for, which is where aiming the photons at the
-baked object (engine/photon_aim.py) should pay. Curves, over photons or spp:
+baked object (engine/shading/photon_aim.py) should pay. Curves, over photons or spp:
 
 * ours_gather / ours_lookup: the add-on's bakes, photons aimed at the cube;
 * ours_gather_unaimed / ours_lookup_unaimed: the same with aiming off;
@@ -28,10 +28,10 @@ import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
 from photon_lightmaps import demo_blend, registration  # noqa: E402
-from photon_lightmaps.engine import photon_aim  # noqa: E402
+from photon_lightmaps.engine.shading import photon_aim  # noqa: E402
 from photon_lightmaps.export import uv_layers  # noqa: E402
 
-from benchmarks import methods as M  # noqa: E402
+from benchmarks import methods  # noqa: E402
 from benchmarks.quiet import quiet  # noqa: E402
 from benchmarks.run_all import Scorer, loglog_interp, stack_maps  # noqa: E402
 
@@ -62,7 +62,7 @@ def ours(cube, photons, indirect, aimed):
     if not aimed:
         photon_aim.aimed.__defaults__ = (0.0,)     # every photon as the light emits it
     try:
-        maps, seconds, _, stats, _ = M.ours_bake([cube], photons, 7, RES, indirect=indirect)
+        maps, seconds, _, stats, _ = methods.ours_bake([cube], photons, 7, RES, indirect=indirect)
     finally:
         photon_aim.aimed.__defaults__ = before
     return maps, seconds
@@ -73,11 +73,11 @@ def main():
         registration.register()
     cube = build()
     with quiet():
-        ref_A, _ = M.cycles_bake([cube], RES, REF_SPP, 1)
-        ref_B, _ = M.cycles_bake([cube], RES, REF_SPP, 2)
+        ref_A, _ = methods.cycles_bake([cube], RES, REF_SPP, 1)
+        ref_B, _ = methods.cycles_bake([cube], RES, REF_SPP, 2)
     names = ["cube"]
-    maps0, *_ = M.ours_bake([cube], 1000, 0, RES)
-    geo = M.texel_points(cube, RES)
+    maps0, *_ = methods.ours_bake([cube], 1000, 0, RES)
+    geo = methods.texel_points(cube, RES)
     mask = (geo[2] & (maps0["cube"][..., 3] >= 0.999))[None]
     score = Scorer(stack_maps(ref_A, names), stack_maps(ref_B, names), mask)
     points = []
@@ -92,10 +92,10 @@ def main():
                 print(f"{method:22s} {n:>10,} photons {t:6.2f} s  relRMSE {s['rel_rmse']:.4f}  "
                       f"bias {s['mean_error']:+.4f}", flush=True)
     with quiet():
-        M.cycles_bake([cube], RES, 4, 0)             # warm-up
+        methods.cycles_bake([cube], RES, 4, 0)             # warm-up
     for spp in CYCLES_SPP:
         with quiet():
-            maps, t = M.cycles_bake([cube], RES, spp, 3)
+            maps, t = methods.cycles_bake([cube], RES, spp, 3)
         s = score(stack_maps(maps, names))
         points.append(dict(method="cycles_bake", knob=spp, seconds=t, **s))
         print(f"{'cycles_bake':22s} {spp:>10,} spp     {t:6.2f} s  relRMSE {s['rel_rmse']:.4f}", flush=True)

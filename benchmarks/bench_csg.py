@@ -35,14 +35,14 @@ import numpy as np  # noqa: E402
 
 import photon_lightmaps  # noqa: E402
 from photon_lightmaps import registration  # noqa: E402
-from photon_lightmaps.engine import lightmap as LM  # noqa: E402
+from photon_lightmaps.engine.lightmaps import lightmap  # noqa: E402
 from photon_lightmaps.engine.compile import compile_scene  # noqa: E402
-from photon_lightmaps.engine.photon_tracer import trace_photons  # noqa: E402
-from photon_lightmaps.engine.renderer import render as render_image  # noqa: E402
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons  # noqa: E402
+from photon_lightmaps.engine.transport.renderer import render as render_image  # noqa: E402
 from photon_lightmaps.export import export_scene  # noqa: E402
 
-from benchmarks import csg_scenes as CS  # noqa: E402
-from benchmarks import methods as M  # noqa: E402
+from benchmarks import csg_scenes  # noqa: E402
+from benchmarks import methods  # noqa: E402
 from benchmarks.quiet import quiet  # noqa: E402
 from benchmarks.run_all import Scorer  # noqa: E402
 
@@ -63,8 +63,8 @@ QUICK = dict(ops=["difference"], fig_size=(48, 48), fig_tess=[16], fig_ref_segme
 def _builder(name, cfg):
     if name.startswith("fig55_"):
         op = name.split("_", 1)[1]
-        return lambda seg: CS.build_fig55(op, *cfg["fig_size"], segments=seg)
-    return lambda seg: CS.build_machine(*cfg["machine_size"], segments=seg,
+        return lambda seg: csg_scenes.build_fig55(op, *cfg["fig_size"], segments=seg)
+    return lambda seg: csg_scenes.build_machine(*cfg["machine_size"], segments=seg,
                                         rivet_pitch=cfg["machine_pitch"])
 
 
@@ -73,7 +73,7 @@ def reference(name, cfg, log):
     ref_seg = cfg["fig_ref_segments"] if name.startswith("fig55") else cfg["machine_ref_segments"]
     size = cfg["fig_size"] if name.startswith("fig55") else cfg["machine_size"]
     key = (f"csg_{name}_v{BUILD_VERSION}_s{ref_seg}_{size[0]}x{size[1]}_spp{cfg['ref_spp']}"
-           f"_p{cfg['machine_pitch'] if name == 'machine' else 0}_{bpy.app.version_string}_b{M.MAX_BOUNCES}")
+           f"_p{cfg['machine_pitch'] if name == 'machine' else 0}_{bpy.app.version_string}_b{methods.MAX_BOUNCES}")
     path = CACHE / f"{key.replace(' ', '')}.npz"
     if path.exists():
         with np.load(path) as z:
@@ -81,11 +81,11 @@ def reference(name, cfg, log):
     log(f"  [{name}] Cycles reference: {ref_seg} segments, 2 x {cfg['ref_spp']} spp")
     _builder(name, cfg)(ref_seg)
     # Cycles renders the applied Boolean meshes, creases marked sharp (csg_scenes.tessellate)
-    t_bool = CS.tessellate(unwrap=False)["boolean_seconds"]
+    t_bool = csg_scenes.tessellate(unwrap=False)["boolean_seconds"]
     out = {}
     for half, seed in (("A", 1001), ("B", 2002)):
         with quiet():
-            img, t = M.cycles_render(cfg["ref_spp"], seed)
+            img, t = methods.cycles_render(cfg["ref_spp"], seed)
         out[f"render_{half}"] = img
         log(f"    half {half}: {t:.1f} s (Boolean {t_bool:.1f} s)")
     CACHE.mkdir(parents=True, exist_ok=True)
@@ -108,16 +108,16 @@ def measure(label, cfg, score, csg_split=True, log=print):
     cs = compile_scene(scene, csg_split=csg_split)
     g = cs.geometry
     # warm-up: JIT from the numba cache for this scene's kernels
-    trace_photons(cs, 2000, seed=1, max_bounces=M.MAX_BOUNCES, record_direct=False)
+    trace_photons(cs, 2000, seed=1, max_bounces=methods.MAX_BOUNCES, record_direct=False)
     times = []
     for r in range(cfg["repeats"]):
         cs.reset_lightmaps()
         t1 = time.perf_counter()
-        trace_photons(cs, cfg["photons"], seed=7, max_bounces=M.MAX_BOUNCES, record_direct=False)
+        trace_photons(cs, cfg["photons"], seed=7, max_bounces=methods.MAX_BOUNCES, record_direct=False)
         times.append(time.perf_counter() - t1)
     t1 = time.perf_counter()
-    img = render_image(cs, samples=cfg["samples"], seed=7, mode=LM.MODE_BILINEAR,
-                       max_depth=M.MAX_BOUNCES)[..., :3]
+    img = render_image(cs, samples=cfg["samples"], seed=7, mode=lightmap.MODE_BILINEAR,
+                       max_depth=methods.MAX_BOUNCES)[..., :3]
     t_render = time.perf_counter() - t1
     info = cs.info
     n_leaves = int(info.get("csg_leaves", 0))
@@ -147,7 +147,7 @@ def interleaved_photon_seconds(cs_a, cs_b, cfg):
         for cs, out in ((cs_a, ta), (cs_b, tb)):
             cs.reset_lightmaps()
             t0 = time.perf_counter()
-            trace_photons(cs, cfg["photons"], seed=7, max_bounces=M.MAX_BOUNCES, record_direct=False)
+            trace_photons(cs, cfg["photons"], seed=7, max_bounces=methods.MAX_BOUNCES, record_direct=False)
             out.append(time.perf_counter() - t0)
     return min(ta), min(tb)
 
@@ -175,7 +175,7 @@ def run_scene(name, cfg, log):
             q["setup_seconds"] = q["export_seconds"] + q["compile_seconds"]
             models.append(q)
             images["exact_plain"] = img
-        tess = CS.tessellate()
+        tess = csg_scenes.tessellate()
         p, img, _ = measure(f"tess{seg}", cfg, score, True, log)
         p.update(segments=seg, build_seconds=t_build, boolean_seconds=tess["boolean_seconds"],
                  unwrap_seconds=tess["unwrap_seconds"], model_triangles=tess["triangles"])

@@ -44,8 +44,8 @@ from photon_lightmaps import cli as headless  # noqa: E402
 from photon_lightmaps import demo_blend, registration  # noqa: E402
 from photon_lightmaps.bake import render as render_engine  # noqa: E402
 
-from . import methods as M  # noqa: E402
-from . import scenes as S  # noqa: E402
+from . import methods  # noqa: E402
+from . import scenes  # noqa: E402
 from .quiet import quiet  # noqa: E402
 from .run_all import Scorer, loglog_interp  # noqa: E402
 
@@ -57,11 +57,11 @@ CACHE = ROOT / "benchmarks" / "cache"
 def build_furnished(width, height, frames):
     """The window room with furniture and a ceiling lamp; the camera keyframed
     from frame 1 to `frames` (linear), walking along the front wall and turning."""
-    scene = S.build_window(width, height)
+    scene = scenes.build_window(width, height)
     wood = demo_blend.principled("wood", (0.45, 0.3, 0.18))
     cloth = demo_blend.principled("cloth", (0.6, 0.15, 0.12))
     pale = demo_blend.principled("pale", (0.8, 0.78, 0.7))
-    box = S._box
+    box = scenes._box
     box("table_top", (-0.2, -0.5, 0.72), (1.0, 0.3, 0.76), wood)
     for i, (x, y) in enumerate(((-0.15, -0.45), (0.95, -0.45), (-0.15, 0.25), (0.95, 0.25))):
         box(f"table_leg{i}", (x - 0.03, y - 0.03, 0.0), (x + 0.03, y + 0.03, 0.72), wood)
@@ -78,7 +78,7 @@ def build_furnished(width, height, frames):
     for ob in scene.objects:
         if ob.type == "MESH" and ob.data.materials[0].users > 1:
             ob.data.materials[0] = ob.data.materials[0].copy()
-    S._finish_common(scene, width, height)
+    scenes._finish_common(scene, width, height)
     cam = scene.camera
     path = (((-1.4, -1.35, 1.35), (math.radians(80.0), 0.0, math.radians(-35.0))),
             ((1.5, -1.35, 1.2), (math.radians(78.0), 0.0, math.radians(30.0))))
@@ -99,7 +99,7 @@ def scored_frames(frames):
 
 def references(scene, frames, spp, log):
     """{frame: (A, B)} two-half Cycles references of the scored frames, cached."""
-    key = S.scene_hash((bpy.app.version_string, M.MAX_BOUNCES, "flythrough", spp, frames))
+    key = scenes.scene_hash((bpy.app.version_string, methods.MAX_BOUNCES, "flythrough", spp, frames))
     path = CACHE / f"flythrough_{key}.npz"
     if path.exists():
         with np.load(path) as z:
@@ -110,7 +110,7 @@ def references(scene, frames, spp, log):
         halves = []
         for seed in (1001, 2002):
             with quiet():
-                img, t = M.cycles_render(spp, seed)
+                img, t = methods.cycles_render(spp, seed)
             halves.append(img)
         log(f"  reference frame {f}: 2 x {spp} spp, {t:.1f} s each")
         out[f] = tuple(halves)
@@ -124,7 +124,7 @@ def configure(scene, photons, samples, gather_rays, cache=False):
     pl = scene.photon_lightmaps
     pl.photons, pl.samples, pl.gather_rays, pl.seed, pl.indirect = photons, samples, gather_rays, 1, "GATHER"
     pl.irradiance_cache = cache
-    pl.max_bounces = M.MAX_BOUNCES
+    pl.max_bounces = methods.MAX_BOUNCES
 
 
 def ours(scene, frames, refs, photons, samples, gather_rays, cache=False):
@@ -140,7 +140,7 @@ def ours(scene, frames, refs, photons, samples, gather_rays, cache=False):
         with quiet():
             report = headless._render_frames(scene, pathlib.Path(tmp) / "f_###.exr", (1, frames))
         total = time.perf_counter() - t0
-        errs = {f: Scorer(*refs[f])(M.read_rgb(pathlib.Path(tmp) / f"f_{f:03d}.exr"))["rel_rmse"] for f in refs}
+        errs = {f: Scorer(*refs[f])(methods.read_rgb(pathlib.Path(tmp) / f"f_{f:03d}.exr"))["rel_rmse"] for f in refs}
     per = [r["seconds"]["total"] for r in report["frames"]]
     return dict(photons=photons, samples=samples, gather_rays=gather_rays, irradiance_cache=cache, seconds=total,
                 first_frame_seconds=per[0], later_frame_seconds=float(np.mean(per[1:])) if len(per) > 1 else 0.0,
@@ -171,7 +171,7 @@ def cycles(scene, frames, refs, spps):
         for f in refs:
             scene.frame_set(f)
             with quiet():
-                img, t = M.cycles_render(spp, 7)
+                img, t = methods.cycles_render(spp, 7)
             secs.append(t)
             errs.append(Scorer(*refs[f])(img)["rel_rmse"])
         rows.append(dict(samples=spp, frame_seconds=float(np.mean(secs)), seconds=float(np.mean(secs)) * frames,

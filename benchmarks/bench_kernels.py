@@ -4,7 +4,7 @@
 
 The scene is the one bench_rays times (a UV sphere of about 100k triangles)
 standing in the Cornell room of engine/demo_scenes, lit by its area light. The
-raw rates are engine/raycast.py's batch queries on that scene, with rays like
+raw rates are engine/geometry/raycast.py's batch queries on that scene, with rays like
 the kernels' own: closest hits from random points in the room in random
 directions, and shadow segments from random points to random points on the
 light. Each kernel's rate is the rays it traces over its wall time:
@@ -39,11 +39,11 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 from dataclasses import replace  # noqa: E402
 
-from photon_lightmaps.engine import bake_gather as BG  # noqa: E402
+from photon_lightmaps.engine.transport import bake_gather  # noqa: E402
 from photon_lightmaps.engine import demo_scenes, session  # noqa: E402
-from photon_lightmaps.engine import raycast as R  # noqa: E402
-from photon_lightmaps.engine import texel_gather as TG  # noqa: E402
-from photon_lightmaps.engine.scene import translate  # noqa: E402
+from photon_lightmaps.engine.geometry import raycast  # noqa: E402
+from photon_lightmaps.engine.transport import texel_gather  # noqa: E402
+from photon_lightmaps.engine.core.scene import translate  # noqa: E402
 
 
 def scene(triangles):
@@ -84,17 +84,17 @@ def raw_rates(cs, n, reps, seed=1):
     o = np.column_stack([rng.uniform(-0.98, 0.98, n), rng.uniform(-0.98, 0.98, n), rng.uniform(0.02, 1.96, n)])
     d = rng.normal(size=(n, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    closest, _ = best_of(lambda: R.trace_closest_batch(cs.geometry, o, d), reps)
+    closest, _ = best_of(lambda: raycast.trace_closest_batch(cs.geometry, o, d), reps)
     # shadow segments to the 0.5 m square light under the ceiling (z = 1.98)
     q = np.column_stack([rng.uniform(-0.25, 0.25, n), rng.uniform(-0.25, 0.25, n), np.full(n, 1.98)])
     seg = q - o                               # unnormalised: t runs from 0 to 1 along the segment
-    occl, _ = best_of(lambda: R.occluded_batch(cs.geometry, o, seg, 1.0 - 1e-6), reps)
+    occl, _ = best_of(lambda: raycast.occluded_batch(cs.geometry, o, seg, 1.0 - 1e-6), reps)
     return n / closest, n / occl
 
 
 def texel_items(cs, lightmap_ids):
     """(texel items, lit sides summed over them) of the bake kernels, as they collect them."""
-    mesh, prim = TG._collect_texels(cs, TG._lightmap_owners(cs), sorted(lightmap_ids), 0, with_sides=True)
+    mesh, prim = texel_gather.collect_texels(cs, texel_gather.lightmap_owners(cs), sorted(lightmap_ids), 0, with_sides=True)
     items = sides = 0
     cat = mesh.packed()
     if cat is not None:
@@ -142,7 +142,7 @@ def main():
                      "of_raw_occluded": round(n_direct / wall / occl, 3)}
 
     per_point = max(int(st.bake_rays_per_point), 1)
-    wall, got = best_of(lambda: BG.gathered_indirect(cs, ids, (), session.DIRECT_SAMPLES, per_point,
+    wall, got = best_of(lambda: bake_gather.gathered_indirect(cs, ids, (), session.DIRECT_SAMPLES, per_point,
                                                      st.mode, seed=1), args.reps)
     assert (got.rays == per_point).all()          # one pass, no adaptive rays
     n_gather = per_point * session.DIRECT_SAMPLES * sides

@@ -59,16 +59,16 @@ import photon_lightmaps.engine  # noqa: E402,F401  (sets the numba cache before 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
-from photon_lightmaps.engine import dcsg as D  # noqa: E402
-from photon_lightmaps.engine import demo_scenes as DS  # noqa: E402
-from photon_lightmaps.engine import lsystem_stats as LST  # noqa: E402
-from photon_lightmaps.engine import raycast as R  # noqa: E402
+from photon_lightmaps.engine.geometry import dcsg  # noqa: E402
+from photon_lightmaps.engine import demo_scenes  # noqa: E402
+from photon_lightmaps.engine import lsystem_stats  # noqa: E402
+from photon_lightmaps.engine.geometry import raycast  # noqa: E402
 from photon_lightmaps.engine import session  # noqa: E402
-from photon_lightmaps.engine.geometry import compile_geometry  # noqa: E402
-from photon_lightmaps.engine.lsystem_presets import load_preset, preset_text  # noqa: E402
-from photon_lightmaps.engine.primitives import KIND_IDS  # noqa: E402
-from photon_lightmaps.engine.scene import (Instance, LSystem, Material, OrientationLightmap,  # noqa: E402
-                                           Primitive, Prototype, Scene, SceneError)
+from photon_lightmaps.engine.geometry.assembly import compile_geometry  # noqa: E402
+from photon_lightmaps.engine.lsystem.presets import load_preset, preset_text  # noqa: E402
+from photon_lightmaps.engine.geometry.primitives import KIND_IDS  # noqa: E402
+from photon_lightmaps.engine.core.scene import (  # noqa: E402
+    Instance, LSystem, Material, OrientationLightmap, Primitive, Prototype, Scene, SceneError)
 
 HERE = pathlib.Path(__file__).resolve().parent
 KIND_NAMES = {v: k for k, v in KIND_IDS.items()}
@@ -129,7 +129,7 @@ def log(*a):
 # --------------------------------------------------------------------------- 1. end to end
 
 def tree_scene(cfg):
-    sc = DS.lsystem_studio(preset_text("sympodial_tree"), name="tree", width=cfg["size"],
+    sc = demo_scenes.lsystem_studio(preset_text("sympodial_tree"), name="tree", width=cfg["size"],
                            height=cfg["size"])
     tree = len(sc.instances) - 1
     # one explicit OL over the tree: its stub OLs inherit its resolution and samples
@@ -141,7 +141,7 @@ def tree_scene(cfg):
 def e2e_once(cfg):
     """One compile + photon pass + render of the sympodial tree -> dict of seconds and counts."""
     graph_area = [0.0, 0]
-    orig = D.estimate_graph_areas
+    orig = dcsg.estimate_graph_areas
 
     def timed(*a, **k):                   # the graph part of area estimation, which the OL rows leave out
         t = time.perf_counter()
@@ -155,11 +155,11 @@ def e2e_once(cfg):
     t0 = time.perf_counter()
     sc = tree_scene(cfg)
     t1 = time.perf_counter()
-    D.estimate_graph_areas = timed
+    dcsg.estimate_graph_areas = timed
     try:
         cs = session.compile(sc)
     finally:
-        D.estimate_graph_areas = orig
+        dcsg.estimate_graph_areas = orig
     t2 = time.perf_counter()
     ps = session.render_photon_pass(cs, settings)
     t3 = time.perf_counter()
@@ -299,7 +299,7 @@ def geometry_bytes(g):
 
 def bench_rays_one(name, steps, n_rays, reps):
     log(f"rays: {name} (steps {steps}) ...")
-    graph = D.DCSG(load_preset(name), steps)
+    graph = dcsg.DCSG(load_preset(name), steps)
     t = time.perf_counter()
     flat = graph.flatten()
     t_flat = time.perf_counter() - t
@@ -312,14 +312,14 @@ def bench_rays_one(name, steps, n_rays, reps):
     lo, hi = graph.bounds()
     o, d = aimed_rays(targets_near(flat, n_rays), lo, hi)
     numba.set_num_threads(1)
-    for fn in (lambda: R.trace_closest_batch(gd, o[:256], d[:256]),
-               lambda: R.trace_closest_batch(gf, o[:256], d[:256]),
-               lambda: D.trace_closest(graph, o[:256], d[:256])):
+    for fn in (lambda: raycast.trace_closest_batch(gd, o[:256], d[:256]),
+               lambda: raycast.trace_closest_batch(gf, o[:256], d[:256]),
+               lambda: dcsg.trace_closest(graph, o[:256], d[:256])):
         fn()                                                    # warm (load / compile)
     best, res = best_interleaved({
-        "dcsg_scene": lambda: R.trace_closest_batch(gd, o, d),
-        "flat_bvh": lambda: R.trace_closest_batch(gf, o, d),
-        "dcsg_standalone": lambda: D.trace_closest(graph, o, d)}, reps)
+        "dcsg_scene": lambda: raycast.trace_closest_batch(gd, o, d),
+        "flat_bvh": lambda: raycast.trace_closest_batch(gf, o, d),
+        "dcsg_standalone": lambda: dcsg.trace_closest(graph, o, d)}, reps)
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     t_d, _, shape_d = res["dcsg_scene"]
     t_f, _, shape_f = res["flat_bvh"]
@@ -400,7 +400,7 @@ def scale_once(name, steps, n_rays):
     base_peak = peak_rss_bytes()
     t = time.perf_counter()
     try:
-        graph = D.DCSG(load_preset(name), steps)
+        graph = dcsg.DCSG(load_preset(name), steps)
     except SceneError as exc:
         return {"preset": name, "steps": steps, "error": str(exc)}
     t_build = time.perf_counter() - t
@@ -422,9 +422,9 @@ def scale_once(name, steps, n_rays):
         out["peak_rss_bytes"] = peak_rss_bytes()
         out["getrusage_maxrss_bytes"] = getrusage_peak_bytes()
         return out
-    R.trace_closest_batch(g, o[:64], d[:64])
+    raycast.trace_closest_batch(g, o[:64], d[:64])
     t = time.perf_counter()
-    tt, _, shape = R.trace_closest_batch(g, o, d)
+    tt, _, shape = raycast.trace_closest_batch(g, o, d)
     out["trace_s"] = round(time.perf_counter() - t, 3)
     out["rays"] = int(n_rays)
     out["threads"] = numba.get_num_threads()
@@ -445,9 +445,9 @@ def bench_scale(cfg):
         r = _worker(["scale", name, str(steps), str(cfg["scale_rays"])])
         n = r.get("primitives")
         if n:
-            r["cycles_flattened_bytes"] = int(n * LST.CYCLES_BYTES_PER_INSTANCE)
-            r["cycles_bytes_per_instance"] = LST.CYCLES_BYTES_PER_INSTANCE
-            r["cycles_max_nesting"] = LST.CYCLES_MAX_NESTING
+            r["cycles_flattened_bytes"] = int(n * lsystem_stats.CYCLES_BYTES_PER_INSTANCE)
+            r["cycles_bytes_per_instance"] = lsystem_stats.CYCLES_BYTES_PER_INSTANCE
+            r["cycles_max_nesting"] = lsystem_stats.CYCLES_MAX_NESTING
             r["cycles_over_dcsg_bytes"] = round(r["cycles_flattened_bytes"] / r["dcsg_bytes"], 1)
             if r.get("peak_rss_bytes"):
                 r["cycles_over_peak_rss"] = round(r["cycles_flattened_bytes"] / r["peak_rss_bytes"], 1)
@@ -463,7 +463,7 @@ def bench_scale(cfg):
 # --------------------------------------------------------------------------- 4. memory
 
 def memory_one(name, steps, flatten=True, per_prim=None):
-    graph = D.DCSG(load_preset(name), steps)
+    graph = dcsg.DCSG(load_preset(name), steps)
     st = graph.stats()
     out = {"preset": name, "steps": steps, "primitives": st["primitives"], "dcsg_nodes": st["dcsg_nodes"],
            "dcsg_bytes": st["bytes"], "dcsg_graph_bytes": st["graph_bytes"],
@@ -488,7 +488,7 @@ def memory_one(name, steps, flatten=True, per_prim=None):
     out["flat_bytes_per_primitive"] = round(out["flat_bytes"] / st["primitives"], 1)
     out["flat_over_dcsg"] = round(out["flat_bytes"] / st["bytes"], 1)
     out["flat_over_dcsg_graph"] = round(out["flat_bytes"] / st["graph_bytes"], 1)
-    out["cycles_flattened_bytes"] = int(st["primitives"] * LST.CYCLES_BYTES_PER_INSTANCE)
+    out["cycles_flattened_bytes"] = int(st["primitives"] * lsystem_stats.CYCLES_BYTES_PER_INSTANCE)
     return out
 
 

@@ -39,10 +39,10 @@ import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
 from photon_lightmaps import demo_blend, registration  # noqa: E402
-from photon_lightmaps.bake import lsystem_preview as PV  # noqa: E402
+from photon_lightmaps.bake import lsystem_preview  # noqa: E402
 from photon_lightmaps.bake import render as render_engine  # noqa: E402
-from photon_lightmaps.engine.dcsg import DCSG  # noqa: E402
-from photon_lightmaps.engine.lsystem_presets import load_preset  # noqa: E402
+from photon_lightmaps.engine.geometry.dcsg import DCSG  # noqa: E402
+from photon_lightmaps.engine.lsystem.presets import load_preset  # noqa: E402
 
 from benchmarks.methods import MAX_BOUNCES, render_still, setup_cycles  # noqa: E402
 
@@ -69,14 +69,14 @@ def build_scene():
     s = 2.0 * max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
     demo_blend.mesh_object("ground", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)],
                            demo_blend.principled("ground", (0.5, 0.5, 0.5)), uvs=demo_blend.quad_uvs())
-    PV.SEGMENTS = 48            # the preview's 12-sided cylinders lose 1.1 % of the silhouette
-    ob = PV.new_lsystem_object("tree", preset=PRESET)
+    lsystem_preview.SEGMENTS = 48            # the preview's 12-sided cylinders lose 1.1 % of the silhouette
+    ob = lsystem_preview.new_lsystem_object("tree", preset=PRESET)
     props = ob.photon_lightmaps.lsystem
     props.use_render_iterations, props.render_iterations = True, STEPS
     props.preview_iterations = STEPS
     ob.data.materials.append(demo_blend.principled("bark", (0.55, 0.4, 0.25)))
     ob.material_slots[0].link, ob.material_slots[0].material = "OBJECT", bpy.data.materials["bark"]
-    PV.update_preview(ob)
+    lsystem_preview.update_preview(ob)
     demo_blend.add_light(scene, "SUN", "sun", power=3.0, rotation=SUN_ROTATION)
     demo_blend.set_world(scene, color=(0.05, 0.07, 0.1))
     # frame the tree's box from the front, slightly above

@@ -38,21 +38,21 @@ import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 from numba import njit, prange  # noqa: E402
 
-from photon_lightmaps.engine import lightmap as LM  # noqa: E402
-from photon_lightmaps.engine import orientation_lightmap as OLM  # noqa: E402
-from photon_lightmaps.engine import scene as ES  # noqa: E402
-from photon_lightmaps.engine.area_estimation import estimate_areas  # noqa: E402
+from photon_lightmaps.engine.lightmaps import lightmap  # noqa: E402
+from photon_lightmaps.engine.lightmaps import orientation_lightmap  # noqa: E402
+from photon_lightmaps.engine.core import scene  # noqa: E402
+from photon_lightmaps.engine.lightmaps.area_estimation import estimate_areas  # noqa: E402
 from photon_lightmaps.engine.compile import compile_scene  # noqa: E402
-from photon_lightmaps.engine.geometry import compile_geometry  # noqa: E402
-from photon_lightmaps.engine.photon_tracer import trace_photons  # noqa: E402
-from photon_lightmaps.engine.raycast import STACK_WORDS, intersect_closest  # noqa: E402
-from photon_lightmaps.engine.renderer import camera_ray  # noqa: E402
-from photon_lightmaps.engine.renderer import render as render_image  # noqa: E402
+from photon_lightmaps.engine.geometry.assembly import compile_geometry  # noqa: E402
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons  # noqa: E402
+from photon_lightmaps.engine.geometry.raycast import STACK_WORDS, intersect_closest  # noqa: E402
+from photon_lightmaps.engine.transport.renderer import camera_ray  # noqa: E402
+from photon_lightmaps.engine.transport.renderer import render as render_image  # noqa: E402
 from photon_lightmaps.export import export_scene  # noqa: E402
 
-from benchmarks import methods as M  # noqa: E402
-from benchmarks import ol_scenes as O  # noqa: E402
-from benchmarks import photon_map as PM  # noqa: E402
+from benchmarks import methods  # noqa: E402
+from benchmarks import ol_scenes  # noqa: E402
+from benchmarks import photon_map  # noqa: E402
 from benchmarks.quiet import quiet  # noqa: E402
 from benchmarks.run_all import Scorer  # noqa: E402
 
@@ -60,13 +60,13 @@ HERE = pathlib.Path(__file__).resolve().parent
 CACHE = HERE / "cache"
 COMMITTED = HERE / "references"
 RENDER_SPP = 16          # our camera samples (direct light, anti-aliasing)
-MODE = LM.MODE_BILINEAR
+MODE = lightmap.MODE_BILINEAR
 
-FULL = dict(scenes=list(O.SCENES), width=128, height=128, ref_spp=512,
+FULL = dict(scenes=list(ol_scenes.SCENES), width=128, height=128, ref_spp=512,
             photons=[10_000, 30_000, 100_000, 300_000, 1_000_000, 3_000_000],
             cycles_spp=[1, 4, 16, 64], big_parts=120_000, big_samples=20_000, big_exact="subset",
             big_exact_parts=1_000, skip=[])
-QUICK = dict(scenes=list(O.SCENES), width=64, height=64, ref_spp=32,
+QUICK = dict(scenes=list(ol_scenes.SCENES), width=64, height=64, ref_spp=32,
              photons=[3_000, 30_000], cycles_spp=[1, 4], big_parts=120_000, big_samples=20_000,
              big_exact="subset", big_exact_parts=200, skip=[])
 LABEL = {"lightmaps": "per-object lightmaps", "ol": "one orientation lightmap",
@@ -80,8 +80,8 @@ LABEL = {"lightmaps": "per-object lightmaps", "ol": "one orientation lightmap",
 def ref_key(sp, cfg):
     h = hashlib.sha256()
     h.update(repr((sp.name, sp.kind, tuple(sp.params), sorted(sp.light.items()), sorted(sp.camera.items()),
-                   sp.width, sp.height, O.SPHERE_SEGMENTS, O.TORUS_SEGMENTS, O.FLOOR_ALBEDO,
-                   O.OBJECT_ALBEDO, O.FLOOR_HALF, bpy.app.version_string, M.MAX_BOUNCES,
+                   sp.width, sp.height, ol_scenes.SPHERE_SEGMENTS, ol_scenes.TORUS_SEGMENTS, ol_scenes.FLOOR_ALBEDO,
+                   ol_scenes.OBJECT_ALBEDO, ol_scenes.FLOOR_HALF, bpy.app.version_string, methods.MAX_BOUNCES,
                    cfg["ref_spp"])).encode())
     h.update(np.round(sp.transforms, 6).tobytes())
     return f"ol_{sp.name}_{h.hexdigest()[:16]}"
@@ -98,7 +98,7 @@ def reference(sp, cfg, full, log):
     out, secs = {}, 0.0
     for half, seed in (("A", 1001), ("B", 2002)):
         with quiet():
-            img, t = M.cycles_render(cfg["ref_spp"], seed)
+            img, t = methods.cycles_render(cfg["ref_spp"], seed)
         secs += t
         log(f"    half {half}: {t:.1f} s")
         out[f"render_{half}"] = img
@@ -190,23 +190,23 @@ def run_one(cs, t_compile, photons, seed):
     that compile time plus its own photon pass and render."""
     cs.reset_lightmaps()
     t0 = time.perf_counter()
-    stats = trace_photons(cs, photons, seed=seed, max_bounces=M.MAX_BOUNCES, record_direct=False)
+    stats = trace_photons(cs, photons, seed=seed, max_bounces=methods.MAX_BOUNCES, record_direct=False)
     t_trace = time.perf_counter() - t0
-    img = render_image(cs, samples=RENDER_SPP, seed=seed, mode=MODE, max_depth=M.MAX_BOUNCES)
+    img = render_image(cs, samples=RENDER_SPP, seed=seed, mode=MODE, max_depth=methods.MAX_BOUNCES)
     t_render = time.perf_counter() - t0 - t_trace
     return stats, img[..., :3], dict(seconds=t_compile + t_trace + t_render, compile=t_compile,
                                      trace=t_trace, render=t_render)
 
 
 def run_scene(name, cfg, full, log):
-    sp = O.spec(name, cfg["width"], cfg["height"])
+    sp = ol_scenes.spec(name, cfg["width"], cfg["height"])
     t_build = time.perf_counter()
-    O.blender_scene(sp)
+    ol_scenes.blender_scene(sp)
     t_build = time.perf_counter() - t_build
-    scenes = {m: O.engine_scene(sp, m) for m in O.METHODS[name] if f"{name}:{m}" not in cfg["skip"]}
-    ids = O.engine_scene(sp, "lightmaps")[1]
+    scenes = {m: ol_scenes.engine_scene(sp, m) for m in ol_scenes.METHODS[name] if f"{name}:{m}" not in cfg["skip"]}
+    ids = ol_scenes.engine_scene(sp, "lightmaps")[1]
     log(f"[{name}] {ids.size} {sp.kind} instances; Blender scene built in {t_build:.1f} s")
-    check_same_scene(O.engine_scene(sp, "lightmaps")[0], log)
+    check_same_scene(ol_scenes.engine_scene(sp, "lightmaps")[0], log)
     ref, src, ref_secs = reference(sp, cfg, full, log)
     log(f"  reference from {src}")
     points, images = [], {}
@@ -214,12 +214,12 @@ def run_scene(name, cfg, full, log):
     # Warm-ups: kernels from the numba cache (on a one-instance copy, so the exact
     # setup of thousands of primitives is not paid twice), Cycles' kernels and sync.
     for m, (sc, _) in scenes.items():
-        small = O.engine_scene(O.Spec(sp.name, sp.kind, sp.transforms[:10], sp.branch[:10], sp.generation[:10],
+        small = ol_scenes.engine_scene(ol_scenes.Spec(sp.name, sp.kind, sp.transforms[:10], sp.branch[:10], sp.generation[:10],
                                       sp.params, sp.light, sp.camera, 8, 8), "lightmaps" if m == "lightmaps"
                                else "ol")[0]
         run_one(compile_scene(small), 0.0, 1000, 0)
     with quiet():
-        M.cycles_render(1, 0)
+        methods.cycles_render(1, 0)
 
     compiled = {}
     for m, (sc, _) in scenes.items():
@@ -234,7 +234,7 @@ def run_scene(name, cfg, full, log):
     images["reference"] = 0.5 * (ref["render_A"] + ref["render_B"])
     images["mask"] = mask
     info = dict(scene=name, kind=sp.kind, instances=int(ids.size), object_pixels=int(mask.sum()),
-                reference=src, reference_seconds=ref_secs, exact_area=O.exact_area(sp),
+                reference=src, reference_seconds=ref_secs, exact_area=ol_scenes.exact_area(sp),
                 noise_floor_all=score_all.noise_floor(), noise_floor_object=score_obj.noise_floor())
     del mask3
 
@@ -260,7 +260,7 @@ def run_scene(name, cfg, full, log):
                 nb, nt = lightmap_bytes_of(cs, object_lightmap_ids(cs, ids))
                 extra.update(memory_bytes=nb, texels=nt)
             else:
-                rows = OLM.report(cs)
+                rows = orientation_lightmap.report(cs)
                 extra.update(memory_bytes=int(sum(r["memory_bytes"] for r in rows)),
                              texels=int(sum(r["bins"] for r in rows)),
                              ol_photons=int(rows[0]["photons"]),
@@ -272,7 +272,7 @@ def run_scene(name, cfg, full, log):
             setup[m] = dict(lightmap_setup_seconds=float(cs.timings["lightmap_setup"]),
                             geometry_seconds=float(cs.timings["geometry"]))
         else:
-            rows = OLM.report(cs)
+            rows = orientation_lightmap.report(cs)
             setup[m] = dict(lightmap_setup_seconds=float(cs.timings["lightmap_setup"]),
                             geometry_seconds=float(cs.timings["geometry"]),
                             area_seconds=float(sum(r["area_seconds"] for r in rows)))
@@ -291,11 +291,11 @@ def run_scene(name, cfg, full, log):
     cs = compiled["ol"][0]
     cs.reset_lightmaps()
     t0 = time.perf_counter()
-    stats = trace_photons(cs, n_ph, seed=7, max_bounces=M.MAX_BOUNCES, record_direct=False, keep_points=True)
+    stats = trace_photons(cs, n_ph, seed=7, max_bounces=methods.MAX_BOUNCES, record_direct=False, keep_points=True)
     pts = np.asarray(stats.points)
     on_floor = (np.abs(pts[:, 2]) < 1e-6) & (pts[:, 5] > 0.9999)
     stats.points, stats.point_power = pts[~on_floor], np.asarray(stats.point_power)[~on_floor]
-    pm = PM.build(stats)
+    pm = photon_map.build(stats)
     info["photon_map"] = dict(photons_traced=n_ph, stored_photons=pm.n_photons,
                               bytes_measured=pm.bytes_measured(), bytes_20B=pm.bytes_compact(),
                               seconds=time.perf_counter() - t0)
@@ -305,7 +305,7 @@ def run_scene(name, cfg, full, log):
 
     for spp in cfg["cycles_spp"]:
         with quiet():
-            img, t = M.cycles_render(spp, 11)
+            img, t = methods.cycles_render(spp, 11)
         add("cycles", "samples", spp, t, img)
         images.setdefault("cycles", {})[spp] = (t, img)
     return points, info, images
@@ -323,25 +323,25 @@ def big_group(n, layout):
     g = np.stack(np.meshgrid(*(np.arange(side),) * 3, indexing="ij"), -1).reshape(-1, 3)[:n]
     c = (g + 0.5 + rng.uniform(-0.2, 0.2, g.shape)) * (4.0 / side)
     r = rng.uniform(0.2, 0.4, n) * (4.0 / side)
-    sc = ES.Scene(n_bands=3, name=f"big_{layout}")
-    mat = sc.add_material(ES.Material("m", diffuse=0.7))
-    sc.lights.append(ES.Light("point", power=100.0, transform=ES.translate(2, 2, 8)))
+    sc = scene.Scene(n_bands=3, name=f"big_{layout}")
+    mat = sc.add_material(scene.Material("m", diffuse=0.7))
+    sc.lights.append(scene.Light("point", power=100.0, transform=scene.translate(2, 2, 8)))
     if layout == "instances":
-        sc.prototypes.append(ES.Prototype("sphere", primitives=[ES.Primitive("sphere", material=mat)]))
+        sc.prototypes.append(scene.Prototype("sphere", primitives=[scene.Primitive("sphere", material=mat)]))
         for i in range(n):
             xf = np.zeros((3, 4))
             xf[:, :3] = np.eye(3) * r[i]
             xf[:, 3] = c[i]
-            sc.instances.append(ES.Instance(0, xf, name=f"s{i}"))
+            sc.instances.append(scene.Instance(0, xf, name=f"s{i}"))
     else:
         prims = []
         for i in range(n):
             xf = np.zeros((3, 4))
             xf[:, :3] = np.eye(3) * r[i]
             xf[:, 3] = c[i]
-            prims.append(ES.Primitive("sphere", transform=xf, material=mat))
-        sc.prototypes.append(ES.Prototype("spheres", primitives=prims))
-        sc.instances.append(ES.Instance(0, ES.identity(), name="spheres"))
+            prims.append(scene.Primitive("sphere", transform=xf, material=mat))
+        sc.prototypes.append(scene.Prototype("spheres", primitives=prims))
+        sc.instances.append(scene.Instance(0, scene.identity(), name="spheres"))
     return sc, float((4 * math.pi * r * r).sum())
 
 
@@ -354,13 +354,13 @@ def area_estimation_study(cfg, log):
         g, _ = compile_geometry(sc)
         t_geo = time.perf_counter() - t0
         ids = np.arange(len(sc.instances))
-        estimate_areas(g, ids, O.OL_RESOLUTION, 1000, 0)      # warm (numba cache load)
+        estimate_areas(g, ids, ol_scenes.OL_RESOLUTION, 1000, 0)      # warm (numba cache load)
         runs, runs_no_open = [], []
         for rep in range(3):
-            e = estimate_areas(g, ids, O.OL_RESOLUTION, s, rep)
+            e = estimate_areas(g, ids, ol_scenes.OL_RESOLUTION, s, rep)
             runs.append((e.seconds, e.total, e.total_rel_error, e.openness, e.parts))
             t1 = time.perf_counter()
-            estimate_areas(g, ids, O.OL_RESOLUTION, s, rep, openness_samples=0)
+            estimate_areas(g, ids, ol_scenes.OL_RESOLUTION, s, rep, openness_samples=0)
             runs_no_open.append(time.perf_counter() - t1)
         secs = [r[0] for r in runs]
         err = [abs(r[1] / exact - 1.0) for r in runs]
@@ -378,12 +378,12 @@ def area_estimation_study(cfg, log):
     # areas, which cost the same for every sphere (a Python loop over instances):
     # measured on the first n_exact spheres and scaled by n / n_exact.
     sc, _ = big_group(n, "instances")
-    sc.orientation_lightmaps.append(ES.OrientationLightmap("big", instances=list(range(n)),
-                                                          resolution=O.OL_RESOLUTION, samples=s))
+    sc.orientation_lightmaps.append(scene.OrientationLightmap("big", instances=list(range(n)),
+                                                          resolution=ol_scenes.OL_RESOLUTION, samples=s))
     cs = compile_scene(sc)
     t_ol = float(cs.timings["lightmap_setup"])
     n_exact = n if cfg["big_exact"] == "all" else min(n, cfg["big_exact_parts"])
-    sc = ES.Scene(n_bands=3, materials=sc.materials, prototypes=sc.prototypes,
+    sc = scene.Scene(n_bands=3, materials=sc.materials, prototypes=sc.prototypes,
                   instances=sc.instances[:n_exact], lights=sc.lights)
     cs = compile_scene(sc)
     t_exact = float(cs.timings["lightmap_setup"]) * n / n_exact
@@ -640,7 +640,7 @@ def make_charts(result, images, out):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="tiny knobs and cheap references")
-    ap.add_argument("--scenes", default=None, help="comma-separated subset of " + ",".join(O.SCENES))
+    ap.add_argument("--scenes", default=None, help="comma-separated subset of " + ",".join(ol_scenes.SCENES))
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out"))
     ap.add_argument("--no-charts", action="store_true")
     ap.add_argument("--skip-120k", action="store_true", help="skip the 120k-primitive area estimation")
@@ -667,7 +667,7 @@ def main(argv=None):
         area = area_estimation_study(cfg, log)
     h = headlines(points, infos, area)
     result = dict(quick=bool(args.quick), config=cfg, render_spp=RENDER_SPP, lookup="bilinear",
-                  ol_resolution=O.OL_RESOLUTION, ol_samples=O.OL_SAMPLES, blender=bpy.app.version_string,
+                  ol_resolution=ol_scenes.OL_RESOLUTION, ol_samples=ol_scenes.OL_SAMPLES, blender=bpy.app.version_string,
                   scenes=infos, points=points, area_estimation=area, headlines=h, seconds_total=None)
     print_headlines(h, log)
     if not args.no_charts:

@@ -26,9 +26,9 @@ import numpy as np  # noqa: E402
 
 from photon_lightmaps.engine import demo_scenes  # noqa: E402
 from photon_lightmaps.engine.compile import compile_scene  # noqa: E402
-from photon_lightmaps.engine.photon_tracer import trace_photons  # noqa: E402
-from photon_lightmaps.engine.scene import (Instance, Light, Material, Primitive, Prototype,  # noqa: E402
-                                           Scene, compose, scale, translate)
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons  # noqa: E402
+from photon_lightmaps.engine.core.scene import (  # noqa: E402
+    Instance, Light, Material, Primitive, Prototype, Scene, compose, scale, translate)
 
 
 def cornell(n_photons, threads):

@@ -1,4 +1,4 @@
-"""Rays per second of engine/raycast.py against Embree (embreex) on UV spheres.
+"""Rays per second of engine/geometry/raycast.py against Embree (embreex) on UV spheres.
 
     .venv/bin/python benchmarks/bench_rays.py [--rays N] [--reps R] [--sizes 100000,800000]
 
@@ -28,9 +28,9 @@ import photon_lightmaps.engine  # noqa: E402,F401  (sets the numba cache before 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
-from photon_lightmaps.engine import raycast as R  # noqa: E402
-from photon_lightmaps.engine.geometry import compile_geometry  # noqa: E402
-from photon_lightmaps.engine.scene import Scene, TriangleMesh  # noqa: E402
+from photon_lightmaps.engine.geometry import raycast  # noqa: E402
+from photon_lightmaps.engine.geometry.assembly import compile_geometry  # noqa: E402
+from photon_lightmaps.engine.core.scene import Scene, TriangleMesh  # noqa: E402
 
 
 def uv_sphere(n_lon, n_lat):
@@ -95,10 +95,10 @@ def bench_mesh(n_tri, o32, d32, reps):
     res = {}
     for th in (1, 2):
         numba.set_num_threads(th)
-        w, c = best_of(lambda: res.__setitem__(th, R.trace_closest_batch(g, o64, d64)), reps)
+        w, c = best_of(lambda: res.__setitem__(th, raycast.trace_closest_batch(g, o64, d64)), reps)
         out[f"ours_{th}t_mrays"] = round(n / w / 1e6, 3)
         out[f"ours_{th}t_cpu_over_wall"] = round(c / w, 2)
-        w, _ = best_of(lambda: R.occluded_batch(g, o64, d64), reps)
+        w, _ = best_of(lambda: raycast.occluded_batch(g, o64, d64), reps)
         out[f"ours_{th}t_occluded_mrays"] = round(n / w / 1e6, 3)
     t_ours, _, shape_ours = res[1]
     assert np.array_equal(res[1][0], res[2][0]), "thread counts disagree"

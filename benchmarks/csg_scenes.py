@@ -31,7 +31,7 @@ from mathutils import Vector
 from photon_lightmaps import demo_blend
 from photon_lightmaps.export import csg as csg_export
 from photon_lightmaps.export import uv_layers
-from photon_lightmaps.operators import csg_primitives as CP
+from photon_lightmaps.operators import csg_primitives
 
 OPS = {"union": "UNION", "intersection": "INTERSECT", "difference": "DIFFERENCE"}
 # Lightmap layout resolution of the tessellated meshes' xatlas unwrap (chart gaps).
@@ -55,12 +55,12 @@ class _Builder:
         key = (kind, seg, params, mat.name if mat else None)
         me = self.meshes.get(key)
         if me is None:
-            me = CP.build_display_mesh(f"{kind}_{seg}", kind, params, seg)
+            me = csg_primitives.build_display_mesh(f"{kind}_{seg}", kind, params, seg)
             if mat is not None:
                 me.materials.append(mat)
             self.meshes[key] = me
         ob = bpy.data.objects.new(name, me)
-        CP.tag_object(ob, kind, params)
+        csg_primitives.tag_object(ob, kind, params)
         ob.location = loc
         ob.rotation_euler = rot
         ob.scale = scale if isinstance(scale, (tuple, list)) else (scale,) * 3
@@ -79,7 +79,7 @@ class _Builder:
     def boolean(self, ob, operand, operation, chunk=32):
         """Boolean modifier(s); a collection of more than `chunk` objects is split into
         several modifiers, so the exported union chains stay shallow (the CSG tree's
-        depth limit, engine/csg.py MAX_WORK, and a short interval walk per ray)."""
+        depth limit, engine/geometry/csg.py MAX_WORK, and a short interval walk per ray)."""
         if isinstance(operand, bpy.types.Collection) and len(operand.objects) > chunk:
             objs = sorted(operand.objects, key=lambda o: o.name)
             for c in range(0, len(objs), chunk):
@@ -356,7 +356,7 @@ def tessellate(scene=None, unwrap=True):
     t_bool = t_eval + time.perf_counter() - t0
     for me in new.values():
         # The Boolean leaves zero-area slivers along its cut curves; photons landing on
-        # them would find zero-area texels in the xatlas layout (see README).
+        # them would find zero-area texels in the xatlas layout.
         bm = bmesh.new()
         bm.from_mesh(me)
         bmesh.ops.dissolve_degenerate(bm, dist=1e-6, edges=bm.edges)
@@ -368,7 +368,7 @@ def tessellate(scene=None, unwrap=True):
         # would be interpolated across them over whole long faces (a cylinder's side
         # cut by a sphere shades ~20 % off in Cycles): mark them as the display
         # meshes' own rims are.
-        me.set_sharp_from_angle(angle=CP.SHARP_ANGLE)
+        me.set_sharp_from_angle(angle=csg_primitives.SHARP_ANGLE)
     keep = {ob.name for ob in solids}
     operands = [ob for ob in tagged if ob.name not in keep and ob.hide_render]
     for ob in solids:

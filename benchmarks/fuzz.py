@@ -45,7 +45,7 @@ FAILURE_CLASSES = ("crash", "timeout", "exception", "nonfinite_lightmap", "nonfi
 
 
 def _engine():
-    from photon_lightmaps.engine import scene as S
+    from photon_lightmaps.engine.core import scene as S
     return S
 
 
@@ -493,12 +493,12 @@ def _weights_bounded(ms, bt=None):
 
 
 def _check_case(scene, st, res):
-    from photon_lightmaps.engine import lightmap as LM
-    from photon_lightmaps.engine import orientation_lightmap as OL
-    from photon_lightmaps.engine import texel_gather as TG
+    from photon_lightmaps.engine.lightmaps import lightmap
+    from photon_lightmaps.engine.lightmaps import orientation_lightmap
+    from photon_lightmaps.engine.transport import texel_gather
     from photon_lightmaps.engine.compile import compile_scene
-    from photon_lightmaps.engine.photon_tracer import trace_photons
-    from photon_lightmaps.engine.renderer import render
+    from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+    from photon_lightmaps.engine.transport.renderer import render
 
     fail = res["failures"]
     notes = []
@@ -533,7 +533,7 @@ def _check_case(scene, st, res):
             fail.append("negative")
             notes.append("negative flux/irradiance")
         ol = cs.orientation
-        levels = OL.levels(ol) if ol is not None and ol.lid.size else 0
+        levels = orientation_lightmap.levels(ol) if ol is not None and ol.lid.size else 0
         # A photon never gains power and records at most once per bounce on its
         # own lightmap and once per OL level above it.
         per_texel = emitted * (B + 1) * (1 + REL_TOL) + 1e-300
@@ -551,7 +551,7 @@ def _check_case(scene, st, res):
         fail.append("negative")
         notes.append("negative pixel")
     if st["gather"]:
-        ids, E = TG.direct_texel_irradiance(cs, samples_per_texel=4, seed=2)
+        ids, E = texel_gather.direct_texel_irradiance(cs, samples_per_texel=4, seed=2)
         if not _finite(E):
             fail.append("nonfinite_gather")
             notes.append(f"{int((~np.isfinite(E)).sum())} non-finite gathered values")
@@ -559,7 +559,7 @@ def _check_case(scene, st, res):
             fail.append("negative")
             notes.append("negative gathered E")
         else:
-            TG.add_direct(lm, ids, E)
+            texel_gather.add_direct(lm, ids, E)
             if not (_finite(lm.irradiance) and _finite(lm.flux)):
                 fail.append("nonfinite_gather")
                 notes.append("lightmap not finite after add_direct")
@@ -599,7 +599,7 @@ def _check_absurd(lm, fail, notes):
 
 
 def LM_STATE_MEASURED():
-    from photon_lightmaps.engine.lightmap import STATE_MEASURED
+    from photon_lightmaps.engine.lightmaps.lightmap import STATE_MEASURED
     return STATE_MEASURED
 
 
@@ -611,10 +611,10 @@ def _warm_up():
     """Compiles/loads every kernel family once: meshes, primitives, CSG, OLs,
     all light kinds, render and gather."""
     from photon_lightmaps.engine import demo_scenes
-    from photon_lightmaps.engine import texel_gather as TG
+    from photon_lightmaps.engine.transport import texel_gather
     from photon_lightmaps.engine.compile import compile_scene
-    from photon_lightmaps.engine.photon_tracer import trace_photons
-    from photon_lightmaps.engine.renderer import render
+    from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+    from photon_lightmaps.engine.transport.renderer import render
     S = _engine()
     s = demo_scenes.cornell_box(width=8, height=8)
     s.lights += [S.Light("point", power=5.0, transform=S.translate(0, 0, 1)),
@@ -633,8 +633,8 @@ def _warm_up():
     trace_photons(cs, 500, max_bounces=3, keep_points=True)
     for mode in (0, 1):
         render(cs, samples=1, mode=mode, max_depth=2, tile=8)
-    ids, E = TG.direct_texel_irradiance(cs, samples_per_texel=4)
-    TG.add_direct(cs.lightmaps, ids, E)
+    ids, E = texel_gather.direct_texel_irradiance(cs, samples_per_texel=4)
+    texel_gather.add_direct(cs.lightmaps, ids, E)
 
 
 def _worker(conn, threads):
@@ -903,7 +903,7 @@ def main(argv=None):
         print("tags:", tags, "\nsettings:", st)
         if a.verbose:
             print(scene)
-        from photon_lightmaps.engine.scene import SceneError
+        from photon_lightmaps.engine.core.scene import SceneError
         res = dict(id=a.case, tags=tags, outcome="ok", failures=[], message="")
         try:
             _check_case(scene, st, res)

@@ -8,7 +8,7 @@ builds the LuxCore scene from it, renders and writes `image.npy` + `stats.json`.
 The worker is a separate process because pyluxcore crashes at interpreter exit
 (and it keeps LuxCore's threads off the bpy process).
 
-Units (Cycles' conventions, see engine/lights.py; LuxCore's from its sources,
+Units (Cycles' conventions, see engine/shading/lights.py; LuxCore's from its sources,
 src/slg/lights/*.cpp, and checked numerically by tests/test_luxcore_peer.py):
 
 * point, P W: LuxCore's point light radiates gain * color / (4 pi) W/sr, so gain = P;

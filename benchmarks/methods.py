@@ -5,7 +5,7 @@
 * Photon lightmaps (this engine): bake_objects' compute path over photon count,
   and two-pass renders over photon count (constant or bilinear lookup, or the
   final gather over the bilinear lightmaps); optionally OIDN over either
-  (engine/denoise.py), timed on top.
+  (engine/transport/denoise.py), timed on top.
 * The photon-map baseline lives in photon_map.py.
 
 Baked arrays are (res, res, 3) E/pi with rows bottom-up (image pixel = texel);
@@ -19,14 +19,14 @@ import bpy
 import numpy as np
 from numba import njit, prange
 
-from photon_lightmaps import bake as B
+from photon_lightmaps import bake
 from photon_lightmaps.export import uv_layers
 from photon_lightmaps.bake import pipeline
-from photon_lightmaps.engine import lightmap as LM
+from photon_lightmaps.engine.lightmaps import lightmap
 from photon_lightmaps.engine import session
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import trace_photons
-from photon_lightmaps.engine.renderer import render as render_image
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+from photon_lightmaps.engine.transport.renderer import render as render_image
 from photon_lightmaps.export import export_scene
 
 MAX_BOUNCES = 8
@@ -146,9 +146,9 @@ def ours_bake(objs, photons, seed, res, indirect="LOOKUP", irradiance_cache=Fals
     (final gather over the photon lightmaps, the add-on's default); irradiance_cache:
     the gather through the sparse cache; gather_rays: per texel side (None: 256)."""
     t0 = time.perf_counter()
-    job = B.prepare_bake(bpy.context, objs, photons=photons, seed=seed, resolution=res, indirect=indirect,
+    job = bake.prepare_bake(bpy.context, objs, photons=photons, seed=seed, resolution=res, indirect=indirect,
                          irradiance_cache=irradiance_cache, bake_gather_rays=gather_rays)
-    B.compute_bake(job)
+    bake.compute_bake(job)
     seconds = time.perf_counter() - t0
     maps = {n: m.rgba for n, m in job.result.maps.items()}
     return maps, seconds, job.result.lightmap_bytes, job.result.stats, job
@@ -157,7 +157,7 @@ def ours_bake(objs, photons, seed, res, indirect="LOOKUP", irradiance_cache=Fals
 @njit(cache=True, parallel=True)
 def _lookup_many(lm, lm_id, s, t, mode, out):
     for i in prange(s.shape[0]):
-        LM.lookup(lm, lm_id, 0, s[i], t[i], mode, out[i])
+        lightmap.lookup(lm, lm_id, 0, s[i], t[i], mode, out[i])
 
 
 def resample(job, name, res_out, mode):
@@ -171,7 +171,7 @@ def resample(job, name, res_out, mode):
     return (out / np.pi).reshape(res_out, res_out, -1)[..., :3]
 
 
-def ours_render(photons, samples, seed, modes=(LM.MODE_CONSTANT, LM.MODE_BILINEAR)):
+def ours_render(photons, samples, seed, modes=(lightmap.MODE_CONSTANT, lightmap.MODE_BILINEAR)):
     """Two-pass renders, one photon pass shared by the modes -> {mode: (image, seconds)}.
 
     Each mode's time is export + compile + photon pass + its own render pass.
@@ -201,7 +201,7 @@ def ours_render_gather(photons, samples, seed, gather_rays=16, denoise=False):
     cs = compile_scene(scene)
     trace_photons(cs, max(int(photons), 1), seed=seed, max_bounces=MAX_BOUNCES, record_direct=True,
                   caustics=True, gather=gather_rays > 0)
-    img = render_image(cs, samples=samples, seed=seed, mode=LM.MODE_BILINEAR, max_depth=MAX_BOUNCES,
+    img = render_image(cs, samples=samples, seed=seed, mode=lightmap.MODE_BILINEAR, max_depth=MAX_BOUNCES,
                        gather=gather_rays)
     t = time.perf_counter() - t0
     if not denoise:
@@ -214,7 +214,7 @@ def ours_render_gather(photons, samples, seed, gather_rays=16, denoise=False):
 def oidn_cycles_bake(maps, covered):
     """Cycles' baked maps through the same OIDN lightmap filter ours get
     (RTLightmap, empty texels filled first) -> (maps, denoise seconds)."""
-    from photon_lightmaps.engine import denoise
+    from photon_lightmaps.engine.transport import denoise
     t0 = time.perf_counter()
     out = {n: denoise.denoise_lightmap(m, covered=covered[n]) for n, m in maps.items()}
     return out, time.perf_counter() - t0
@@ -225,7 +225,7 @@ def oidn_bake(job):
     t0 = time.perf_counter()
     maps = {}
     for n, m in job.result.maps.items():
-        bm = B.BakedMap(m.object_name, m.rgba.copy(), m.lightmap_id, m.tiles)
+        bm = bake.BakedMap(m.object_name, m.rgba.copy(), m.lightmap_id, m.tiles)
         pipeline._denoise_map(job.cs, bm)
         maps[n] = bm.rgba
     return maps, time.perf_counter() - t0

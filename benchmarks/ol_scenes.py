@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from photon_lightmaps.engine import scene as S
+from photon_lightmaps.engine.core import scene as S
 
 SCENES = ("torus", "sphereflake", "menger", "cube")
 METHODS = {"torus": ("lightmaps", "ol"), "sphereflake": ("lightmaps", "ol", "ol9"),
@@ -283,13 +283,13 @@ def blender_scene(sp):
     import bpy
     from mathutils import Matrix
 
-    from photon_lightmaps import demo_blend as D
+    from photon_lightmaps import demo_blend
 
-    scene = D._reset()
-    floor_mat = D.principled("floor", FLOOR_ALBEDO)
-    obj_mat = D.principled("object", OBJECT_ALBEDO)
+    scene = demo_blend._reset()
+    floor_mat = demo_blend.principled("floor", FLOOR_ALBEDO)
+    obj_mat = demo_blend.principled("object", OBJECT_ALBEDO)
     h = FLOOR_HALF
-    D.mesh_object("floor", [(-h, -h, 0), (h, -h, 0), (h, h, 0), (-h, h, 0)], [(0, 1, 2, 3)], floor_mat)
+    demo_blend.mesh_object("floor", [(-h, -h, 0), (h, -h, 0), (h, h, 0), (-h, h, 0)], [(0, 1, 2, 3)], floor_mat)
     if sp.kind == "sphere":
         v, f = _sphere_mesh(*SPHERE_SEGMENTS)
         smooth = True
@@ -297,7 +297,7 @@ def blender_scene(sp):
         v, f = _torus_mesh(sp.params[0], *TORUS_SEGMENTS)
         smooth = True
     else:
-        v, f = D.box_mesh_data()
+        v, f = demo_blend.box_mesh_data()
         smooth = False
     me = bpy.data.meshes.new(sp.kind)
     me.from_pydata([tuple(map(float, x)) for x in v], [], [tuple(map(int, x)) for x in f])
@@ -315,11 +315,11 @@ def blender_scene(sp):
         ob.matrix_world = Matrix(m4.tolist())
         coll.objects.link(ob)
     L = sp.light
-    D.add_light(scene, "AREA", "light", power=L["power"], location=L["location"],
+    demo_blend.add_light(scene, "AREA", "light", power=L["power"], location=L["location"],
                 rotation=tuple(math.radians(a) for a in L["rotation"]), shape="SQUARE", size=L["size"])
     C = sp.camera
-    D.add_camera(scene, C["location"], tuple(math.radians(a) for a in C["rotation"]), lens=C["lens"])
-    D.set_world(scene)
+    demo_blend.add_camera(scene, C["location"], tuple(math.radians(a) for a in C["rotation"]), lens=C["lens"])
+    demo_blend.set_world(scene)
     r = scene.render
     r.resolution_x, r.resolution_y, r.resolution_percentage = sp.width, sp.height, 100
     bpy.context.view_layer.update()

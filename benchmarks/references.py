@@ -14,8 +14,8 @@ import pathlib
 import bpy
 import numpy as np
 
-from . import methods as M
-from . import scenes as S
+from . import methods
+from . import scenes
 from .quiet import quiet
 
 HERE = pathlib.Path(__file__).resolve().parent
@@ -37,7 +37,7 @@ FINE_SCENE, FINE_OBJECT = "window", "floor"
 
 
 def key(name, cfg):
-    return f"{name}_{S.scene_hash((bpy.app.version_string, M.MAX_BOUNCES, sorted(cfg.items())))}"
+    return f"{name}_{scenes.scene_hash((bpy.app.version_string, methods.MAX_BOUNCES, sorted(cfg.items())))}"
 
 
 def _load(path):
@@ -57,22 +57,22 @@ def load_or_make(name, cfg, log=print, allow_make=True):
     if not allow_make:
         return None, "missing"
     log(f"  [{name}] regenerating the Cycles reference ({k}); takes minutes at full settings")
-    objs = S.mesh_objects()
+    objs = scenes.mesh_objects()
     out = {}
     for half, seed in (("A", 1001), ("B", 2002)):
         with quiet():
-            maps, t = M.cycles_bake_ss(objs, cfg["bake_res"], cfg["bake_ss"], cfg["bake_spp"], seed)
+            maps, t = methods.cycles_bake_ss(objs, cfg["bake_res"], cfg["bake_ss"], cfg["bake_spp"], seed)
         log(f"    bake {half}: {cfg['bake_spp']} spp at {cfg['bake_res'] * cfg['bake_ss']}^2 "
             f"averaged to {cfg['bake_res']}^2, {t:.1f} s")
         for o, a in maps.items():
             out[f"bake_{half}/{o}"] = a
         with quiet():
-            img, t = M.cycles_render(cfg["render_spp"], seed)
+            img, t = methods.cycles_render(cfg["render_spp"], seed)
         log(f"    render {half}: {cfg['render_spp']} spp, {t:.1f} s")
         out[f"render_{half}"] = img
         if name == FINE_SCENE:
             with quiet():
-                maps, t = M.cycles_bake([bpy.data.objects[FINE_OBJECT]], cfg["fine_res"], cfg["fine_spp"], seed)
+                maps, t = methods.cycles_bake([bpy.data.objects[FINE_OBJECT]], cfg["fine_res"], cfg["fine_spp"], seed)
             log(f"    fine {FINE_OBJECT} {half}: {cfg['fine_spp']} spp at {cfg['fine_res']}^2, {t:.1f} s")
             out[f"fine_{half}"] = maps[FINE_OBJECT]
     CACHE.mkdir(parents=True, exist_ok=True)

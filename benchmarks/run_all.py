@@ -9,7 +9,7 @@ With pyluxcore installed (benchmarks/requirements.txt), also luxcore_path and
 luxcore_photongi: LuxCore's path tracer without and with its PhotonGI cache
 (luxcore_peer.py), renders scored like Cycles'.
 With pyoidn installed, also ours_bake_oidn and ours_render_gather_oidn: the
-same runs denoised (engine/denoise.py), scored the same way, so a denoiser's
+same runs denoised (engine/transport/denoise.py), scored the same way, so a denoiser's
 bias shows as an error floor and in mean_error.
 
 Writes DIR/results.json (every measured point) and PNG charts, and prints the
@@ -37,17 +37,17 @@ import numpy as np  # noqa: E402
 
 import photon_lightmaps  # noqa: E402
 from photon_lightmaps import registration  # noqa: E402
-from photon_lightmaps.engine import denoise as DN  # noqa: E402
-from photon_lightmaps.engine import lightmap as LM  # noqa: E402
+from photon_lightmaps.engine.transport import denoise  # noqa: E402
+from photon_lightmaps.engine.lightmaps import lightmap  # noqa: E402
 from photon_lightmaps.engine.compile import compile_scene  # noqa: E402
 from photon_lightmaps.engine.session import Settings  # noqa: E402
-from photon_lightmaps.engine.photon_tracer import trace_photons  # noqa: E402
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons  # noqa: E402
 
-from benchmarks import luxcore_peer as LX  # noqa: E402
-from benchmarks import methods as M  # noqa: E402
-from benchmarks import photon_map as PM  # noqa: E402
-from benchmarks import references as R  # noqa: E402
-from benchmarks import scenes as S  # noqa: E402
+from benchmarks import luxcore_peer  # noqa: E402
+from benchmarks import methods  # noqa: E402
+from benchmarks import photon_map  # noqa: E402
+from benchmarks import references  # noqa: E402
+from benchmarks import scenes  # noqa: E402
 from benchmarks.quiet import quiet  # noqa: E402
 
 # Our default bakes: the add-on's default photon counts (a lookup bake traces
@@ -58,9 +58,9 @@ DEFAULT_BAKE_PHOTONS = Settings().bake_photons
 DEFAULT_RES = 32
 RENDER_SPP = 16       # our camera samples: direct light and anti-aliasing only
 # The *_oidn curves (the same bakes and renders plus OIDN, its time added) need pyoidn.
-OIDN = DN.available()
+OIDN = denoise.available()
 # The luxcore_* render curves need pyluxcore (benchmarks/requirements.txt).
-LUXCORE = LX.available()
+LUXCORE = luxcore_peer.available()
 
 
 def pm_k(n_photons):
@@ -72,7 +72,7 @@ def pm_k(n_photons):
     return int(np.clip(round(0.2 * math.sqrt(n_photons)), 50, 200))
 
 FULL = dict(
-    scenes=list(S.SCENES), ref=R.FULL, width=128, height=128,
+    scenes=list(scenes.SCENES), ref=references.FULL, width=128, height=128,
     bake_photons=[10_000, 30_000, 100_000, 300_000, 1_000_000, 3_000_000, 10_000_000],
     render_photons=[10_000, 100_000, 1_000_000, 3_000_000],
     # (photons, camera samples, gather rays per sample) of the final-gather renders
@@ -91,7 +91,7 @@ FULL = dict(
     fine_res=[16, 32, 64, 128], fine_photons=4_000_000,
 )
 QUICK = dict(
-    scenes=["cornell"], ref=R.QUICK, width=64, height=64,
+    scenes=["cornell"], ref=references.QUICK, width=64, height=64,
     bake_photons=[3_000, 30_000, 300_000],
     render_photons=[3_000, 100_000],
     render_gather=[(3_000, 4, 4), (100_000, 16, 4)],
@@ -152,11 +152,11 @@ def stack_maps(maps, names):
 # --------------------------------------------------------------------------------------
 
 def run_scene(name, cfg, log):
-    S.build(name, cfg["width"], cfg["height"])
-    objs = S.mesh_objects()
+    scenes.build(name, cfg["width"], cfg["height"])
+    objs = scenes.mesh_objects()
     names = [o.name for o in objs]
     res = DEFAULT_RES
-    ref, src = R.load_or_make(name, cfg["ref"], log)
+    ref, src = references.load_or_make(name, cfg["ref"], log)
     log(f"[{name}] {len(objs)} objects, reference from {src}")
     points = []
 
@@ -168,19 +168,19 @@ def run_scene(name, cfg, log):
             f"relRMSE {score['rel_rmse']:.4f} (raw {score['rel_rmse_raw']:.4f})  bias {score['mean_error']:+.4f}")
 
     # Warm-ups: numba kernels from the cache, Cycles' kernels and scene sync.
-    M.ours_bake(objs, 1000, 0, res)
-    M.ours_bake(objs, 1000, 0, res, indirect="GATHER")
-    M.ours_bake(objs, 1000, 0, res, indirect="GATHER", irradiance_cache=True)
-    M.ours_render(1000, 1, 0)
-    M.ours_render_gather(1000, 1, 0, denoise=OIDN)
+    methods.ours_bake(objs, 1000, 0, res)
+    methods.ours_bake(objs, 1000, 0, res, indirect="GATHER")
+    methods.ours_bake(objs, 1000, 0, res, indirect="GATHER", irradiance_cache=True)
+    methods.ours_render(1000, 1, 0)
+    methods.ours_render_gather(1000, 1, 0, denoise=OIDN)
     with quiet():
-        M.cycles_bake(objs, 8, 1, 0)
-        M.cycles_render(1, 0)
+        methods.cycles_bake(objs, 8, 1, 0)
+        methods.cycles_render(1, 0)
 
     # Scored texels: centre inside a UV triangle and fully covered texel (at chart
     # borders our texels average partly-outside area, and Cycles samples the centre).
-    geo = {o.name: M.texel_points(o, res) for o in objs}
-    maps0, _, _, _, _ = M.ours_bake(objs, 1000, 0, res)
+    geo = {o.name: methods.texel_points(o, res) for o in objs}
+    maps0, _, _, _, _ = methods.ours_bake(objs, 1000, 0, res)
     mask = np.stack([geo[n][2] & (maps0[n][..., 3] >= 0.999) for n in names])
     ref_A = stack_maps({n: ref[f"bake_A/{n}"] for n in names}, names)
     ref_B = stack_maps({n: ref[f"bake_B/{n}"] for n in names}, names)
@@ -194,24 +194,24 @@ def run_scene(name, cfg, log):
 
     # Photon lightmaps, baked (constant and bilinear coincide at texel centres).
     for n_ph in cfg["bake_photons"]:
-        maps, t, nbytes, stats, job = M.ours_bake(objs, n_ph, 7, res)
+        maps, t, nbytes, stats, job = methods.ours_bake(objs, n_ph, 7, res)
         x = stack_maps(maps, names)
         add("bake", "ours_bake", "photons", n_ph, t, bake_score(x), nbytes,
             memory_compact_bytes=12 * len(names) * res * res,
             photons_per_texel=stats.records / max(len(names) * res * res, 1))
         if OIDN:
-            dmaps, t_dn = M.oidn_bake(job)
+            dmaps, t_dn = methods.oidn_bake(job)
             add("bake", "ours_bake_oidn", "photons", n_ph, t + t_dn, bake_score(stack_maps(dmaps, names)),
                 nbytes, memory_compact_bytes=12 * len(names) * res * res, seconds_denoise=t_dn)
-        gmaps, t_g, nbytes_g, _, gjob = M.ours_bake(objs, n_ph, 7, res, indirect="GATHER")
+        gmaps, t_g, nbytes_g, _, gjob = methods.ours_bake(objs, n_ph, 7, res, indirect="GATHER")
         add("bake", "ours_bake_gather", "photons", n_ph, t_g, bake_score(stack_maps(gmaps, names)), nbytes_g,
             memory_compact_bytes=12 * len(names) * res * res, gather_rays_per_texel=256)
-        cmaps, t_c, nbytes_c, _, cjob = M.ours_bake(objs, n_ph, 7, res, indirect="GATHER", irradiance_cache=True)
+        cmaps, t_c, nbytes_c, _, cjob = methods.ours_bake(objs, n_ph, 7, res, indirect="GATHER", irradiance_cache=True)
         add("bake", "ours_bake_cache", "photons", n_ph, t_c, bake_score(stack_maps(cmaps, names)), nbytes_c,
             memory_compact_bytes=12 * len(names) * res * res, gather_rays_per_record=256,
             irradiance_cache=cjob.result.irradiance_cache)
         if OIDN:
-            dmaps, t_dn = M.oidn_bake(gjob)
+            dmaps, t_dn = methods.oidn_bake(gjob)
             add("bake", "ours_bake_gather_oidn", "photons", n_ph, t_g + t_dn,
                 bake_score(stack_maps(dmaps, names)), nbytes_g, memory_compact_bytes=12 * len(names) * res * res,
                 gather_rays_per_texel=256, seconds_denoise=t_dn)
@@ -224,14 +224,14 @@ def run_scene(name, cfg, log):
     pos = np.stack([geo[n][0] for n in names])[mask]
     nrm = np.stack([geo[n][1] for n in names])[mask]
     for n_ph in cfg["pm_photons"]:
-        job = M.B.prepare_bake(bpy.context, objs, photons=n_ph, seed=7, resolution=res)
+        job = methods.B.prepare_bake(bpy.context, objs, photons=n_ph, seed=7, resolution=res)
         t0 = time.perf_counter()
         cs = compile_scene(job.scene)
-        stats = trace_photons(cs, n_ph, seed=7, max_bounces=M.MAX_BOUNCES, record_direct=True,
+        stats = trace_photons(cs, n_ph, seed=7, max_bounces=methods.MAX_BOUNCES, record_direct=True,
                               keep_points=True)
-        pm = PM.build(stats)
+        pm = photon_map.build(stats)
         k = pm_k(n_ph)
-        e = PM.irradiance(pm, pos, nrm, k=k)
+        e = photon_map.irradiance(pm, pos, nrm, k=k)
         t = time.perf_counter() - t0
         x = np.zeros(mask.shape + (3,))
         x[mask] = e[:, :3] / math.pi
@@ -247,12 +247,12 @@ def run_scene(name, cfg, log):
     covered = {n: maps0[n][..., 3] > 0.0 for n in names}
     for spp in cfg["cycles_bake_spp"]:
         with quiet():
-            maps, t = M.cycles_bake(objs, res, spp, 11)
+            maps, t = methods.cycles_bake(objs, res, spp, 11)
         x = stack_maps(maps, names)
         add("bake", "cycles_bake", "samples", spp, t, bake_score(x))
         images.setdefault("cycles_bake", {})[spp] = (t, x)
         if OIDN:
-            dmaps, t_dn = M.oidn_cycles_bake(maps, covered)
+            dmaps, t_dn = methods.oidn_cycles_bake(maps, covered)
             add("bake", "cycles_bake_oidn", "samples", spp, t + t_dn, bake_score(stack_maps(dmaps, names)),
                 seconds_denoise=t_dn)
 
@@ -261,42 +261,42 @@ def run_scene(name, cfg, log):
     ss = cfg["cycles_bake_ss"]
     for spp in cfg["cycles_bake_ss_spp"]:
         with quiet():
-            maps, t = M.cycles_bake_ss(objs, res, ss, spp, 11)
+            maps, t = methods.cycles_bake_ss(objs, res, ss, spp, 11)
         add("bake", "cycles_bake_ss", "samples", spp, t, bake_score(stack_maps(maps, names)),
             supersampling=ss)
         if OIDN:
-            dmaps, t_dn = M.oidn_cycles_bake(maps, covered)
+            dmaps, t_dn = methods.oidn_cycles_bake(maps, covered)
             add("bake", "cycles_bake_ss_oidn", "samples", spp, t + t_dn, bake_score(stack_maps(dmaps, names)),
                 supersampling=ss, seconds_denoise=t_dn)
 
     # Renders: ours (constant, bilinear) over photons, Cycles over samples.
     for n_ph in cfg["render_photons"]:
-        for mode, (img, t) in M.ours_render(n_ph, RENDER_SPP, 7).items():
-            meth = "ours_render_constant" if mode == LM.MODE_CONSTANT else "ours_render_bilinear"
+        for mode, (img, t) in methods.ours_render(n_ph, RENDER_SPP, 7).items():
+            meth = "ours_render_constant" if mode == lightmap.MODE_CONSTANT else "ours_render_bilinear"
             add("render", meth, "photons", n_ph, t, render_score(img), samples=RENDER_SPP)
             images.setdefault("ours_render", {})[(n_ph, meth)] = (t, img)
     # The gather's error floor is its camera samples, not its photons (a photon pass
     # of 300k leaves 7 % at 16 spp and 2.4 % at 256): photons and samples rise together.
     for n_ph, spp, rays in cfg["render_gather"]:
         if OIDN:
-            (img, t), (dimg, t_d) = M.ours_render_gather(n_ph, spp, 7, gather_rays=rays, denoise=True)
+            (img, t), (dimg, t_d) = methods.ours_render_gather(n_ph, spp, 7, gather_rays=rays, denoise=True)
             # RT filter with albedo and normal of the first hits (session.denoise_render)
             add("render", "ours_render_gather_oidn", "photons", n_ph, t_d, render_score(dimg),
                 samples=spp, gather_rays=rays, seconds_denoise=t_d - t, aux="albedo+normal")
         else:
-            img, t = M.ours_render_gather(n_ph, spp, 7, gather_rays=rays)
+            img, t = methods.ours_render_gather(n_ph, spp, 7, gather_rays=rays)
         add("render", "ours_render_gather", "photons", n_ph, t, render_score(img), samples=spp,
             gather_rays=rays)
         images.setdefault("ours_render", {})[(n_ph, "ours_render_gather")] = (t, img)
     for spp in cfg["cycles_render_spp"]:
         with quiet():
-            img, t = M.cycles_render(spp, 11)
+            img, t = methods.cycles_render(spp, 11)
         add("render", "cycles_render", "samples", spp, t, render_score(img))
         images.setdefault("cycles_render", {})[spp] = (t, img)
     if LUXCORE:
         luxcore_renders(cfg, render_score, add)
 
-    if name == R.FINE_SCENE:
+    if name == references.FINE_SCENE:
         images["fine"] = fine_study(cfg, ref, add)
     return points, info, images
 
@@ -307,12 +307,12 @@ def luxcore_renders(cfg, render_score, add):
     seconds is the worker's LuxCore time (scene build + PhotonGI cache + rendering),
     like Cycles' render call; the process start and pyluxcore's import are kept
     apart in seconds_wall."""
-    spec, arrays = LX.export_scene(bpy.context.evaluated_depsgraph_get())
-    LX.render_spec(spec, arrays, "path", spp=1, seed=0)   # warm-up: file cache, libraries
+    spec, arrays = luxcore_peer.export_scene(bpy.context.evaluated_depsgraph_get())
+    luxcore_peer.render_spec(spec, arrays, "path", spp=1, seed=0)   # warm-up: file cache, libraries
     runs = [("luxcore_path", spp, None) for spp in cfg["luxcore_path_spp"]]
     runs += [("luxcore_photongi", spp, {"photon.maxcount": int(n)}) for n, spp in cfg["luxcore_photongi"]]
     for meth, spp, pgi in runs:
-        img, st = LX.render_spec(spec, arrays, meth.split("_")[1], spp=spp, seed=11, photongi=pgi)
+        img, st = luxcore_peer.render_spec(spec, arrays, meth.split("_")[1], spp=spp, seed=11, photongi=pgi)
         extra = {"cache_photons_max": pgi["photon.maxcount"]} if pgi else {}
         add("render", meth, "samples", spp, st["seconds"], render_score(img), samples=st["spp"],
             seconds_wall=st["seconds_wall"], seconds_cache=st["seconds_cache"],
@@ -323,15 +323,15 @@ def fine_study(cfg, ref, add):
     """Texels too coarse for a shadow edge: the window floor's lightmap at several
     resolutions, looked up (constant and bilinear) at the texel centres of a fine
     Cycles reference bake."""
-    floor = bpy.data.objects[R.FINE_OBJECT]
+    floor = bpy.data.objects[references.FINE_OBJECT]
     fres = cfg["ref"]["fine_res"]
-    _, _, inside = M.texel_points(floor, fres)
+    _, _, inside = methods.texel_points(floor, fres)
     score = Scorer(ref["fine_A"], ref["fine_B"], inside)
     shown = {"reference": 0.5 * (ref["fine_A"] + ref["fine_B"]), "inside": inside}
     for r in cfg["fine_res"]:
-        _, t, nbytes, _, job = M.ours_bake([floor], cfg["fine_photons"], 5, r)
-        for mode, label in ((LM.MODE_CONSTANT, "constant"), (LM.MODE_BILINEAR, "bilinear")):
-            x = M.resample(job, R.FINE_OBJECT, fres, mode)
+        _, t, nbytes, _, job = methods.ours_bake([floor], cfg["fine_photons"], 5, r)
+        for mode, label in ((lightmap.MODE_CONSTANT, "constant"), (lightmap.MODE_BILINEAR, "bilinear")):
+            x = methods.resample(job, references.FINE_OBJECT, fres, mode)
             add("fine", f"ours_floor_{label}", "resolution", r, t, score(x), nbytes,
                 photons=cfg["fine_photons"])
             shown[(r, label)] = x
@@ -517,7 +517,7 @@ def print_headlines(h, log):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="tiny knobs, cornell only")
-    ap.add_argument("--scenes", default=None, help="comma-separated subset of " + ",".join(S.SCENES))
+    ap.add_argument("--scenes", default=None, help="comma-separated subset of " + ",".join(scenes.SCENES))
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out"))
     ap.add_argument("--charts", default=None, help="chart folder (default: OUT/charts; the full run "
                                                    "also copies them to benchmarks/charts)")

@@ -1,4 +1,13 @@
-"""Photon-tracing core of Photon Lightmaps. Imports without Blender (no bpy here)."""
+"""Photon-tracing core of Photon Lightmaps. Imports without Blender (no bpy here).
+
+Packages, lowest rank first; each imports only from its own rank or below
+(tests/test_architecture.py): `core` (scene description, errors, kernel
+compilation, sampling), `lsystem` (grammars, turtle, presets), `geometry` (what
+rays meet, and ray casting), `lightmaps` (where light is stored), `shading`
+(materials, BSDFs, lights, environment), `transport` (photon pass, camera pass,
+gathers). The modules here are the pipeline: `compile` turns a `Scene` into
+kernel arrays and `session` runs compile -> photons -> gathers -> render or bake.
+"""
 import hashlib
 import os
 import pathlib
@@ -11,8 +20,9 @@ def _source_digest():
     upgrade a stale cache entry can run old traversal code: keying the cache
     folder by all sources makes every version compile into its own folder."""
     h = hashlib.sha1()
-    for p in sorted(pathlib.Path(__file__).parent.glob("*.py")):
-        h.update(p.name.encode())
+    root = pathlib.Path(__file__).parent
+    for p in sorted(root.rglob("*.py")):
+        h.update(p.relative_to(root).as_posix().encode())
         h.update(p.read_bytes())
     return h.hexdigest()[:12]
 
@@ -35,6 +45,6 @@ if _flavour and "numba" in sys.modules:      # numba read the variable when it w
     sys.modules["numba"].config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
 
 # Helper processes compile into the same cache folder (engine/warmup.py).
-from . import kernel_cache  # noqa: E402
+from .core import kernel_cache  # noqa: E402
 
 kernel_cache.install()

@@ -10,23 +10,23 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import csg as CSG
-from . import environment as ENV
-from . import memory_budget
-from . import lightmap as LM
-from . import texel_areas as TA
-from . import orientation_lightmap as OL
-from . import primitives as P
-from . import split_texels as ST
-from .area_estimation import estimate_areas
-from .bsdf import compile_bsdf
-from .geometry import DCSG as DCSG_KIND
-from .geometry import check_mesh_arrays, compile_geometry, nondegenerate
-from .lights import compile_lights, environment_map
-from .materials import compile_materials
-from .texture import compile_textures, texture_bytes
-from .renderer import compile_camera
-from .scene import CSGNode, OrientationLightmap, SceneError, TriangleMesh
+from .geometry import csg as CSG
+from .shading import environment as ENV
+from .core import memory_budget
+from .lightmaps import lightmap
+from .lightmaps import texel_areas
+from .lightmaps import orientation_lightmap
+from .geometry import primitives
+from .lightmaps import split_texels
+from .lightmaps.area_estimation import estimate_areas
+from .shading.bsdf import compile_bsdf
+from .geometry.assembly import DCSG as DCSG_KIND
+from .geometry.assembly import check_mesh_arrays, compile_geometry, nondegenerate, prototype_surfaces
+from .shading.lights import compile_lights, environment_map
+from .shading.materials import compile_materials
+from .shading.texture import compile_textures, texture_bytes
+from .transport.renderer import compile_camera
+from .core.scene import CSGNode, OrientationLightmap, SceneError, TriangleMesh
 
 
 @dataclass
@@ -51,7 +51,7 @@ class CompiledScene:
     caustics_traced: bool = False   # the last photon pass stored its caustics there
     lightmaps_hold_direct: bool = False   # ... and recorded first hits (final gather, bakes of OLs)
     bsdf: object = None             # bsdf.BsdfTables: albedo tables, layer and Fresnel per material
-    # material textures (engine/texture.py TextureSet; empty when the scene has none)
+    # material textures (engine/shading/texture.py TextureSet; empty when the scene has none)
     textures: object = None
     # a render's irradiance-cache records over the traced light: (key, Records, info),
     # made by the first render that asks (session.render_records), dropped by a photon pass
@@ -81,31 +81,6 @@ def checked_camera(camera, n_bands):
     return cam
 
 
-def _prototype_surfaces(geom):
-    """For each prototype: list over surface slots of ('mesh', triangle rows) or ('prim', row)."""
-    # shapes by prototype, including CSG leaves (which sit outside the BVH ranges);
-    # grouped with stable sorts, as a Python loop over 100k shapes costs 0.15 s
-    n_p = len(geom.proto_shape_start)
-    slot = np.asarray(geom.shape_surface, np.int64)
-    keep = np.flatnonzero(slot >= 0)
-    proto = np.asarray(geom.shape_proto, np.int64)[keep]
-    order = keep[np.lexsort((slot[keep], proto))]       # by prototype, then slot, then shape
-    out = [[] for _ in range(n_p)]
-    if order.size == 0:
-        return out
-    proto, slot = np.asarray(geom.shape_proto, np.int64)[order], slot[order]
-    is_tri = np.asarray(geom.shape_kind)[order] == P.TRIANGLE
-    index = np.asarray(geom.shape_index, np.int64)[order]
-    starts = np.flatnonzero(np.r_[True, (proto[1:] != proto[:-1]) | (slot[1:] != slot[:-1])])
-    ends = np.r_[starts[1:], len(order)]
-    for a, b in zip(starts.tolist(), ends.tolist()):
-        if is_tri[a]:
-            out[proto[a]].append(("mesh", index[a:b]))
-        else:
-            out[proto[a]].append(("prim", int(index[b - 1])))
-    return out
-
-
 def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None, csg_split=True,
                        info=None, ol_maps=None, dcsg=None):
     """One lightmap per (recording instance, surface slot), sized by texel density.
@@ -116,7 +91,7 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
     Split statistics go into `info`. ol_maps (orientation_lightmap.plan):
     each OL gets one R×R lightmap after the instances' ones, its bin areas
     estimated stochastically; returns ol_maps with those lightmap ids."""
-    surfaces = _prototype_surfaces(geom)
+    surfaces = prototype_surfaces(geom)
     layouts, fills, per_instance = [], [], []
     for i, inst in enumerate(scene.instances):
         ids = []
@@ -128,22 +103,22 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
                                  f"texel density) to {MAX_RESOLUTION}, got {forced}")
             for kind, data in surfaces[int(geom.inst_proto[i])]:
                 if kind == "mesh":
-                    area3d = TA.triangle_world_areas(geom.tri_p[data], M)
-                    res = forced or LM.resolution_for(area3d.sum(), texel_density, max_res=max_resolution)
+                    area3d = texel_areas.triangle_world_areas(geom.tri_p[data], M)
+                    res = forced or lightmap.resolution_for(area3d.sum(), texel_density, max_res=max_resolution)
                     layouts.append((res, res, 1))
                     fills.append(("mesh", data, area3d))
                 else:
                     pk = int(geom.prim_kind[data])
                     M3 = M @ geom.prim_xf[data][:, :3]
-                    nf = int(P.N_FACES[pk])
-                    face_area = TA.primitive_texel_areas(pk, geom.prim_params[data], M3, 2).sum() / nf
-                    res = forced or LM.resolution_for(face_area, texel_density, max_res=max_resolution)
+                    nf = int(primitives.N_FACES[pk])
+                    face_area = texel_areas.primitive_texel_areas(pk, geom.prim_params[data], M3, 2).sum() / nf
+                    res = forced or lightmap.resolution_for(face_area, texel_density, max_res=max_resolution)
                     layouts.append((nf * res, res, nf))
                     fills.append(("prim", data, M3))
                 ids.append(len(layouts) - 1)
         per_instance.append(ids)
     _check_lightmap_memory(scene, layouts, per_instance, texel_density)
-    plan, n_sub, t_plan = ST.plan_csg_lightmaps(csg if csg_split else None, fills, layouts)
+    plan, n_sub, t_plan = split_texels.plan_csg_lightmaps(csg if csg_split else None, fills, layouts)
     ols = list(scene.orientation_lightmaps)
     ol_lids = []
     for ol in ols:
@@ -153,19 +128,19 @@ def allocate_lightmaps(scene, geom, texel_density, max_resolution=1024, csg=None
     if n_sub:
         layouts.append((n_sub, 1, 1))           # the sub-texel rows
         extra_lid = len(layouts) - 1
-    lm = LM.allocate(layouts, scene.n_bands)
+    lm = lightmap.allocate(layouts, scene.n_bands)
     for lid, (kind, data, extra) in enumerate(fills):
         if kind == "mesh":
-            LM.set_triangle_areas(lm, lid, geom.tri_uv[data], extra)
+            lightmap.set_triangle_areas(lm, lid, geom.tri_uv[data], extra)
         else:
-            LM.set_primitive_areas(lm, lid, int(geom.prim_kind[data]), geom.prim_params[data], extra)
+            lightmap.set_primitive_areas(lm, lid, int(geom.prim_kind[data]), geom.prim_params[data], extra)
     if plan:
-        lm, st = ST.apply_csg_lightmaps(lm, plan, fills, csg["flat"], extra_lid)
+        lm, st = split_texels.apply_csg_lightmaps(lm, plan, fills, csg["flat"], extra_lid)
         st["csg_setup_seconds"] = t_plan + st.pop("csg_apply_seconds")
         if info is not None:
             info.update(st)
     if ols:
-        ol_maps = OL.with_lightmap_ids(ol_maps, ol_lids)
+        ol_maps = orientation_lightmap.with_lightmap_ids(ol_maps, ol_lids)
         rows = _orientation_areas(ols, ol_maps, geom, lm, dcsg)
         if info is not None:
             info["orientation_lightmaps"] = rows
@@ -215,7 +190,7 @@ def _orientation_areas(ols, maps, geom, lm, dcsg=None):
     a level's area covers exactly the instances whose hits it receives."""
     K = len(ols)
     own = []
-    covered = [OL.covered_instances(maps, k) for k in range(K)]
+    covered = [orientation_lightmap.covered_instances(maps, k) for k in range(K)]
     for k, ol in enumerate(ols):
         memory_budget.check(f"orientation lightmap '{ol.name}' ({int(ol.samples):,} area samples)",
                             AREA_SAMPLE_BYTES * int(ol.samples), "lower its area samples")
@@ -249,7 +224,7 @@ def _orientation_areas(ols, maps, geom, lm, dcsg=None):
             total[p] += total[k]
     rows = []
     for k, ol in enumerate(ols):
-        LM.set_areas(lm, int(maps.lid[k]), area[k])
+        lightmap.set_areas(lm, int(maps.lid[k]), area[k])
         pos = area[k] > 0
         rel = np.full(area[k].shape, np.inf)
         rel[pos] = np.sqrt(var[k][pos]) / area[k][pos]
@@ -263,7 +238,7 @@ def _orientation_areas(ols, maps, geom, lm, dcsg=None):
             bin_rel_error=rel,
             openness=float(weight[k] / total[k]) if total[k] > 0 else 1.0,
             area_seconds=float(secs[k])))
-        rows[-1]["warnings"] = OL.averaging_warnings(rows[-1], area[k])
+        rows[-1]["warnings"] = orientation_lightmap.averaging_warnings(rows[-1], area[k])
     return rows
 
 
@@ -299,8 +274,8 @@ def unwrap_meshes(scene, warnings, progress=None, layouts=None, texel_density=No
     (objects under an orientation lightmap need no UVs). Meshes up to
     scene.unwrap_limit triangles, and larger ones whose unwrap is cached, get an
     xatlas unwrap, all in one batch through the contained worker
-    (engine/uv_atlas.py). Larger ones get the fast box-projection layout
-    (engine/fast_layout.py) in seconds instead of minutes, and so does a mesh on
+    (engine/lightmaps/uv_atlas.py). Larger ones get the fast box-projection layout
+    (engine/lightmaps/fast_layout.py) in seconds instead of minutes, and so does a mesh on
     which xatlas fails (with a warning naming it). The fast layout is made for
     the smallest lightmap among the prototype's instances; where its charts and
     gaps need more texels, those instances get a larger forced resolution. Only
@@ -308,9 +283,9 @@ def unwrap_meshes(scene, warnings, progress=None, layouts=None, texel_density=No
     orientation lightmap. layouts (a list) gets one row per laid-out or skipped
     mesh: which layout it got and why. progress(done, total) follows the xatlas
     batch (from 0 before it starts); should_stop() -> True cancels it (raises
-    photon_tracer.Cancelled). Returns a new Scene; the input is not modified."""
-    from . import uv_atlas as UA   # late: xatlas is only needed for such meshes
-    from . import fast_layout as FL
+    core.errors.Cancelled). Returns a new Scene; the input is not modified."""
+    from .lightmaps import uv_atlas  # late: xatlas is only needed for such meshes
+    from .lightmaps import fast_layout
     density = float(scene.texel_density if texel_density is None else texel_density)
     n_mat = len(scene.materials)
     recording = np.zeros(len(scene.prototypes), np.bool_)
@@ -332,7 +307,7 @@ def unwrap_meshes(scene, warnings, progress=None, layouts=None, texel_density=No
             v, tri, _ = check_mesh_arrays(mesh, f"mesh '{mesh.name}' in prototype '{proto.name}'", n_mat)
             keep = nondegenerate(v[tri])
             n = int(keep.sum())
-            if limit and n > limit and not UA.is_cached(v, tri[keep]):
+            if limit and n > limit and not uv_atlas.is_cached(v, tri[keep]):
                 fast.append((pi, mesh, keep, v, tri[keep],
                              f"{n:,} triangles without a 'Lightmap' UV layer is above the "
                              f"unwrap limit of {limit:,}", None))
@@ -343,7 +318,7 @@ def unwrap_meshes(scene, warnings, progress=None, layouts=None, texel_density=No
         return scene
     if jobs and progress is not None:
         progress(0, len(jobs))
-    results = UA.unwrap_many(jobs, progress=progress, should_stop=should_stop) if jobs else []
+    results = uv_atlas.unwrap_many(jobs, progress=progress, should_stop=should_stop) if jobs else []
     uvs_by_proto, failed = {}, {}
     for (pi, mesh, keep), (v, t), res in zip(owners, jobs, results):
         if isinstance(res, Exception):
@@ -360,8 +335,8 @@ def unwrap_meshes(scene, warnings, progress=None, layouts=None, texel_density=No
     for pi, mesh, keep, v, t, why, err in fast:
         sizes = _lightmap_sizes(instances, pi, v, t, density, max_resolution)   # never empty
         try:
-            lay = FL.layout(v, t, min(sizes.values()), max_resolution=max(max_resolution, *sizes.values()))
-        except FL.LayoutError as e:
+            lay = fast_layout.layout(v, t, min(sizes.values()), max_resolution=max(max_resolution, *sizes.values()))
+        except fast_layout.LayoutError as e:
             failed.setdefault(pi, (mesh, why if err is not None else None, e))
             continue
         for i, r in sizes.items():
@@ -413,14 +388,14 @@ def _lightmap_sizes(instances, pi, v, t, density, max_resolution):
         if forced:
             sizes[i] = forced
             continue
-        area = TA.triangle_world_areas(p, np.asarray(inst.transform, np.float64)[:3, :3]).sum()
-        sizes[i] = LM.resolution_for(area, density, max_res=max_resolution)
+        area = texel_areas.triangle_world_areas(p, np.asarray(inst.transform, np.float64)[:3, :3]).sum()
+        sizes[i] = lightmap.resolution_for(area, density, max_res=max_resolution)
     return sizes
 
 
 def _plan_orientation(scene):
     """OL routing, and the scene with instances under a non-backup OL recording there only."""
-    ol_maps = OL.plan(scene)
+    ol_maps = orientation_lightmap.plan(scene)
     if ol_maps.lid.size:
         scene = replace(scene, instances=[
             replace(inst, lightmap=False) if ol_maps.inst_ol[i] >= 0 and not ol_maps.inst_keep[i]
@@ -473,7 +448,7 @@ def _lsystem_stubs(scene, geom, dcsg, ol_maps):
     if not owners:
         return scene, ol_maps
     scene = replace(scene, orientation_lightmaps=ols)
-    maps = OL.plan(scene)
+    maps = orientation_lightmap.plan(scene)
     dcsg["stub_owners"] = {len(scene.orientation_lightmaps) - len(owners) + j: o
                            for j, o in enumerate(owners)}
     return scene, maps._replace(inst_stub0=inst_stub0)
@@ -483,7 +458,7 @@ def _lsystem_areas(ols, maps, geom, dcsg):
     """{OL: (area per bin, variance, samples, seconds)} of the L-system geometry each
     OL owns: a stub its subtree, an instance's OL the rest, nested stubs left to
     their own OLs."""
-    from . import dcsg as D
+    from .geometry import dcsg as D
     views = (geom.trace_i64, geom.trace_f32, geom.trace_i32, geom.trace_f64, geom.trace_features)
     out = {}
 

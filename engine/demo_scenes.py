@@ -3,8 +3,9 @@ import math
 
 import numpy as np
 
-from .scene import (Camera, Instance, Light, Material, Primitive, Prototype, Scene, TriangleMesh,
-                    compose, rotate, scale, translate)
+from .core.scene import (
+    Camera, Instance, Light, Material, Primitive, Prototype, Scene, TriangleMesh, compose, rotate,
+    scale, translate)
 
 
 def quad_mesh(p0, p1, p2, p3, material=0, name="quad"):
@@ -109,9 +110,9 @@ def lsystem_studio(grammar_text, name="lsystem", steps=None, width=320, height=3
     """An L-system lit in a default studio: a ground plane under its bounds, a sun
     from the upper left and a camera framing the bounds (turtle frame: up is +Z).
     bounds: (lo, hi) of the object (default: its scene graph's box)."""
-    from .dcsg import DCSG
-    from .lsystem import parse
-    from .scene import LSystem
+    from .geometry.dcsg import DCSG
+    from .lsystem.grammar import parse
+    from .core.scene import LSystem
     if bounds is None:
         lo, hi = DCSG(parse(grammar_text, name=name), steps).bounds()
     else:

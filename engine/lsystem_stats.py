@@ -10,9 +10,9 @@ the scene graph's box, which also holds the primitives' extents and is marked
 """
 import time
 
-from . import dcsg as D
-from . import lsystem as LS
-from . import turtle as T
+from .geometry import dcsg
+from .lsystem import grammar as LS
+from .lsystem import turtle
 
 # Derive (for exact bounds and --string) up to this many modules.
 DERIVE_LIMIT = 2_000_000
@@ -36,8 +36,8 @@ def summary(grammar, steps=None, with_string=False):
     graph = None
     t0 = time.perf_counter()
     try:
-        graph = D.DCSG(grammar, steps)
-    except D.DCSGUnsupported as exc:
+        graph = dcsg.DCSG(grammar, steps)
+    except dcsg.DCSGUnsupported as exc:
         out["dcsg"] = f"not a scene graph: {exc}"
     timings["dcsg"] = time.perf_counter() - t0
     small = counts.length <= DERIVE_LIMIT
@@ -46,14 +46,14 @@ def summary(grammar, steps=None, with_string=False):
         der = LS.derive(grammar, steps, cap=max(DERIVE_LIMIT, LS.DEFAULT_CAP))
         timings["derive"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        geom = T.interpret(der.modules, grammar.angle, grammar.width)
+        geom = turtle.interpret(der.modules, grammar.angle, grammar.width)
         timings["turtle"] = time.perf_counter() - t0
         out["bounds"] = {"min": geom.bounds[0].tolist(), "max": geom.bounds[1].tolist()}
         out["bounds_exact"] = True
         if with_string:
             out["string"] = LS.format_string(der.modules)
         if graph is None:
-            prims = T.to_primitives(geom)
+            prims = turtle.to_primitives(geom)
             out["primitives"] = len(prims)
     else:
         lo, hi = graph.bounds()

@@ -9,7 +9,7 @@ over a plain engine Scene.
 import time
 from dataclasses import dataclass, fields, replace
 
-from . import lightmap as LM
+from .lightmaps import lightmap
 
 # Light-sampled points per texel for the direct part of a bake; one unstratified
 # light sample per point, so this sets the direct term's noise (~1/sqrt(n)).
@@ -37,13 +37,13 @@ class Settings:
     bake_target_error: float = 0.0  # > 0: texels above this relative error get more gather rays
     bake_max_rays: int = 4096       # the most gather rays per texel and lit side, adaptive included
     bake_time: float = 0.0          # > 0: seconds a bake should take; the gather spends what is left
-    # final gather through a sparse irradiance cache (engine/irradiance_cache.py): a bake's
+    # final gather through a sparse irradiance cache (engine/transport/irradiance_cache.py): a bake's
     # mesh texels read interpolated records (about 4x the per-texel gather's speed against
     # Cycles at equal error, benchmarks/README.md); a render's diffuse hits too, where it is
     # off by default: its error stops near a texel's scale, above the per-pixel gather's
     bake_irradiance_cache: bool = True
     irradiance_cache: bool = False
-    denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/denoise.py)
+    denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/transport/denoise.py)
 
     @classmethod
     def read(cls, props, **overrides):
@@ -67,7 +67,7 @@ class Settings:
 
     @property
     def bake_gathers(self):
-        """Bakes use the final gather (engine/bake_gather.py)."""
+        """Bakes use the final gather (engine/transport/bake_gather.py)."""
         return self.indirect == "GATHER" and self.bake_gather_rays > 0
 
     @property
@@ -83,7 +83,7 @@ class Settings:
     @property
     def mode(self):
         """Lightmap reconstruction mode of the renderer."""
-        return LM.MODE_CONSTANT if self.reconstruction == "CONSTANT" else LM.MODE_BILINEAR
+        return lightmap.MODE_CONSTANT if self.reconstruction == "CONSTANT" else lightmap.MODE_BILINEAR
 
 
 def compile(scene, ahead=(), unwrap_progress=None, should_stop=None):
@@ -102,12 +102,14 @@ def compile(scene, ahead=(), unwrap_progress=None, should_stop=None):
 
 def _kernels_for(cs, pass_, poll=None):
     """Before `pass_` runs: waits for its kernels if a helper is compiling them (engine/warmup.py)."""
-    from . import features, warmup
+    from .core import features
+    from . import warmup
     warmup.join(features.mask_of(cs.geometry.trace_features), pass_, poll)
 
 
 def _kernels_done(cs, pass_):
-    from . import features, warmup
+    from .core import features
+    from . import warmup
     warmup.done(features.mask_of(cs.geometry.trace_features), pass_)
 
 
@@ -123,8 +125,8 @@ def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=Non
     The texels' open areas are estimated first, once per compiled scene
     (open_area.py): finalize() divides by them.
     """
-    from . import open_area
-    from .photon_tracer import trace_photons
+    from .transport import open_area
+    from .transport.photon_tracer import trace_photons
     open_area.estimate(cs, seed=int(settings.seed))
     n = settings.photons if photons is None else photons
     return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
@@ -148,7 +150,7 @@ def compile_and_trace(scene, settings, *, record_direct=False, progress=None, ai
 
 
 def _aim(cs, instances):
-    from . import photon_aim
+    from .shading import photon_aim
     return None if instances is None else photon_aim.sphere_around(cs.geometry, instances)
 
 
@@ -175,13 +177,13 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
 
     Direct light per texel (unless direct=False), plus either the photons' own
     indirect light (lookup) or the final gather over the photon lightmaps
-    (engine/bake_gather.py). lightmap_ids: instance lightmaps; csg_leaves:
+    (engine/transport/bake_gather.py). lightmap_ids: instance lightmaps; csg_leaves:
     (instance, leaf) pairs of CSG solids (csg_bake.solid_leaves). deadline: the
     time.perf_counter() by which the bake should end (settings.bake_time); the
     gather gives the time left to the texels with the highest error.
     phase(name, n) is told as "direct" and "gather" start (n: texels), and
     while it waits on a helper compiling the bake kernels ("kernels", seconds)."""
-    from . import texel_gather as TG
+    from .transport import texel_gather
     lightmap_ids, csg_leaves = list(lightmap_ids), list(csg_leaves)
     phase = phase or (lambda name, texels: None)
     lm = cs.lightmaps
@@ -201,12 +203,12 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
         for part in parts:
             add_direct(cs.lightmaps, part)
         return seconds
-    from . import bake_gather as BG
+    from .transport import bake_gather
     phase("gather", texels)
     t1 = time.perf_counter()
-    direct_E = TG._by_texel(parts, cs.n_bands)
+    direct_E = texel_gather.by_texel(parts, cs.n_bands)
     cache_info = {}
-    indirect = BG.gathered_indirect(cs, lightmap_ids, csg_leaves, DIRECT_SAMPLES, settings.bake_rays_per_point,
+    indirect = bake_gather.gathered_indirect(cs, lightmap_ids, csg_leaves, DIRECT_SAMPLES, settings.bake_rays_per_point,
                                     settings.mode, seed=int(settings.seed),
                                     target_error=float(settings.bake_target_error),
                                     max_rays=max(1, int(settings.bake_max_rays) // DIRECT_SAMPLES),
@@ -215,7 +217,7 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
                                     cached=bool(settings.bake_irradiance_cache), info=cache_info)
     if cache_info:
         cs.info["irradiance_cache"] = cache_info
-    BG.set_gathered(cs.lightmaps, direct_E, indirect)
+    bake_gather.set_gathered(cs.lightmaps, direct_E, indirect)
     cs.bake_error = texel_error(cs.lightmaps, direct_E, indirect)
     seconds["gather"] = time.perf_counter() - t1
     _kernels_done(cs, "bake")
@@ -233,20 +235,20 @@ def texel_error(lm, direct, indirect):
 
 def gather_direct(cs, lightmap_ids, settings):
     """Direct irradiance per texel of the given lightmaps -> (texel ids, E); add with add_direct."""
-    from . import texel_gather as TG
-    return TG.direct_texel_irradiance(cs, lightmap_ids, DIRECT_SAMPLES, seed=int(settings.seed))
+    from .transport import texel_gather
+    return texel_gather.direct_texel_irradiance(cs, lightmap_ids, DIRECT_SAMPLES, seed=int(settings.seed))
 
 
 def gather_direct_csg(cs, leaves, settings):
     """Direct irradiance of CSG leaf texels over their visible part -> (texel ids, E)."""
-    from . import csg_bake
+    from .transport import csg_bake
     return csg_bake.direct_csg_texels(cs, leaves, DIRECT_SAMPLES, seed=int(settings.seed))
 
 
 def add_direct(lightmaps, gathered):
     """Adds a gather_direct result to `lightmaps` (cs.lightmaps or a copy) and re-finalizes them."""
-    from . import texel_gather as TG
-    TG.add_direct(lightmaps, *gathered)
+    from .transport import texel_gather
+    texel_gather.add_direct(lightmaps, *gathered)
 
 
 def render(cs, settings, *, tile=64, progress=None, passes=None, waiting=None):
@@ -255,11 +257,11 @@ def render(cs, settings, *, tile=64, progress=None, passes=None, waiting=None):
     passes: samples per progressive pass (renderer.render; None: one pass).
     waiting(seconds): called while the render waits for a helper process
     compiling its kernels (session.compile's ahead); False stops the wait."""
-    from .renderer import render as render_image
+    from .transport.renderer import render as render_image
     _kernels_for(cs, "render", waiting)
     gather = int(settings.gather_rays) if settings.gathers else 0
     if settings.denoise:
-        from . import denoise
+        from .transport import denoise
         denoise.require()
     cs.timings.pop("records", None)
     records = render_records(cs, settings) if gather and settings.irradiance_cache else None
@@ -275,11 +277,11 @@ def render(cs, settings, *, tile=64, progress=None, passes=None, waiting=None):
 
 
 def render_records(cs, settings):
-    """The irradiance-cache records a gathering render reads (engine/irradiance_cache.py),
+    """The irradiance-cache records a gathering render reads (engine/transport/irradiance_cache.py),
     made once per traced light and kept on cs: every frame of a camera animation
     that reuses the light reads the same records. Timed in cs.timings["records"]
     (0 when they were kept)."""
-    from . import irradiance_cache as IC
+    from .transport import irradiance_cache as IC
     key = (int(settings.seed), int(settings.bake_gather_rays))
     kept = cs.render_records
     if kept is not None and kept[0] == key:
@@ -297,8 +299,8 @@ def denoise_render(cs, img, settings):
     first hits' albedo and normal (traced here with the render's own pixel jitter)."""
     import numpy as np
 
-    from . import denoise
-    from .renderer import render_aux
+    from .transport import denoise
+    from .transport.renderer import render_aux
     albedo, normal = render_aux(cs, samples=int(settings.samples), seed=int(settings.seed))
     nb = img.shape[2]
     if nb == 3:
@@ -314,7 +316,7 @@ def denoise_render(cs, img, settings):
 def denoise_baked(rgba, tiles=1):
     """A baked (H, W, 4) RGBA lightmap (A = coverage) -> the same with RGB denoised;
     texels no UV triangle covers keep their values (engine/denoise.denoise_lightmap)."""
-    from . import denoise
+    from .transport import denoise
     out = rgba.copy()
     out[..., :3] = denoise.denoise_lightmap(rgba[..., :3], covered=rgba[..., 3] > 0.0, tiles=tiles)
     return out

@@ -2,7 +2,7 @@
 
 On a new machine or version the first render waits for numba to compile its
 kernels (docs/kernels.md). A family is one pass (a render, a bake) on a tiny
-scene of one kind of geometry the kernels specialise on (engine/features.py);
+scene of one kind of geometry the kernels specialise on (engine/core/features.py);
 running it compiles its kernels into the on-disk cache.
 
 * `WarmUp` compiles every family, two at a time in helper processes (numba
@@ -14,7 +14,7 @@ running it compiles its kernels into the on-disk cache.
   and traces; `join` (session.render, session.bake_texels) waits for them, and
   the host then loads them from the cache.
 
-The processes share one cache folder; engine/kernel_cache.py keeps their saves apart.
+The processes share one cache folder; engine/core/kernel_cache.py keeps their saves apart.
 """
 import atexit
 import json
@@ -27,8 +27,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import demo_scenes, features, session
-from .scene import CSGNode, Instance, OrientationLightmap, Primitive, Prototype, compose, scale, translate
+from . import demo_scenes, session
+from .core import features
+from .core.scene import (
+    CSGNode, Instance, OrientationLightmap, Primitive, Prototype, compose, scale, translate)
 
 TREE = "axiom: F\nderivation length: 2\nangle: 25.7\nproduction:\nF --> F[+F]F[-F]F\n"
 
@@ -65,7 +67,7 @@ def _scene(mask, ol=True):
         return _tree()
     s = _solid_room(ol) if mask & features.CSG else _room(with_primitives=ol, ol=ol)
     if mask & features.DCSG:
-        from .scene import LSystem
+        from .core.scene import LSystem
         s.prototypes.append(Prototype(name="tree", lsystems=[LSystem(TREE, name="tree", materials=(0,))]))
         s.instances.append(Instance(len(s.prototypes) - 1, compose(translate(0.5, 0.5, 0.0), scale(0.05)),
                                     name="tree"))
@@ -73,9 +75,9 @@ def _scene(mask, ol=True):
 
 
 def scene_mask(scene):
-    """The feature mask a plain engine Scene compiles to (engine/features.py), as far
+    """The feature mask a plain engine Scene compiles to (engine/core/features.py), as far
     as it can be told before compiling: an L-system whose grammar cannot be a
-    scene graph is instanced as primitives instead (engine/geometry.py)."""
+    scene graph is instanced as primitives instead (engine/geometry/assembly.py)."""
     protos = [scene.prototypes[inst.prototype] for inst in scene.instances
               if 0 <= inst.prototype < len(scene.prototypes)]
     return ((features.CSG if any(p.csg for p in protos) else 0)
@@ -91,7 +93,7 @@ def _render(scene, photons=True):
 
 
 def _bake(scene, photons=True):
-    from .csg_bake import chart_uv_error, full_primitive_areas, solid_leaves
+    from .transport.csg_bake import chart_uv_error, full_primitive_areas, solid_leaves
     settings = session.Settings(photons=2000, seed=1, bake_gather_rays=16)
     if photons:
         cs, _ = session.compile_and_trace_bake(scene, settings)
@@ -197,7 +199,7 @@ _TAG = "photon_lightmaps.warmup:"
 def helper_main(specs):
     """A helper process: compiles the families `specs` (Family.spec) in order and
     prints one report line per family (kernels compiled, seconds)."""
-    from . import kernel_watch
+    from .core import kernel_watch
     for spec in specs:
         family = Family.parse(spec)
         t0 = time.perf_counter()
@@ -213,7 +215,7 @@ class Helper:
     """A helper process compiling families, in order, into the shared kernel cache."""
 
     def __init__(self, families):
-        from . import kernel_cache
+        from .core import kernel_cache
         kernel_cache.install()
         self.families = list(families)
         self.reports = []               # one per family compiled, in order
@@ -330,7 +332,7 @@ class WarmUp:
                     raise RuntimeError(h.error or "a kernel helper process failed")
                 rep = h.reports[0]
             else:
-                from . import kernel_watch
+                from .core import kernel_watch
                 with kernel_watch.watching() as watch:
                     family()
                 rep = {"compiled": watch.compiled, "kernel_seconds": watch.by_kernel}

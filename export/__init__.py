@@ -1,4 +1,4 @@
-"""Blender -> engine.scene.Scene: reads an *evaluated* depsgraph into plain data (rank 1, over engine/).
+"""Blender -> engine.core.scene.Scene: reads an *evaluated* depsgraph into plain data (rank 1, over engine/).
 
 Everything the tracer sees passes through `export_scene`, so Blender's
 conventions are converted here, once:
@@ -12,7 +12,7 @@ conventions are converted here, once:
   [0,1]², otherwise none (the core unwraps with xatlas).
 * materials: the Principled BSDF (plus Diffuse, Glossy, Glass and Emission
   shaders) mapped to diffuse/specular/transmission/emission weights.
-* lights, camera and a constant world in Cycles' units (see engine/lights.py).
+* lights, camera and a constant world in Cycles' units (see engine/shading/lights.py).
 * exact CSG (csg.py): an object with enabled Boolean modifiers becomes a
   prototype holding one CSG tree built from the *original* objects (tagged
   CSG primitives stay exact analytic surfaces), not Blender's tessellated

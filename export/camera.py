@@ -1,7 +1,7 @@
 """The Blender camera -> engine Camera (the field of view spans the larger image side)."""
 import math
 
-from ..engine.scene import Camera
+from ..engine.core.scene import Camera
 from .context import matrix
 
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine.scene import Scene, SceneError
+from ..engine.core.scene import Scene, SceneError
 
 LIGHTMAP_UV = "Lightmap"
 # Blender's surface when a slot has no material: grey diffuse.

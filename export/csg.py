@@ -3,7 +3,7 @@
 Conventions (shared with operators/csg_primitives.py, bake/ and ui/panels.py):
 
 * A *tagged CSG primitive* is a mesh object with the custom properties
-  ``obj["photon_csg_primitive"]`` (a kind of engine.primitives: sphere, box,
+  ``obj["photon_csg_primitive"]`` (a kind of engine.geometry.primitives: sphere, box,
   cylinder, cone, torus, paraboloid) and ``obj["photon_csg_params"]`` (float
   list; torus: ``[minor_radius]``, others ``[]``). Its mesh is only a display
   mesh in the primitive's canonical local frame, so the object's transform *is*
@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine.scene import CSGNode, Primitive, Prototype
+from ..engine.core.scene import CSGNode, Primitive, Prototype
 from .context import LIGHTMAP_UV, PrototypeRecord
 
 PRIMITIVE_PROP = "photon_csg_primitive"
@@ -146,7 +146,7 @@ def closed_mesh_problem(vertices, triangles):
     """None if the triangles form a closed, consistently oriented 2-manifold, else why not.
 
     Vertices are welded by exact position first, like the core's check
-    (engine/csg.py), so meshes split along UV seams still count as closed.
+    (engine/geometry/csg.py), so meshes split along UV seams still count as closed.
     """
     t = np.asarray(triangles, np.int64).reshape(-1, 3)
     if t.shape[0] < 4:

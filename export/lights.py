@@ -1,9 +1,9 @@
-"""Blender lights -> engine Lights in Cycles' units (see engine/lights.py)."""
+"""Blender lights -> engine Lights in Cycles' units (see engine/shading/lights.py)."""
 import math
 
 import numpy as np
 
-from ..engine.scene import Light
+from ..engine.core.scene import Light
 
 
 def light(ctx, ob, xf):
@@ -54,7 +54,7 @@ def light(ctx, ob, xf):
         ctx.report("WARNING", f"{owner}: unsupported light type {lt.type}")
         return
     if lt.type in ("POINT", "SPOT"):
-        # Extra attribute read by engine/lights.py (Cycles' soft falloff near the light).
+        # Extra attribute read by engine/shading/lights.py (Cycles' soft falloff near the light).
         light.soft_falloff = bool(lt.use_soft_falloff)
     ctx.scene.lights.append(light)
     ctx.map.lights.append(name)

@@ -7,7 +7,7 @@ bake/lsystem_preview.py.
 Conventions (docs/architecture.md, "L-system objects"):
 
 * An *L-system object* is a mesh object whose custom property ``ob["photon_lsys_text"]``
-  points at a Text datablock holding the grammar (engine/lsystem.py format). Its Geometry
+  points at a Text datablock holding the grammar (engine/lsystem/grammar.py format). Its Geometry
   Nodes modifier's group carries the same pointer and a copy of ``ob["photon_lsys"]``
   (``INFO_PROP``): ``{"version", "hash" (of the text last previewed), "checked" (of the
   text last looked at, valid or not), "path", "depth", "symbols", "note", "stats"}``.
@@ -20,7 +20,7 @@ Conventions (docs/architecture.md, "L-system objects"):
   preview meshes, their instances, organ instances) and its own evaluated mesh are skipped.
   The engine traces the grammar at the render depth; ``;(i)`` selects material slot i.
 
-Nothing here imports bpy, nor the numba kernels of engine/dcsg.py (and so
+Nothing here imports bpy, nor the numba kernels of engine/geometry/dcsg.py (and so
 engine/lsystem_stats.py) at module level (importing `export` stays light).
 """
 from __future__ import annotations
@@ -31,8 +31,8 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from ..engine import lsystem as LS
-from ..engine.scene import LSystem, Prototype, SceneError
+from ..engine.lsystem import grammar as LS
+from ..engine.core.scene import LSystem, Prototype, SceneError
 from .context import PrototypeRecord
 from .materials import material
 
@@ -46,7 +46,7 @@ MAX_PREVIEW_DEPTH = 6
 # Modules a grammar without a scene graph may derive for the panel's statistics.
 STATS_MODULE_CAP = 2_000_000
 
-# ABOP fig. 1.24a, for when engine/lsystem_presets is not available.
+# ABOP fig. 1.24a, for when engine/lsystem/presets is not available.
 FALLBACK_PRESET = "abop_1_24a"
 FALLBACK_PRESET_LABEL = "ABOP 1.24a (bracketed plant)"
 FALLBACK_PRESET_TEXT = """\
@@ -60,10 +60,10 @@ F --> F[+F]F[-F]F
 
 
 def presets():
-    """[(name, label, description)] of the grammar presets (engine/lsystem_presets, or the
+    """[(name, label, description)] of the grammar presets (engine/lsystem/presets, or the
     one built-in fallback when that package is not there)."""
     try:
-        from ..engine import lsystem_presets as P
+        from ..engine.lsystem import presets as P
         out = [(name, label, desc) for name, (label, desc) in P.PRESETS.items()]
         if out:
             return out
@@ -75,7 +75,7 @@ def presets():
 def preset_text(name):
     """The grammar text of a preset (the fallback's for an unknown name without presets)."""
     try:
-        from ..engine import lsystem_presets as P
+        from ..engine.lsystem import presets as P
         if name in P.PRESETS:
             return P.preset_text(name)
     except (ImportError, AttributeError):
@@ -97,7 +97,7 @@ class LSystemSettings:
     seed: int = 0
     use_angle: bool = False                 # off: the grammar's angle
     angle: float = 25.7                     # degrees
-    cache_mb: float = 64.0                  # the engine's expansion cache (engine/dcsg.py)
+    cache_mb: float = 64.0                  # the engine's expansion cache (engine/geometry/dcsg.py)
 
     @classmethod
     def read(cls, props, **overrides):
@@ -282,7 +282,7 @@ def statistics(grammar, steps, cache_mb=LSystemSettings.cache_mb):
     derivation a render traces, so exact). Raises LSystemError / SceneError for a grammar
     the engine would refuse, LSystemGrowthError past STATS_MODULE_CAP modules."""
     from ..engine import lsystem_stats
-    from ..engine.dcsg import DCSG, DCSGUnsupported
+    from ..engine.geometry.dcsg import DCSG, DCSGUnsupported
     try:
         d = DCSG(grammar, steps=steps, cache_mb=cache_mb)
     except DCSGUnsupported:
@@ -344,7 +344,7 @@ def organ_meshes(ctx, ob, text):
     meshes together) for every organ the grammar names; a name that resolves to no
     mesh is reported and drawn as nothing."""
     import bpy
-    from ..engine.scene import TriangleMesh
+    from ..engine.core.scene import TriangleMesh
     from .meshes import leaf_mesh
     resolve = organ_resolver(ob)
     out = {}

@@ -9,9 +9,9 @@ an image averaged, with a warning.
 """
 import numpy as np
 
-from ..engine.scene import Material
+from ..engine.core.scene import Material
 from . import textures
-from ..engine.texture import srgb_to_linear
+from ..engine.shading.texture import srgb_to_linear
 from .context import DEFAULT_DIFFUSE, output_priority
 
 

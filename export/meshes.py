@@ -7,7 +7,7 @@ Texture nodes read by default, unclamped.
 """
 import numpy as np
 
-from ..engine.scene import Prototype, TriangleMesh
+from ..engine.core.scene import Prototype, TriangleMesh
 from . import textures
 from .context import LIGHTMAP_UV, PrototypeRecord
 from .materials import material

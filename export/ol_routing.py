@@ -6,7 +6,7 @@ OL collection holding it (child collections included; collection-instance and
 particle duplis follow their instancer object); OLs nest as their collections
 do (fig. 6.3).
 """
-from ..engine.scene import OrientationLightmap
+from ..engine.core.scene import OrientationLightmap
 
 
 def is_orientation_lightmap(ob):

@@ -5,7 +5,7 @@ assignment), so 100 linked duplicates cost one prototype and 100 transforms.
 """
 import numpy as np
 
-from ..engine.scene import Instance
+from ..engine.core.scene import Instance
 from . import csg, lsystems, textures
 from .camera import camera
 from .context import ExportContext, InstanceRecord, matrix

@@ -13,7 +13,7 @@ Blender's:
   data values;
 * normals: Cycles' Normal bake in tangent space (+X +Y +Z) of the material as it
   is, so Normal Map, Bump and any other node the Normal input sees are
-  Blender's; engine/materials.py `shading_normal` applies the baked vector in
+  Blender's; engine/shading/materials.py `shading_normal` applies the baked vector in
   the frame Blender's tangent-space bake uses (MikkTSpace's, for a flat
   triangle: the per-triangle UV tangent).
 
@@ -49,10 +49,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..engine.scene import Texture
-from ..engine.texture import linear_to_srgb
+from ..engine.core.scene import Texture
+from ..engine.shading.texture import linear_to_srgb
 
-# engine input -> socket name, per shader node type (engine/materials.py TEXTURE_INPUTS)
+# engine input -> socket name, per shader node type (engine/shading/materials.py TEXTURE_INPUTS)
 TEXTURE_SOCKETS = {
     "ShaderNodeBsdfPrincipled": {"base_color": "Base Color", "roughness": "Roughness",
                                  "metallic": "Metallic", "transmission": "Transmission Weight",

@@ -1,7 +1,7 @@
 """The `Lightmap` UV layer of a Blender mesh: honoured when the user made it, else xatlas.
 
 Photon lightmaps need a UV layout in which no two surface points share a
-texel (engine/uv_atlas.py). A mesh that already has a UV layer named
+texel (engine/lightmaps/uv_atlas.py). A mesh that already has a UV layer named
 ``Lightmap`` is used exactly as it is: we never write to a user's layer. A
 mesh without one gets a new layer from an xatlas unwrap of its loop
 triangles; the user's layers, and which of them is active and used for
@@ -97,7 +97,7 @@ def read_uvs(layer):
     return uv.reshape(-1, 2)
 
 
-def _digest(uv):
+def uv_digest(uv):
     return hashlib.sha256(np.ascontiguousarray(uv, np.float32).tobytes()).hexdigest()
 
 
@@ -106,7 +106,7 @@ def layer_is_ours(mesh):
     layer = mesh.uv_layers.get(LAYER_NAME)
     if layer is None or HASH_PROP not in mesh or DIGEST_PROP not in mesh:
         return False
-    return mesh[DIGEST_PROP] == _digest(read_uvs(layer))
+    return mesh[DIGEST_PROP] == uv_digest(read_uvs(layer))
 
 
 def _forget(mesh):
@@ -160,21 +160,21 @@ def compute_lightmap_uvs(mesh, resolution=None, padding=2, notes=None):
     they are. Such polygons (a few percent on organic meshes) become islands of
     their own, flattened onto their plane, and all islands are packed again.
     xatlas runs in a child process. Where it fails or crashes, the mesh gets the
-    fast box-projection layout (engine/fast_layout.py), made for `resolution`
+    fast box-projection layout (engine/lightmaps/fast_layout.py), made for `resolution`
     or, where its charts and gaps need more, the min_resolution it returns; and
     `notes` (a list) gets a line saying so. Only where that cannot fit either is
-    engine.uv_atlas.UnwrapError (a SceneError) raised, for the caller to report.
+    engine.lightmaps.uv_atlas.UnwrapError (a SceneError) raised, for the caller to report.
     """
-    from ..engine import uv_atlas as UA
+    from ..engine.lightmaps import uv_atlas
 
-    resolution = int(resolution) if resolution else UA.DEFAULT_RESOLUTION
+    resolution = int(resolution) if resolution else uv_atlas.DEFAULT_RESOLUTION
     v, tri_v, tri_l, poly = mesh_triangles(mesh)
     n_loops = len(mesh.loops)
     if tri_v.shape[0] == 0:
         return np.zeros((n_loops, 2)), 1, "xatlas"
     try:
-        res = UA.unwrap_atlas(v, tri_v, resolution=resolution, padding=padding)
-    except UA.UnwrapError as exc:
+        res = uv_atlas.unwrap_atlas(v, tri_v, resolution=resolution, padding=padding)
+    except uv_atlas.UnwrapError as exc:
         if not np.isfinite(v).all():
             raise                  # bad input, not xatlas: the user's to fix
         uv, side = _fast_layout(v, tri_v, poly, resolution, exc)
@@ -207,7 +207,7 @@ def compute_lightmap_uvs(mesh, resolution=None, padding=2, notes=None):
             corner[rows] = _planar_uvs(v, tri_v, rows)
             island[rows] = next_id
             next_id += 1
-        uv, min_res = UA.pack_islands(v, tri_v, corner, island, resolution, padding)
+        uv, min_res = uv_atlas.pack_islands(v, tri_v, corner, island, resolution, padding)
     per_loop = np.zeros((n_loops, 2))
     per_loop[tri_l.reshape(-1)] = uv.reshape(-1, 2)
     return per_loop, int(min_res), "xatlas"
@@ -216,14 +216,14 @@ def compute_lightmap_uvs(mesh, resolution=None, padding=2, notes=None):
 def _fast_layout(v, tri_v, poly, resolution, xatlas_error):
     """The fast layout of a mesh's triangles, polygons kept whole -> (per-triangle
     UVs (T, 3, 2), the lightmap side it is made for, >= resolution)."""
-    from ..engine import fast_layout as FL
-    from ..engine.geometry import nondegenerate
+    from ..engine.lightmaps import fast_layout
+    from ..engine.geometry.assembly import nondegenerate
     keep = nondegenerate(v[tri_v])
     uv = np.zeros((tri_v.shape[0], 3, 2))
     try:
-        lay = FL.layout(v, tri_v[keep], resolution, groups=poly[keep])
-    except FL.LayoutError as e:
-        from ..engine.uv_atlas import UnwrapError
+        lay = fast_layout.layout(v, tri_v[keep], resolution, groups=poly[keep])
+    except fast_layout.LayoutError as e:
+        from ..engine.lightmaps.uv_atlas import UnwrapError
         raise UnwrapError(f"{xatlas_error.reason}, and the fast layout does not fit either "
                           f"({e.reason})", tri_v.shape[0], detail=xatlas_error.detail) from None
     uv[keep] = lay.uv
@@ -238,13 +238,13 @@ def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False, notes=None)
     """Gives a mesh (or a mesh object's mesh) a `Lightmap` UV layer; returns what happened.
 
     resolution: lightmap texels per side the layout is for (charts stay apart
-    at that size and above); None: engine.uv_atlas.DEFAULT_RESOLUTION.
+    at that size and above); None: engine.lightmaps.uv_atlas.DEFAULT_RESOLUTION.
     force: unwrap our own layer again even if it looks current. A layer named
     `Lightmap` that we did not make (or that was edited after we made it) is
     never modified, force or not. Returns USER, CACHED, CREATED or UPDATED.
     notes (a list) gets a line where xatlas failed and the fast layout stood in;
     required_resolution(mesh) then says the lightmap side that layout needs.
-    Raises engine.uv_atlas.UnwrapError when no layout fits (the mesh is left as
+    Raises engine.lightmaps.uv_atlas.UnwrapError when no layout fits (the mesh is left as
     it was).
     """
     mesh = _mesh_of(obj_or_mesh)
@@ -282,7 +282,7 @@ def ensure_lightmap_uv(obj_or_mesh, *, resolution=None, force=False, notes=None)
     layer.uv.foreach_set("vector", uv.astype(np.float32).reshape(-1))
     mesh.update()
     mesh[HASH_PROP] = ghash
-    mesh[DIGEST_PROP] = _digest(read_uvs(mesh.uv_layers[LAYER_NAME]))
+    mesh[DIGEST_PROP] = uv_digest(read_uvs(mesh.uv_layers[LAYER_NAME]))
     mesh[MIN_RES_PROP] = int(min_res)
     if how == FAST:
         mesh[LAYOUT_PROP] = FAST
@@ -350,7 +350,7 @@ def primitive_chart_uvs(ob):
     the tile rect this add-on stored, if any).
     """
     from .csg import primitive_tag
-    from ..engine.csg_bake import chart_uv_error
+    from ..engine.transport.csg_bake import chart_uv_error
 
     tag = primitive_tag(ob)
     if tag is None:

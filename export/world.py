@@ -7,7 +7,7 @@ gradients, mixes, node groups) is evaluated by Blender itself: Cycles renders
 the world's background through a panoramic equirectangular camera in a
 temporary scene, so every node means exactly what it means in Blender. The
 camera is turned (90, 0, -90) degrees so that the image is Blender's own
-equirectangular world mapping (engine/environment.py; checked in
+equirectangular world mapping (engine/shading/environment.py; checked in
 tests/test_world.py): an Environment Texture's image comes back as itself.
 
 As in Cycles, a Sky Texture's sun disc is part of the world (it lands in the
@@ -30,7 +30,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from ..engine.scene import EnvironmentMap
+from ..engine.core.scene import EnvironmentMap
 from .context import output_priority
 from .materials import node_input
 

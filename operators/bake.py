@@ -17,8 +17,8 @@ from bpy.props import BoolProperty, IntProperty
 
 from .. import messages
 from ..bake import hooks
-from ..bake import pipeline as B
-from ..engine.photon_tracer import Cancelled
+from ..bake import pipeline
+from ..engine.core.errors import Cancelled
 from ..export import uv_layers
 from .common import ImageOutputOptions, ObjectModeOperator
 
@@ -91,7 +91,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         return objects
 
     def _prepare(self, context, objects):
-        return B.prepare_bake(context, objects, photons=self.photons or None,
+        return pipeline.prepare_bake(context, objects, photons=self.photons or None,
                               resolution=self.resolution or None, indirect_only=self.indirect_only)
 
     def _finish(self, job):
@@ -99,7 +99,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         for name in [n for n in job.result.maps if n not in bpy.data.objects]:
             job.result.skipped[name] = "deleted during the bake"
             del job.result.maps[name]
-        res = B.commit_bake(job, overwrite=self.overwrite, pack=self.pack,
+        res = pipeline.commit_bake(job, overwrite=self.overwrite, pack=self.pack,
                             hook_materials=self.hook_materials)
         warnings = [f"'{name}' not baked: {why}" for name, why in res.skipped.items()] + res.warnings
         for w in warnings:
@@ -111,7 +111,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
     def _failed(self, context, exc, job=None):
         # Nothing half-written: the Lightmap UV layers prepare_bake made go again.
         if job is not None:
-            B.rollback_bake(job)
+            pipeline.rollback_bake(job)
         if isinstance(exc, Cancelled):
             self.report({"WARNING"}, "Photon Lightmaps bake cancelled; nothing was changed")
             return {"CANCELLED"}
@@ -133,7 +133,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
                 return self._start_modal(context, objects)
             # Blocking (scripts, background mode).
             job = self._prepare(context, objects)
-            B.compute_bake(job)
+            pipeline.compute_bake(job)
             self._finish(job)
         except Exception as e:  # noqa: BLE001  (reported to the user instead of a traceback)
             return self._failed(context, e, job)
@@ -151,19 +151,19 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         cancel = threading.Event()
         state = {"phase": "unwrap", "detail": "", "done": 0, "total": 1, "error": None}
         self._job, self._cancel, self._state, self._objects_left = None, cancel, state, objects
-        plan = B.unwrap_plan(context, objects, self.resolution or None)
+        plan = pipeline.unwrap_plan(context, objects, self.resolution or None)
         if plan:
             triangles = sum(t.shape[0] for _, _, t, _ in plan)
-            state.update(total=len(plan), estimate=B.unwrap_seconds(triangles),
+            state.update(total=len(plan), estimate=pipeline.unwrap_seconds(triangles),
                          detail=f"{len(plan)} mesh{'es' if len(plan) != 1 else ''} without a Lightmap "
-                                f"UV layer, {triangles:,} triangles, about {_duration(B.unwrap_seconds(triangles))}")
+                                f"UV layer, {triangles:,} triangles, about {_duration(pipeline.unwrap_seconds(triangles))}")
 
             def progress(done, total):
                 state["done"], state["total"] = done, max(total, 1)
 
             def unwrap():
                 try:
-                    B.run_unwraps(plan, progress, cancel.is_set)
+                    pipeline.run_unwraps(plan, progress, cancel.is_set)
                 except BaseException as e:  # noqa: BLE001  (handed to the UI thread)
                     state["error"] = e
             self._thread = threading.Thread(target=unwrap, name="photon-lightmaps-unwrap", daemon=True)
@@ -196,7 +196,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
 
         def work():
             try:
-                B.compute_bake(job, progress, phase)
+                pipeline.compute_bake(job, progress, phase)
             except BaseException as e:  # noqa: BLE001  (handed to the UI thread)
                 state["error"] = e
         self._thread = threading.Thread(target=work, name="photon-lightmaps-bake", daemon=True)
@@ -267,7 +267,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
             self._cancel.set()
             self._thread.join()
             if self._job is not None:
-                B.rollback_bake(self._job)
+                pipeline.rollback_bake(self._job)
         self._cleanup(context)
 
     def draw(self, context):
@@ -279,7 +279,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         n, triangles = _without_layer(_bake_candidates(context, self.selected_only))
         if n:
             col.label(text=f"{n} mesh{'es' if n != 1 else ''} without a Lightmap UV layer: xatlas unwraps "
-                           f"{triangles:,} triangles first, about {_duration(B.unwrap_seconds(triangles))}",
+                           f"{triangles:,} triangles first, about {_duration(pipeline.unwrap_seconds(triangles))}",
                       icon="INFO")
 
 

@@ -3,14 +3,14 @@
 The object is tagged (csg_export.PRIMITIVE_PROP / PARAMS_PROP) so the exporter
 hands the tracer the exact surface; the mesh only serves the viewport and
 Blender's own Boolean modifier. It lives in the primitive's canonical local
-frame (engine/primitives.py), so the object's transform is the primitive's
+frame (engine/geometry/primitives.py), so the object's transform is the primitive's
 transform: size, position and orientation are object transforms, never baked
 into the vertices.
 
 Display mesh = each face's (u, v) chart sampled on a grid through
-engine.primitives.prim_point, so at every vertex the position and the
+engine.geometry.primitives.prim_point, so at every vertex the position and the
 `Lightmap` UV agree exactly with the engine's chart. The UV atlas matches the
-engine's primitive lightmap layout (engine/lightmap.py): F faces give F tiles
+engine's primitive lightmap layout (engine/lightmaps/lightmap.py): F faces give F tiles
 side by side, tile f covers U in [f/F, (f+1)/F] and V in [0, 1], so
 (U, V) = ((f + u) / F, v) and a baked lightmap image maps straight onto the
 mesh. Vertices shared by two charts (seams, rims, the sphere's octahedral
@@ -26,8 +26,8 @@ from bpy.props import EnumProperty, FloatProperty, FloatVectorProperty, IntPrope
 
 from .. import messages
 from ..export.csg import PARAMS_PROP, PRIMITIVE_PROP, SOLID_KINDS
-from ..engine.primitives import KIND_IDS, N_FACES, prim_point
-from ..engine.scene import SceneError
+from ..engine.geometry.primitives import KIND_IDS, N_FACES, prim_point
+from ..engine.core.scene import SceneError
 from .common import select_only
 
 LIGHTMAP_UV = "Lightmap"
@@ -64,7 +64,7 @@ def _grids(kind, segments):
 
 
 def _disk_chart(kind, face):
-    # faces parameterised by the concentric map (engine/primitives.py)
+    # faces parameterised by the concentric map (engine/geometry/primitives.py)
     return (kind == "cylinder" and face > 0) or kind in ("cone", "paraboloid")
 
 
@@ -163,7 +163,7 @@ class PHOTON_LIGHTMAPS_OT_csg_primitive_add(bpy.types.Operator):
 
     kind: EnumProperty(
         name="Kind", default="sphere",
-        items=[(k, k.capitalize(), f"Exact {k} (engine/primitives.py canonical {k})") for k in SOLID_KINDS])
+        items=[(k, k.capitalize(), f"Exact {k} (engine/geometry/primitives.py canonical {k})") for k in SOLID_KINDS])
     size: FloatProperty(
         name="Size", default=1.0, min=1e-4, soft_max=100.0, unit="LENGTH",
         description="Uniform object scale: the radius, or the half-extent of the box")

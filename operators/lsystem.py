@@ -8,7 +8,7 @@ from bpy.props import EnumProperty, FloatVectorProperty
 
 from .. import messages
 from ..bake.lsystem_preview import check_texts, new_lsystem_object, update_preview
-from ..export import lsystems as L
+from ..export import lsystems
 from .common import select_only
 
 # Editing a Text does not re-evaluate Geometry Nodes: the timer polls the grammar texts.
@@ -38,7 +38,7 @@ def unregister_timer():
 
 # ---------------------------------------------------------------- operators
 
-_PRESET_ITEMS = [(n, lab, desc) for n, lab, desc in L.presets()]
+_PRESET_ITEMS = [(n, lab, desc) for n, lab, desc in lsystems.presets()]
 
 
 class PHOTON_LIGHTMAPS_OT_lsystem_add(bpy.types.Operator):
@@ -72,7 +72,7 @@ class PHOTON_LIGHTMAPS_OT_lsystem_update(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return L.is_lsystem(context.object)
+        return lsystems.is_lsystem(context.object)
 
     def execute(self, context):
         status = update_preview(context.object)
@@ -97,11 +97,11 @@ class PHOTON_LIGHTMAPS_OT_lsystem_edit_text(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return L.is_lsystem(context.object) and text_editor_area(context) is not None
+        return lsystems.is_lsystem(context.object) and text_editor_area(context) is not None
 
     def execute(self, context):
         area = text_editor_area(context)
-        area.spaces.active.text = L.grammar_text(context.object)
+        area.spaces.active.text = lsystems.grammar_text(context.object)
         return {"FINISHED"}
 
 

@@ -1,6 +1,6 @@
 """Operators for orientation lightmaps (thesis ch. 6; export.py reads them):
 Add Orientation Lightmap to Collection, Remove Orientation Lightmap, Suggest
-Orientation Lightmaps (engine/ol_planner.py) and Bake Orientation Lightmaps
+Orientation Lightmaps (engine/transport/ol_planner.py) and Bake Orientation Lightmaps
 (bake/orientation.py).
 
 An OL is an Empty shown as a sphere, sized to its collection's bounds and
@@ -96,7 +96,7 @@ def suggest(context, *, photons=None, pilot_photons=30_000, min_photons_per_texe
     Returns (all proposals, kept: {collection name: Proposal}) where kept are
     the proposed ones not nested inside another proposed collection (their
     savings would be counted twice)."""
-    from ..engine.ol_planner import plan
+    from ..engine.transport.ol_planner import plan
     from ..export import export_scene
     scene = context.scene
     settings = session.Settings.read(scene.photon_lightmaps, photons=photons or None)

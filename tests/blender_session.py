@@ -22,11 +22,11 @@ def addon():
 def bake_uv_cache(tmp_path_factory, monkeypatch):
     """xatlas results go to a per-session folder, not the user's cache; the bake's
     kept photon pass is dropped before and after the test."""
-    from photon_lightmaps import bake as B
+    from photon_lightmaps import bake
     monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(tmp_path_factory.getbasetemp() / "uvcache"))
-    B.clear_cache()
+    bake.clear_cache()
     yield
-    B.clear_cache()
+    bake.clear_cache()
 
 
 def read_image(path):

@@ -19,7 +19,7 @@ A(s) : s > 0.2 --> F(s) !(s * 0.1) [ + A(s * 0.7) ] [ - ;(1) A(s * 0.6) @O(0.05)
 
 def quadrature_area(flat, n=24):
     """Total area of flattened primitives (dcsg.Flattened) by the midpoint rule per chart."""
-    from photon_lightmaps.engine.primitives import prim_nfaces, prim_point
+    from photon_lightmaps.engine.geometry.primitives import prim_nfaces, prim_point
     total = 0.0
     for kind, params, xf in zip(flat.kind, flat.params, flat.transform):
         L = xf[:, :3]

@@ -3,7 +3,9 @@
 engine < messages < export < bake < operators < ui < top (the package __init__,
 registration, cli, __main__, demo_blend): a module imports only from its own
 rank or a lower one, nothing under engine/ imports bpy, and no two packages
-import each other.
+import each other. Inside the engine, the same for its sub-packages:
+core < lsystem < geometry < lightmaps < shading < transport < the pipeline
+modules at engine/ itself (compile, session, warmup, ...).
 """
 import ast
 import os
@@ -11,6 +13,8 @@ import os
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RANKS = {"engine": 0, "messages": 1, "export": 2, "bake": 3, "operators": 4, "ui": 5}
 TOP = 6
+ENGINE_RANKS = {"core": 0, "lsystem": 1, "geometry": 2, "lightmaps": 3, "shading": 4, "transport": 5}
+ENGINE_TOP = 6
 SKIP = {"tests", "benchmarks", "scripts", "docs", ".venv", "wheels", "dist", "out", "__pycache__"}
 
 
@@ -104,3 +108,48 @@ def test_the_ranks_cover_the_layout():
     packages = {d for d in os.listdir(ROOT) if os.path.isfile(os.path.join(ROOT, d, "__init__.py"))
                 and d not in SKIP}
     assert packages <= set(RANKS), packages - set(RANKS)
+
+
+def _engine_edges():
+    """(module, line, its engine unit, imported engine unit) for every import inside
+    engine/; a unit is a sub-package, or the module's name at engine/ itself."""
+    def unit(parts):               # parts below engine/
+        head = parts[0].removesuffix(".py") if parts else ""
+        return head if head in ENGINE_RANKS else "pipeline"
+    out = []
+    for rel, path in _modules():
+        parts = rel.split("/")
+        if parts[0] != "engine":
+            continue
+        with open(path, encoding="utf-8") as f:
+            tree = ast.parse(f.read(), rel)
+        pkg = parts[1:-1]          # package path below engine/
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.level > 0:
+                up = node.level - 1
+                if up > len(pkg):
+                    continue       # above engine/: the rank test above covers it
+                base = pkg[:len(pkg) - up] + (node.module.split(".") if node.module else [])
+                targets = [base] if base else [[a.name] for a in node.names]
+            elif isinstance(node, (ast.Import, ast.ImportFrom)):
+                names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+                targets = [n.split(".")[2:] for n in names if n.startswith("photon_lightmaps.engine.")]
+            else:
+                continue
+            for t in targets:
+                out.append((rel, node.lineno, unit(parts[1:]), unit(t)))
+    return out
+
+
+def test_no_engine_module_imports_from_a_higher_engine_rank():
+    rank = lambda u: ENGINE_RANKS.get(u, ENGINE_TOP)   # noqa: E731
+    edges = _engine_edges()
+    assert len(edges) > 200        # the walk sees the engine's imports
+    bad = [f"{rel}:{line} ({src}) imports {dst}" for rel, line, src, dst in edges if rank(dst) > rank(src)]
+    assert not bad, "\n".join(bad)
+
+
+def test_the_engine_ranks_cover_its_packages():
+    eng = os.path.join(ROOT, "engine")
+    packages = {d for d in os.listdir(eng) if os.path.isfile(os.path.join(eng, d, "__init__.py"))}
+    assert packages == set(ENGINE_RANKS), packages ^ set(ENGINE_RANKS)

@@ -5,14 +5,14 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine import demo_scenes
-from photon_lightmaps.engine import lightmap as LM
-from photon_lightmaps.engine.memory_budget import BudgetError
+from photon_lightmaps.engine.lightmaps import lightmap
+from photon_lightmaps.engine.core.memory_budget import BudgetError
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import trace_photons
-from photon_lightmaps.engine.renderer import render
-from photon_lightmaps.engine.scene import (Camera, Instance, Light, Material, OrientationLightmap, Primitive,
-                                           Prototype, Scene, SceneError, TriangleMesh, compose, scale,
-                                           translate)
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+from photon_lightmaps.engine.transport.renderer import render
+from photon_lightmaps.engine.core.scene import (
+    Camera, Instance, Light, Material, OrientationLightmap, Primitive, Prototype, Scene,
+    SceneError, TriangleMesh, compose, scale, translate)
 
 
 def run_all(scene, photons=5000):
@@ -65,7 +65,7 @@ def test_degenerate_triangles_are_dropped_and_counted():
 
 def _lightmap_of(cs, inst):
     lid = cs.instance_lightmaps[inst][0]
-    return LM.texel_slice(cs.lightmaps, lid)
+    return lightmap.texel_slice(cs.lightmaps, lid)
 
 
 def test_zero_uv_area_triangles_own_no_texels_and_record_no_photons():
@@ -99,13 +99,13 @@ def test_sliver_texels_never_give_absurd_irradiance():
     s.add_object(TriangleMesh(v, np.array([[0, 2, 1], [0, 3, 2]]), uvs=uv, name="grazing"),
                  name="grazing", lightmap_resolution=4)
     cs, stats, img = run_all(s, photons=40000)
-    LM.finalize(cs.lightmaps)
+    lightmap.finalize(cs.lightmaps)
     sl = _lightmap_of(cs, -1)
     area, irr = cs.lightmaps.area[sl], cs.lightmaps.irradiance[sl]
     full = area > 0.1 * area.max()
     sliver = (area > 0) & ~full
     assert sliver.any() and full.sum() == 4
-    assert np.all(cs.lightmaps.state[sl][sliver] != LM.STATE_MEASURED)
+    assert np.all(cs.lightmaps.state[sl][sliver] != lightmap.STATE_MEASURED)
     assert irr.max() <= 2.0 * irr[full].max()
 
 
@@ -160,7 +160,7 @@ def test_emptied_meshes_take_no_lightmap_slot():
         assert all(0 <= k < n_lm for k in ids)
     assert cs.instance_lightmaps[-3:-1] == [[cs.instance_lightmaps[-3][0]], []]
     # the sphere after the emptied prototype records into its own lightmap
-    assert lm.hits[LM.texel_slice(lm, cs.instance_lightmaps[-1][0])].sum() > 0
+    assert lm.hits[lightmap.texel_slice(lm, cs.instance_lightmaps[-1][0])].sum() > 0
 
 
 @pytest.mark.parametrize("k", [1e-6, 1e7], ids=["tiny", "huge"])
@@ -243,8 +243,8 @@ def test_unwrap_failure_falls_back_to_the_fast_layout(monkeypatch):
     box-projection layout and keeps its own lightmap; the warning names the
     mesh. Only where that layout cannot fit either is the object lit through
     an automatic OL."""
-    from photon_lightmaps.engine import fast_layout as FL
-    from photon_lightmaps.engine import uv_atlas as UA
+    from photon_lightmaps.engine.lightmaps import fast_layout as FL
+    from photon_lightmaps.engine.lightmaps import uv_atlas as UA
     s = small_scene()
     s.add_object(demo_scenes.uv_sphere_mesh(0.3, 8, 16), translate(0, 0, 0.5), name="ball")
     s.prototypes[-1].meshes[0].name = "ball"
@@ -259,7 +259,7 @@ def test_unwrap_failure_falls_back_to_the_fast_layout(monkeypatch):
     assert row["layout"] == "fast layout" and "SIGSEGV" in row["reason"]
     assert not cs.info.get("orientation_lightmaps") and cs.geometry.inst_lm_base[-1] >= 0
     lid = int(cs.instance_lightmaps[-1][0])
-    assert cs.lightmaps.hits[LM.texel_slice(cs.lightmaps, lid)].sum() > 0
+    assert cs.lightmaps.hits[lightmap.texel_slice(cs.lightmaps, lid)].sum() > 0
 
     def no_fit(*args, **kw):
         raise FL.LayoutError("224 separate charts do not fit a 1024×1024 lightmap 3 texels apart")
@@ -271,7 +271,7 @@ def test_unwrap_failure_falls_back_to_the_fast_layout(monkeypatch):
     assert [r["name"] for r in rows] == ["ball (automatic)"] and rows[0]["instances"] == 1
     k = int(cs.orientation.inst_ol[-1])
     assert k == 0 and cs.geometry.inst_lm_base[-1] == -1
-    assert cs.lightmaps.hits[LM.texel_slice(cs.lightmaps, int(cs.orientation.lid[k]))].sum() > 0
+    assert cs.lightmaps.hits[lightmap.texel_slice(cs.lightmaps, int(cs.orientation.lid[k]))].sum() > 0
     assert s.prototypes[-1].meshes[0].uvs is None     # the caller's scene is not modified
 
 

@@ -18,15 +18,15 @@ import types
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
-from photon_lightmaps import bake as B  # noqa: E402
+from photon_lightmaps import bake  # noqa: E402
 from photon_lightmaps import cli, messages  # noqa: E402
 from photon_lightmaps.bake import images as B_images  # noqa: E402
 from photon_lightmaps.bake import render as render_engine  # noqa: E402
 from photon_lightmaps.engine import session  # noqa: E402
 from photon_lightmaps.export import uv_layers  # noqa: E402
-from photon_lightmaps.engine.scene import SceneError  # noqa: E402
+from photon_lightmaps.engine.core.scene import SceneError  # noqa: E402
 
 from blender_session import addon, bake_uv_cache  # noqa: E402,F401  (session-wide registration)
 
@@ -280,14 +280,14 @@ def test_failed_or_cancelled_bake_leaves_user_data_identical(monkeypatch):
     floor, box = bpy.data.objects["floor"], bpy.data.objects["box"]
     # An earlier bake made the floor's Lightmap layer and image; then the floor was edited,
     # so the next bake would unwrap it again (UPDATED) and the box gets a new layer (CREATED).
-    B.bake_objects(bpy.context, [floor], photons=2000, seed=0, resolution=8)
+    bake.bake_objects(bpy.context, [floor], photons=2000, seed=0, resolution=8)
     floor.data.vertices[0].co.x -= 0.5
     before = user_data()
     assert "Lightmap" in [l.name for l in floor.data.uv_layers] and "floor_Lightmap" in before["images"]
     for exc in (SceneError("texel density: needs more memory than this machine has"), RuntimeError("bug")):
         _fail_late(monkeypatch, exc)
         with pytest.raises(type(exc)):
-            B.bake_objects(bpy.context, [floor, box], photons=2000, seed=1, resolution=8, overwrite=True,
+            bake.bake_objects(bpy.context, [floor, box], photons=2000, seed=1, resolution=8, overwrite=True,
                            hook_materials=True)
         assert user_data() == before
         # The operator (blocking, as in background mode) rolls back the same way.
@@ -300,8 +300,8 @@ def test_failed_or_cancelled_bake_leaves_user_data_identical(monkeypatch):
                                "internal error: RuntimeError: bug")
         monkeypatch.undo()
     # Cancelled in the photon pass: nothing changes either.
-    with pytest.raises(B.Cancelled):
-        B.bake_objects(bpy.context, [floor, box], photons=50_000, seed=1, resolution=8,
+    with pytest.raises(bake.Cancelled):
+        bake.bake_objects(bpy.context, [floor, box], photons=50_000, seed=1, resolution=8,
                        progress=lambda done, total: False)
     assert user_data() == before
     assert "Lightmap" not in box.data.uv_layers

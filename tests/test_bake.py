@@ -15,15 +15,15 @@ import time
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
 import photon_lightmaps  # noqa: E402
-from photon_lightmaps import bake as B  # noqa: E402
+from photon_lightmaps import bake  # noqa: E402
 from photon_lightmaps import demo_blend, registration  # noqa: E402
 from photon_lightmaps.engine.session import Settings  # noqa: E402
 from photon_lightmaps.export import uv_layers  # noqa: E402
 from photon_lightmaps.operators.render_engine import PhotonLightmapsRenderEngine  # noqa: E402
-from photon_lightmaps.engine.photon_tracer import Cancelled  # noqa: E402
+from photon_lightmaps.engine.core.errors import Cancelled  # noqa: E402
 
 
 from blender_session import addon, bake_uv_cache, cycles_diffuse_bake  # noqa: E402,F401  (session-wide registration)
@@ -111,7 +111,7 @@ EXR_ZIP, EXR_FLOAT = 3, 2
 
 CYCLES_OBJECTS = ("floor", "ceiling", "left", "tall_box")   # ceiling: indirect light only
 RES = 64
-# Direct light is gathered per texel (engine/texel_gather.py), photons carry only the
+# Direct light is gathered per texel (engine/transport/texel_gather.py), photons carry only the
 # indirect part. Measured relative RMSE vs Cycles: 1 M photons (the default) 0.095,
 # 4 M 0.060, 16 M 0.047 (before the gather: 1 M 0.128). At 1 M the rest is the
 # indirect photon noise of single texels (ceiling, indirect only: 0.16), so the
@@ -130,11 +130,11 @@ def test_cycles_diffuse_bake_agreement():
     objs = [bpy.data.objects[n] for n in CYCLES_OBJECTS]
     t0 = time.perf_counter()
     # the thesis's bake (each texel's own photons) converges with photons ...
-    res = B.bake_objects(bpy.context, objs, photons=PHOTONS, seed=3, resolution=RES, indirect="LOOKUP")
+    res = bake.bake_objects(bpy.context, objs, photons=PHOTONS, seed=3, resolution=RES, indirect="LOOKUP")
     t_ours = time.perf_counter() - t0
     assert set(res.maps) == set(CYCLES_OBJECTS)
-    # ... and the default one (final gather, engine/bake_gather.py) at the default photon count
-    res_default = B.bake_objects(bpy.context, objs, photons=DEFAULT_PHOTONS, seed=3, resolution=RES)
+    # ... and the default one (final gather, engine/transport/bake_gather.py) at the default photon count
+    res_default = bake.bake_objects(bpy.context, objs, photons=DEFAULT_PHOTONS, seed=3, resolution=RES)
     assert res_default.gathered
 
     t0 = time.perf_counter()
@@ -177,7 +177,7 @@ def test_texel_xy_is_image_pixel_xy_with_y_up():
     demo_blend.build_light_test_blend("POINT_HARD")
     light = bpy.data.objects["light"]
     light.location = (1.5, 0.75, 0.6)      # floor spans [-3, 3]²; UV (u, v) = ((x+3)/6, (y+3)/6)
-    res = B.bake_objects(bpy.context, [bpy.data.objects["floor"]], photons=300_000, seed=1,
+    res = bake.bake_objects(bpy.context, [bpy.data.objects["floor"]], photons=300_000, seed=1,
                          resolution=24)
     img = bpy.data.images[res.images["floor"]]
     px = pixels(img)
@@ -210,7 +210,7 @@ def test_existing_lightmap_layer_and_uv_flags_untouched():
         me.uv_layers.active = me.uv_layers["UVMap"]
     floor_before = uv_data(floor.data, "Lightmap")
     flags = {ob.name: uv_flags(ob.data) for ob in (floor, box)}
-    res = B.bake_objects(bpy.context, [floor, box], photons=100_000, seed=0, resolution=32)
+    res = bake.bake_objects(bpy.context, [floor, box], photons=100_000, seed=0, resolution=32)
     assert res.uv_layers == {"floor": uv_layers.USER, "tall_box": uv_layers.CREATED}
     assert np.array_equal(uv_data(floor.data, "Lightmap"), floor_before)  # bit-identical
     assert uv_layers.HASH_PROP not in floor.data
@@ -238,27 +238,27 @@ def test_unwraps_run_first_on_a_worker_thread_and_the_bake_tells_its_phases():
     thread, with an estimate) run on a worker thread into the unwrap cache; the
     export then starts no xatlas worker; the bake tells each phase as it starts."""
     import threading
-    from photon_lightmaps.engine import uv_atlas as UA
+    from photon_lightmaps.engine.lightmaps import uv_atlas as UA
     demo_blend.build_cornell_blend()
     floor, box = bpy.data.objects["floor"], bpy.data.objects["tall_box"]
     box.data.vertices[0].co.z += 0.0123          # geometry no other test has unwrapped
-    plan = B.unwrap_plan(bpy.context, [floor, box], resolution=16)
+    plan = bake.unwrap_plan(bpy.context, [floor, box], resolution=16)
     assert [(name, side) for name, _, _, side in plan] == [("tall_box", 16)]   # the floor has its own layer
-    assert B.unwrap_seconds(sum(t.shape[0] for _, _, t, _ in plan)) < 1.0
+    assert bake.unwrap_seconds(sum(t.shape[0] for _, _, t, _ in plan)) < 1.0
     seen = []
-    worker = threading.Thread(target=B.run_unwraps, args=(plan, lambda done, total: seen.append((done, total))))
+    worker = threading.Thread(target=bake.run_unwraps, args=(plan, lambda done, total: seen.append((done, total))))
     worker.start()
     worker.join()
     assert seen[-1] == (1, 1)
     before = UA.worker_launches
-    job = B.prepare_bake(bpy.context, [floor, box], photons=50_000, seed=0, resolution=16)
+    job = bake.prepare_bake(bpy.context, [floor, box], photons=50_000, seed=0, resolution=16)
     try:
         assert UA.worker_launches == before and job.result.uv_layers["tall_box"] == uv_layers.CREATED
-        assert B.unwrap_plan(bpy.context, [floor, box], resolution=16) == []
+        assert bake.unwrap_plan(bpy.context, [floor, box], resolution=16) == []
         phases = []
-        B.compute_bake(job, phase=lambda name, detail: phases.append((name, detail)))
+        bake.compute_bake(job, phase=lambda name, detail: phases.append((name, detail)))
     finally:
-        B.rollback_bake(job)
+        bake.rollback_bake(job)
     told = [(n, d) for n, d in phases if n != "kernels"]
     texels = f"{2 * 16 * 16:,} texels"
     assert told == [("scene", f"{len(job.scene.instances):,} objects"), ("direct", texels),
@@ -271,7 +271,7 @@ def test_xatlas_layer_for_polygons_split_across_charts():
     bpy.ops.mesh.primitive_monkey_add()
     me = bpy.context.object.data
     v, tv, tl, tp = uv_layers.mesh_triangles(me)
-    from photon_lightmaps.engine import uv_atlas
+    from photon_lightmaps.engine.lightmaps import uv_atlas
     raw = uv_atlas.unwrap_atlas(v, tv, resolution=64)
     assert uv_layers._inconsistent_polygons(raw.uv, raw.chart, tl, tp, len(me.loops)).size > 0
     assert uv_layers.ensure_lightmap_uv(me, resolution=64) == uv_layers.CREATED
@@ -302,14 +302,14 @@ def test_existing_image_is_not_replaced_unless_overwrite():
     user = bpy.data.images.new("floor_Lightmap", 8, 8)           # the user's byte image
     user.pixels.foreach_set(np.linspace(0, 1, 256, dtype=np.float32))
     before = pixels(user).copy()
-    res = B.bake_objects(bpy.context, [floor], photons=50_000, seed=0, resolution=16)
+    res = bake.bake_objects(bpy.context, [floor], photons=50_000, seed=0, resolution=16)
     name = res.images["floor"]
     assert name != "floor_Lightmap" and name.startswith("floor_Lightmap")
     assert any("already exists" in w for w in res.warnings)
     assert np.array_equal(pixels(bpy.data.images["floor_Lightmap"]), before)
     # A second bake updates our own image instead of adding another.
     n_images = len(bpy.data.images)
-    res2 = B.bake_objects(bpy.context, [floor], photons=50_000, seed=1, resolution=16)
+    res2 = bake.bake_objects(bpy.context, [floor], photons=50_000, seed=1, resolution=16)
     assert res2.images["floor"] == name and len(bpy.data.images) == n_images
     assert np.array_equal(pixels(bpy.data.images["floor_Lightmap"]), before)
     # With overwrite the user's image is replaced (and keeps its users: remapped).
@@ -317,7 +317,7 @@ def test_existing_image_is_not_replaced_unless_overwrite():
     node = mat.node_tree.nodes.new("ShaderNodeTexImage")
     node.image = user
     bpy.data.images.remove(bpy.data.images[name])
-    res3 = B.bake_objects(bpy.context, [floor], photons=50_000, seed=1, resolution=16, overwrite=True)
+    res3 = bake.bake_objects(bpy.context, [floor], photons=50_000, seed=1, resolution=16, overwrite=True)
     assert res3.images["floor"] == "floor_Lightmap"
     img = bpy.data.images["floor_Lightmap"]
     assert img.is_float and tuple(img.size) == (16, 16) and node.image == img
@@ -327,7 +327,7 @@ def test_existing_image_is_not_replaced_unless_overwrite():
 def test_images_saved_next_to_the_blend_or_packed(tmp_path):
     demo_blend.build_cornell_blend(path=tmp_path / "room.blend")
     floor, box = bpy.data.objects["floor"], bpy.data.objects["tall_box"]
-    res = B.bake_objects(bpy.context, [floor], photons=50_000, seed=0, resolution=16)
+    res = bake.bake_objects(bpy.context, [floor], photons=50_000, seed=0, resolution=16)
     path = tmp_path / "lightmaps" / "floor.exr"
     assert res.paths["floor"] == str(path) and path.is_file()
     img = bpy.data.images[res.images["floor"]]
@@ -336,7 +336,7 @@ def test_images_saved_next_to_the_blend_or_packed(tmp_path):
     assert np.array_equal(pixels(img), res.maps["floor"].rgba)       # 32-bit float, alpha as stored
     hdr = exr_header(path)
     assert hdr["compression"] == EXR_ZIP and sorted(hdr["channels"]) == [(c, EXR_FLOAT) for c in "ABGR"]
-    res = B.bake_objects(bpy.context, [box], photons=50_000, seed=0, resolution=16, pack=True)
+    res = bake.bake_objects(bpy.context, [box], photons=50_000, seed=0, resolution=16, pack=True)
     img = bpy.data.images[res.images["tall_box"]]
     assert res.paths["tall_box"] is None and img.packed_file is not None
     assert img.packed_file.data[:4] == b"\x76\x2f\x31\x01"          # OpenEXR inside
@@ -347,7 +347,7 @@ def test_images_saved_next_to_the_blend_or_packed(tmp_path):
 def test_cancelled_bake_leaves_images_unchanged():
     demo_blend.build_cornell_blend()
     floor, box = bpy.data.objects["floor"], bpy.data.objects["tall_box"]
-    res = B.bake_objects(bpy.context, [floor, box], photons=100_000, seed=0, resolution=16)
+    res = bake.bake_objects(bpy.context, [floor, box], photons=100_000, seed=0, resolution=16)
     before = {n: pixels(bpy.data.images[i]).copy() for n, i in res.images.items()}
     n_images = len(bpy.data.images)
     calls = []
@@ -357,7 +357,7 @@ def test_cancelled_bake_leaves_images_unchanged():
         return False
 
     with pytest.raises(Cancelled):
-        B.bake_objects(bpy.context, [floor, box], photons=400_000, seed=7, resolution=16,
+        bake.bake_objects(bpy.context, [floor, box], photons=400_000, seed=7, resolution=16,
                        progress=progress, overwrite=True)
     assert calls and calls[-1] < 400_000
     assert len(bpy.data.images) == n_images
@@ -379,9 +379,9 @@ def test_operator_bake_and_hook_removal_restore_the_material():
     select_only(floor)
     assert bpy.ops.photon_lightmaps.bake(photons=50_000, resolution=16, hook_materials=True) == {"FINISHED"}
     img = bpy.data.images["floor_Lightmap"]
-    assert img.is_float and img.get(B.OWNER_PROP) == "floor"
-    ours = [n for n in tree.nodes if n.get(B.HOOK_PROP)]
-    assert ours and all(n.name.startswith(B.HOOK_PREFIX) for n in ours)
+    assert img.is_float and img.get(bake.OWNER_PROP) == "floor"
+    ours = [n for n in tree.nodes if n.get(bake.HOOK_PROP)]
+    assert ours and all(n.name.startswith(bake.HOOK_PREFIX) for n in ours)
     out = next(n for n in ours if n.bl_idname == "ShaderNodeOutputMaterial")
     assert out.target == "EEVEE" and out.inputs["Surface"].is_linked
     tex = next(n for n in ours if n.bl_idname == "ShaderNodeTexImage")
@@ -393,13 +393,13 @@ def test_operator_bake_and_hook_removal_restore_the_material():
     assert user_out == before[2]
     # Baking again refreshes the hook instead of stacking a second one.
     assert bpy.ops.photon_lightmaps.bake(photons=50_000, resolution=16, hook_materials=True) == {"FINISHED"}
-    assert len([n for n in tree.nodes if n.get(B.HOOK_PROP)]) == len(ours)
+    assert len([n for n in tree.nodes if n.get(bake.HOOK_PROP)]) == len(ours)
     # The shared material is reported by the bake function too.
-    res = B.bake_objects(bpy.context, [floor], photons=20_000, seed=0, resolution=16, hook_materials=True)
+    res = bake.bake_objects(bpy.context, [floor], photons=20_000, seed=0, resolution=16, hook_materials=True)
     assert any("shared with objects not baked" in w and "ceiling" in w for w in res.warnings)
     assert bpy.ops.photon_lightmaps.remove_lightmap_hook() == {"FINISHED"}
     assert snapshot() == before
-    assert not any(ng.get(B.HOOK_PROP) for ng in bpy.data.node_groups)
+    assert not any(ng.get(bake.HOOK_PROP) for ng in bpy.data.node_groups)
 
 
 # --------------------------------------------------------------------------------------
@@ -420,7 +420,7 @@ def test_blender_bake_api_matches_bake_objects():
     floor, box = bpy.data.objects["floor"], bpy.data.objects["tall_box"]
     box.modifiers.new("bevel", "BEVEL").width = 0.05   # the bake mesh is the evaluated one
     # Blender's Bake button reads the photon lookup (bake_api.py); the final gather is bake_objects' alone
-    res = B.bake_objects(bpy.context, [floor, box], photons=200_000, seed=scene.photon_lightmaps.seed,
+    res = bake.bake_objects(bpy.context, [floor, box], photons=200_000, seed=scene.photon_lightmaps.seed,
                          indirect="LOOKUP")
     for ob in (floor, box):
         ref = res.maps[ob.name].rgba
@@ -457,7 +457,7 @@ def test_blender_bake_api_cancel_and_errors_keep_the_image(monkeypatch):
     assert first[..., :3].max() > 0
     # Esc in Blender: test_break() turns True; the image must come back as it was.
     # (RNA's test_break cannot be patched from Python; the engine reads it through this.)
-    B.clear_cache()
+    bake.clear_cache()
     bpy.context.scene.photon_lightmaps.seed = 9
     stops = []
     monkeypatch.setattr(PhotonLightmapsRenderEngine, "_photon_should_stop", lambda self: stops.append(1) or len(stops) > 1)
@@ -545,11 +545,11 @@ def test_a_bake_of_one_object_aims_its_photons_at_it():
     bpy.context.view_layer.update()
     aims = []
     for objects in ([cube], [cube, ground]):
-        job = B.prepare_bake(bpy.context, objects, photons=20_000, seed=0, resolution=8)
+        job = bake.prepare_bake(bpy.context, objects, photons=20_000, seed=0, resolution=8)
         try:
-            B.compute_bake(job)
+            bake.compute_bake(job)
         finally:
-            B.rollback_bake(job)
+            bake.rollback_bake(job)
         aims.append(job.result.stats.aim)
     centre, radius = aims[0]
     np.testing.assert_allclose(centre, [0.0, 0.0, 0.5], atol=1e-5)

@@ -10,9 +10,9 @@ import json
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
-from photon_lightmaps import bake as B  # noqa: E402
+from photon_lightmaps import bake  # noqa: E402
 from photon_lightmaps.engine.session import Settings  # noqa: E402
 
 import bias_scenes as BS  # noqa: E402
@@ -66,11 +66,11 @@ def test_gathered_bake_is_unbiased(scene):
     ref, meta = reference()
     BS.build(scene)
     objs = BS.bake_objects()
-    gathered = B.bake_objects(bpy.context, objs, seed=3, resolution=BS.RES, irradiance_cache=False)
+    gathered = bake.bake_objects(bpy.context, objs, seed=3, resolution=BS.RES, irradiance_cache=False)
     assert gathered.gathered and not gathered.skipped and not gathered.irradiance_cache
-    lookup = B.bake_objects(bpy.context, objs, photons=LOOKUP_PHOTONS, seed=4, resolution=BS.RES,
+    lookup = bake.bake_objects(bpy.context, objs, photons=LOOKUP_PHOTONS, seed=4, resolution=BS.RES,
                             indirect="LOOKUP")
-    cached = B.bake_objects(bpy.context, objs, seed=3, resolution=BS.RES)     # the default: through the cache
+    cached = bake.bake_objects(bpy.context, objs, seed=3, resolution=BS.RES)     # the default: through the cache
     assert cached.irradiance_cache["records"] > 0
     g = object_means(gathered.maps, ref, scene)
     lk = object_means(lookup.maps, ref, scene)

@@ -11,15 +11,15 @@ import math
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
-from photon_lightmaps import bake as B  # noqa: E402
+from photon_lightmaps import bake  # noqa: E402
 from photon_lightmaps.export import uv_layers  # noqa: E402
-from photon_lightmaps.engine import csg_bake  # noqa: E402
-from photon_lightmaps.engine import lightmap as LM  # noqa: E402
-from photon_lightmaps.engine import primitives as P  # noqa: E402
-from photon_lightmaps.engine.photon_tracer import Cancelled  # noqa: E402
-from photon_lightmaps.operators import csg_primitives as CP  # noqa: E402
+from photon_lightmaps.engine.transport import csg_bake  # noqa: E402
+from photon_lightmaps.engine.lightmaps import lightmap  # noqa: E402
+from photon_lightmaps.engine.geometry import primitives  # noqa: E402
+from photon_lightmaps.engine.core.errors import Cancelled  # noqa: E402
+from photon_lightmaps.operators import csg_primitives  # noqa: E402
 
 from blender_session import addon  # noqa: E402,F401  (session-wide registration)
 
@@ -63,8 +63,8 @@ def point_light(location=LIGHT, power=POWER):
 
 
 def cylinder_minus_sphere():
-    cyl = CP.new_primitive_object("cylinder", "Cyl", segments=32, material=material("CylMat", (0.8, 0.8, 0.8)))
-    sph = CP.new_primitive_object("sphere", "Sph", location=(0, 0, 1.0), segments=32,
+    cyl = csg_primitives.new_primitive_object("cylinder", "Cyl", segments=32, material=material("CylMat", (0.8, 0.8, 0.8)))
+    sph = csg_primitives.new_primitive_object("sphere", "Sph", location=(0, 0, 1.0), segments=32,
                                   material=material("SphMat", (0.6, 0.7, 0.8)))
     sph.scale = (0.7,) * 3
     difference(cyl, sph)
@@ -74,10 +74,10 @@ def cylinder_minus_sphere():
 def slotted_slab():
     """A 2 x 2 x 1 box (top at z = 1.5) cut through by a slot 0.04 wide at x in [4.01, 4.05]:
     texel columns of width 0.125 straddling the slot fall apart into an 8% and a 60% part."""
-    slab = CP.new_primitive_object("box", "Slab", location=(4.0, 0.0, 1.0),
+    slab = csg_primitives.new_primitive_object("box", "Slab", location=(4.0, 0.0, 1.0),
                                    material=material("SlabMat", (0.8, 0.8, 0.8)))
     slab.scale = (1.0, 1.0, 0.5)
-    slot = CP.new_primitive_object("box", "Slot", location=(4.03, 0.0, 1.0))
+    slot = csg_primitives.new_primitive_object("box", "Slot", location=(4.03, 0.0, 1.0))
     slot.scale = (0.02, 2.0, 2.0)
     difference(slab, slot)
     return slab, slot
@@ -91,14 +91,14 @@ def block(bm, leaf):
 @pytest.fixture(scope="module")
 def baked():
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    B.clear_cache()
+    bake.clear_cache()
     cyl, sph = cylinder_minus_sphere()
     slab, slot = slotted_slab()
     point_light()
     objs = [cyl, sph, slab, slot]
-    job = B.prepare_bake(bpy.context, objs, photons=200_000, seed=5, resolution=RES, error_images=True)
-    B.compute_bake(job)
-    res = B.commit_bake(job, hook_materials=True)
+    job = bake.prepare_bake(bpy.context, objs, photons=200_000, seed=5, resolution=RES, error_images=True)
+    bake.compute_bake(job)
+    res = bake.commit_bake(job, hook_materials=True)
     return job, res
 
 
@@ -117,7 +117,7 @@ def test_one_image_per_solid_and_operands_are_part_of_it(baked):
         assert np.array_equal(pixels(img), bm.rgba)
         # blocks keep square texels: F faces x R by R texels
         for leaf, (x, y, w, h) in bm.tiles.items():
-            F = int(P.N_FACES[P.KIND_IDS[bpy.data.objects[leaf]["photon_csg_primitive"]]])
+            F = int(primitives.N_FACES[primitives.KIND_IDS[bpy.data.objects[leaf]["photon_csg_primitive"]]])
             assert (w, h) == (F * RES, RES)
     # hooked: the base's material and the cutter's (which the Boolean result carries over)
     assert {"CylMat", "SphMat", "SlabMat"} <= set(res.hooked)
@@ -149,7 +149,7 @@ def test_visible_texels_lie_exactly_in_their_leaf_blocks(baked):
         for d in csg_bake.solid_leaves(cs, job.targets[name]):
             x, y, w, h = bm.tiles[d["name"]]
             inside[y:y + h, x:x + w] = True
-            sl = LM.texel_slice(lm, d["lightmap"])
+            sl = lightmap.texel_slice(lm, d["lightmap"])
             vis = lm.area[sl].copy()
             for j in np.flatnonzero(lm.split[sl] >= 0):
                 vis[j] = lm.area[csg_bake.split_regions(lm, sl.start + j)].sum()
@@ -167,7 +167,7 @@ def test_pixels_are_the_lightmap_and_split_texels_their_dominant_region(baked):
     n_split = n_not_first = 0
     for name, bm in res.maps.items():
         for d in csg_bake.solid_leaves(job.cs, job.targets[name]):
-            sl = LM.texel_slice(lm, d["lightmap"])
+            sl = lightmap.texel_slice(lm, d["lightmap"])
             px = block(bm, d["name"]).reshape(-1, 4)
             rows = np.arange(sl.start, sl.stop)
             plain = lm.split[sl] < 0
@@ -199,7 +199,7 @@ def test_top_face_matches_the_analytic_point_light(baked):
     L = np.array(LIGHT)
     got, want = [], []
     for y, x in zip(*np.nonzero(full)):
-        pts = np.array([P.prim_point(np.int32(P.BOX), p4, np.int64(4), (x + a) / RES, (y + b) / RES)[:3]
+        pts = np.array([primitives.prim_point(np.int32(primitives.BOX), p4, np.int64(4), (x + a) / RES, (y + b) / RES)[:3]
                         for a in g for b in g])
         w = pts @ M[:3, :3].T + M[:3, 3]
         assert np.allclose(w[:, 2], SLAB_TOP)
@@ -246,11 +246,11 @@ def test_evaluated_boolean_uvs_fall_in_their_operands_blocks(baked):
             counts[leaf] += 1
             o, s = rects[leaf]
             ob = bpy.data.objects[leaf]
-            kind = P.KIND_IDS[ob["photon_csg_primitive"]]
-            F = int(P.N_FACES[kind])
+            kind = primitives.KIND_IDS[ob["photon_csg_primitive"]]
+            F = int(primitives.N_FACES[kind])
             unit = (u.mean(axis=0) - o) / s
             f = min(int(unit[0] * F), F - 1)
-            p = np.array(P.prim_point(np.int32(kind), np.zeros(4), np.int64(f), unit[0] * F - f, unit[1])[:3])
+            p = np.array(primitives.prim_point(np.int32(kind), np.zeros(4), np.int64(f), unit[0] * F - f, unit[1])[:3])
             Ml = np.array(ob.matrix_world)
             pw = Ml[:3, :3] @ p + Ml[:3, 3]
             cw = Mb[:3, :3] @ co[[me.loops[i].vertex_index for i in loops]].mean(axis=0) + Mb[:3, 3]
@@ -261,14 +261,14 @@ def test_evaluated_boolean_uvs_fall_in_their_operands_blocks(baked):
 
 def test_rebake_leaves_uvs_unchanged_and_cancel_writes_nothing():
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    B.clear_cache()
+    bake.clear_cache()
     cyl, sph = cylinder_minus_sphere()
     point_light()
     before = {o.name: uv_layers.read_uvs(o.data.uv_layers["Lightmap"]).copy() for o in (cyl, sph)}
-    r1 = B.bake_objects(bpy.context, [cyl], photons=2000, seed=1, resolution=8)
+    r1 = bake.bake_objects(bpy.context, [cyl], photons=2000, seed=1, resolution=8)
     once = {o.name: uv_layers.read_uvs(o.data.uv_layers["Lightmap"]).copy() for o in (cyl, sph)}
     assert not np.array_equal(once["Sph"], before["Sph"])        # moved into its block
-    r2 = B.bake_objects(bpy.context, [cyl], photons=2000, seed=2, resolution=8)
+    r2 = bake.bake_objects(bpy.context, [cyl], photons=2000, seed=2, resolution=8)
     for o in (cyl, sph):
         assert np.array_equal(uv_layers.read_uvs(o.data.uv_layers["Lightmap"]), once[o.name])
         # still recognised as the generated layout, with its block remembered
@@ -281,7 +281,7 @@ def test_rebake_leaves_uvs_unchanged_and_cancel_writes_nothing():
 
     # a cancelled bake changes neither the image nor the layers
     with pytest.raises(Cancelled):
-        B.bake_objects(bpy.context, [cyl], photons=50_000, seed=3, resolution=12,
+        bake.bake_objects(bpy.context, [cyl], photons=50_000, seed=3, resolution=12,
                        progress=lambda done, total: False)
     assert np.array_equal(pixels(img), saved)
     for o in (cyl, sph):
@@ -290,7 +290,7 @@ def test_rebake_leaves_uvs_unchanged_and_cancel_writes_nothing():
     # without its Boolean, the sphere bakes on its own: its layer goes back to the chart layout
     cyl.modifiers.clear()
     sph.hide_render = False
-    r3 = B.bake_objects(bpy.context, [sph], photons=2000, seed=1, resolution=8)
+    r3 = bake.bake_objects(bpy.context, [sph], photons=2000, seed=1, resolution=8)
     assert "Sph" in r3.maps
     assert np.abs(uv_layers.read_uvs(sph.data.uv_layers["Lightmap"]) - before["Sph"]).max() < 1e-6
     assert uv_layers.TILE_PROP not in sph.data
@@ -298,14 +298,14 @@ def test_rebake_leaves_uvs_unchanged_and_cancel_writes_nothing():
 
 def test_user_edited_operand_layer_is_left_alone_with_a_warning():
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    B.clear_cache()
+    bake.clear_cache()
     cyl, sph = cylinder_minus_sphere()
     point_light()
     layer = sph.data.uv_layers["Lightmap"]
     uv = uv_layers.read_uvs(layer).copy()
     uv[:40] = uv[:40] * 0.5 + 0.25          # the user's edit
     layer.uv.foreach_set("vector", uv.reshape(-1))
-    res = B.bake_objects(bpy.context, [cyl], photons=2000, seed=1, resolution=8)
+    res = bake.bake_objects(bpy.context, [cyl], photons=2000, seed=1, resolution=8)
     assert set(res.maps["Cyl"].tiles) == {"Cyl"}
     assert any("'Sph'" in w and "left out" in w for w in res.warnings), res.warnings
     assert np.array_equal(uv_layers.read_uvs(sph.data.uv_layers["Lightmap"]), uv)

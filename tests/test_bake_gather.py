@@ -1,4 +1,4 @@
-"""Final gather for bakes (engine/bake_gather.py): the same mean as the photon lookup,
+"""Final gather for bakes (engine/transport/bake_gather.py): the same mean as the photon lookup,
 less noise, deterministic, and no light read through the inside of a closed mesh."""
 import math
 
@@ -6,12 +6,12 @@ import numba
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import bake_gather as BG
+from photon_lightmaps.engine.transport import bake_gather
 from photon_lightmaps.engine import demo_scenes
-from photon_lightmaps.engine import texel_gather as TG
+from photon_lightmaps.engine.transport import texel_gather
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import trace_photons
-from photon_lightmaps.engine.scene import Light, Material, Scene, TriangleMesh, translate
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+from photon_lightmaps.engine.core.scene import Light, Material, Scene, TriangleMesh, translate
 
 RHO, FLUX = 0.5, 100.0
 
@@ -24,15 +24,15 @@ def gather_bake(cs, photons, seed=0, points=16, rays=4, caustics=False):
     """Photon pass recording direct hits, then direct + gathered indirect per texel."""
     trace_photons(cs, photons, seed=seed, max_bounces=64, record_direct=True, caustics=caustics)
     lids = all_lightmaps(cs)
-    ind = BG.gathered_indirect(cs, lids, points=points, rays=rays, seed=seed)
-    direct = TG.direct_texel_irradiance(cs, lids, 16, seed=seed)
-    BG.set_gathered(cs.lightmaps, direct, ind)
+    ind = bake_gather.gathered_indirect(cs, lids, points=points, rays=rays, seed=seed)
+    direct = texel_gather.direct_texel_irradiance(cs, lids, 16, seed=seed)
+    bake_gather.set_gathered(cs.lightmaps, direct, ind)
     return direct, ind
 
 
 def lookup_bake(cs, photons, seed=0):
     trace_photons(cs, photons, seed=seed, max_bounces=64, record_direct=False)
-    TG.bake_texels(cs, all_lightmaps(cs), 16, seed=seed)
+    texel_gather.bake_texels(cs, all_lightmaps(cs), 16, seed=seed)
 
 
 def area_mean(lm, ids):
@@ -76,7 +76,7 @@ def test_gather_mean_agrees_with_lookup_in_the_cornell_room():
 def _room_indirect(rays, seed, points=4):
     cs = compile_scene(demo_scenes.cornell_box(n_bands=1, with_primitives=False))
     trace_photons(cs, 200_000, seed=0, max_bounces=64, record_direct=True)
-    return BG.gathered_indirect(cs, all_lightmaps(cs), points=points, rays=rays, seed=seed)[1][:, 0]
+    return bake_gather.gathered_indirect(cs, all_lightmaps(cs), points=points, rays=rays, seed=seed)[1][:, 0]
 
 
 def test_gather_noise_falls_as_one_over_sqrt_rays():
@@ -92,8 +92,8 @@ def _room_gather(seed, rays=2, **kw):
     cs = compile_scene(demo_scenes.cornell_box(n_bands=1, with_primitives=False))
     trace_photons(cs, 200_000, seed=0, max_bounces=64, record_direct=True)
     lids = all_lightmaps(cs)
-    direct = TG.direct_texel_irradiance(cs, lids, 16, seed=0)
-    return cs, direct, BG.gathered_indirect(cs, lids, points=16, rays=rays, seed=seed, direct=direct, **kw)
+    direct = texel_gather.direct_texel_irradiance(cs, lids, 16, seed=0)
+    return cs, direct, bake_gather.gathered_indirect(cs, lids, points=16, rays=rays, seed=seed, direct=direct, **kw)
 
 
 def test_error_estimate_matches_the_spread_over_seeds():
@@ -172,10 +172,10 @@ def _box_scene(light_at, inward=False):
 def test_lit_sides_of_closed_and_open_meshes(inward):
     cs = compile_scene(_box_scene((0.8, -0.6, 1.5), inward))
     box, floor = 0, 1
-    assert TG.lit_sides(cs, floor) == 0                       # open: both sides
-    side = TG.lit_sides(cs, box)
+    assert texel_gather.lit_sides(cs, floor) == 0                       # open: both sides
+    side = texel_gather.lit_sides(cs, box)
     assert side == (-1 if inward else 1)                      # the outside, whatever the winding
-    assert TG.lit_sides(compile_scene(_box_scene((0.0, 0.0, 0.3), inward)), box) == 0   # light inside
+    assert texel_gather.lit_sides(compile_scene(_box_scene((0.0, 0.0, 0.3), inward)), box) == 0   # light inside
 
 
 def test_closed_box_inside_adds_no_light():
@@ -197,14 +197,14 @@ def test_gather_needs_recorded_direct_light():
     cs = compile_scene(demo_scenes.furnace_sphere(RHO, FLUX, resolution=4))
     trace_photons(cs, 10_000, seed=0, record_direct=False)
     with pytest.raises(ValueError, match="recorded direct light"):
-        BG.gathered_indirect(cs, all_lightmaps(cs))
+        bake_gather.gathered_indirect(cs, all_lightmaps(cs))
 
 
 def test_time_budget_shares_rays_by_relative_error():
     """The rays a time budget buys go out so that texels' total rays follow their
     relative error (Neyman allocation), each within its room, the sum within the budget."""
     rel = np.array([0.0, 0.005, 0.01, 0.02, 0.04, 0.08])
-    e = BG._share(rel, rays=4, room=60, budget=80)
+    e = bake_gather._share(rel, rays=4, room=60, budget=80)
     assert 75 <= e.sum() <= 80 and e.max() <= 60
     assert e[0] == 0 and np.all(np.diff(e) >= 0)
     total = 4 + e
@@ -212,8 +212,8 @@ def test_time_budget_shares_rays_by_relative_error():
     # uncapped texels with extra rays: totals proportional to rel (within rounding)
     lam = total[got & (e < 60)] / rel[got & (e < 60)]
     assert lam.max() / lam.min() < 1.15
-    assert np.array_equal(BG._share(rel, 4, 60, 10 ** 9), np.full(rel.size, 60))
-    assert not BG._share(rel, 4, 60, 0).any()
+    assert np.array_equal(bake_gather._share(rel, 4, 60, 10 ** 9), np.full(rel.size, 60))
+    assert not bake_gather._share(rel, 4, 60, 0).any()
 
 
 @pytest.mark.parametrize("indirect", ["GATHER", "LOOKUP"])

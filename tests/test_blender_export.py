@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
 import photon_lightmaps  # noqa: E402
 from photon_lightmaps import demo_blend, export, registration  # noqa: E402
 from photon_lightmaps.engine.compile import compile_scene  # noqa: E402
-from photon_lightmaps.engine.renderer import compile_camera  # noqa: E402
+from photon_lightmaps.engine.transport.renderer import compile_camera  # noqa: E402
 
 
 from blender_session import addon  # noqa: E402,F401  (session-wide registration)
@@ -296,7 +296,7 @@ def test_image_texture_is_baked_and_other_shaders_fall_back():
     expect = (1.0 + ((grey + 0.055) / 1.055) ** 2.4) / 2
     texture = scene.textures[m["textured"].textures["base_color"]]
     assert texture.encoding == "srgb"                  # an 8-bit sRGB image: kept encoded
-    from photon_lightmaps.engine.texture import srgb_to_linear
+    from photon_lightmaps.engine.shading.texture import srgb_to_linear
     tex = srgb_to_linear(texture.pixels)
     assert tex.shape == (2, 2, 3)                      # the image's own resolution
     np.testing.assert_allclose(tex.mean(axis=(0, 1)), [expect] * 3, atol=5e-3)

@@ -9,9 +9,9 @@ import json
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
-from photon_lightmaps import bake as B  # noqa: E402
+from photon_lightmaps import bake  # noqa: E402
 from photon_lightmaps.bake import boolean_meshes  # noqa: E402
 from photon_lightmaps.export import uv_layers  # noqa: E402
 
@@ -54,7 +54,7 @@ def test_a_mesh_boolean_bakes_like_cycles_bakes_its_result():
     # 1 M photons, not the gathered default's 300 k: the cube's mean inherits the
     # photon noise of the few lightmaps its gather rays read, +-0.4 % at 300 k
     # (measured over seeds), which this Boolean check should not have to absorb
-    res = B.bake_objects(bpy.context, [cube], seed=3, resolution=BOOL.RES, photons=1_000_000)
+    res = bake.bake_objects(bpy.context, [cube], seed=3, resolution=BOOL.RES, photons=1_000_000)
     assert not res.skipped and set(res.maps) == {"cube"}, (res.skipped, res.warnings)
     rgba = res.maps["cube"].rgba
     inner = erode(rgba[..., 3] >= 1.0 - 1e-6)
@@ -85,7 +85,7 @@ def test_without_layers_the_bake_lays_the_operands_out_as_one_atlas():
     BOOL.build(user_uvs=False)
     cube, cyl = bpy.data.objects["cube"], bpy.data.objects["cylinder"]
     uvmap = layers(cube)["UVMap"]
-    res = B.bake_objects(bpy.context, [cube], seed=3)
+    res = bake.bake_objects(bpy.context, [cube], seed=3)
     assert not res.skipped and set(res.maps) == {"cube"}, (res.skipped, res.warnings)
     (a, b) = _rects(cube, cyl)
     for x, y, w, h in (a, b):
@@ -102,7 +102,7 @@ def test_without_layers_the_bake_lays_the_operands_out_as_one_atlas():
         assert blk.any()
     # a second bake maps the layers back first: the same layout, bit for bit
     first = {ob.name: layers(ob)[uv_layers.LAYER_NAME] for ob in (cube, cyl)}
-    res2 = B.bake_objects(bpy.context, [cube], seed=3)
+    res2 = bake.bake_objects(bpy.context, [cube], seed=3)
     assert not res2.skipped and _rects(cube, cyl) == [a, b]
     for ob in (cube, cyl):
         assert np.abs(layers(ob)[uv_layers.LAYER_NAME] - first[ob.name]).max() <= 1e-6
@@ -115,7 +115,7 @@ def test_a_mix_of_user_and_generated_layers_is_refused_by_name():
     cube, cyl = bpy.data.objects["cube"], bpy.data.objects["cylinder"]
     lay = cyl.data.uv_layers.new(name=uv_layers.LAYER_NAME)
     before = layers(cyl)[uv_layers.LAYER_NAME].copy()
-    res = B.bake_objects(bpy.context, [cube], seed=3)
+    res = bake.bake_objects(bpy.context, [cube], seed=3)
     assert "cube" in res.skipped and "'cylinder'" in res.skipped["cube"] and not res.maps
     assert lay.name in cyl.data.uv_layers and np.array_equal(layers(cyl)[uv_layers.LAYER_NAME], before)
     assert uv_layers.LAYER_NAME not in cube.data.uv_layers

@@ -1,4 +1,4 @@
-"""Principled lobes (engine/bsdf.py): white furnaces, sampling against the pdf (χ²),
+"""Principled lobes (engine/shading/bsdf.py): white furnaces, sampling against the pdf (χ²),
 reciprocity, and the layered diffuse's energy balance."""
 import math
 
@@ -7,17 +7,17 @@ import pytest
 from numba import njit
 from scipy import stats
 
-from photon_lightmaps.engine import bsdf as BS
-from photon_lightmaps.engine.sampling import next_float, stream_state
-from photon_lightmaps.engine.scene import Material
+from photon_lightmaps.engine.shading import bsdf
+from photon_lightmaps.engine.core.sampling import next_float, stream_state
+from photon_lightmaps.engine.core.scene import Material
 
 
 def closure(roughness, ior=1.5, level=0.0, schlick=False, metallic=0.0, trans=0.0, entering=True,
             cos_o=0.6):
-    bt = BS.compile_bsdf([Material(ior=ior, specular_level=level, metal_fresnel=schlick,
+    bt = bsdf.compile_bsdf([Material(ior=ior, specular_level=level, metal_fresnel=schlick,
                                    metallic=metallic, transmission_weight=trans)])
-    p = np.empty(BS.P_SIZE)
-    BS.closure_scalars(bt, 0, roughness, ior, entering, cos_o, p)
+    p = np.empty(bsdf.P_SIZE)
+    bsdf.closure_scalars(bt, 0, roughness, ior, entering, cos_o, p)
     return p
 
 
@@ -37,7 +37,7 @@ def _albedo(p, ks, kt, ps, pm, pg, ox, oy, oz, n, seed):
         st, u1 = next_float(st)
         st, u2 = next_float(st)
         st, u3 = next_float(st)
-        ok, ix, iy, iz, pdf, delta = BS.sample_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz, u0, u1, u2, u3, w)
+        ok, ix, iy, iz, pdf, delta = bsdf.sample_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz, u0, u1, u2, u3, w)
         if ok:
             for b in range(ks.shape[0]):
                 acc[b] += w[b]
@@ -57,7 +57,7 @@ def _eval_integral(p, ks, kt, ps, pm, pg, ox, oy, oz, n):
         r = math.sqrt(max(0.0, 1.0 - z * z))
         for j in range(2 * n):
             ph = math.pi * (j + 0.5) / n
-            pdf = BS.eval_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz, r * math.cos(ph), r * math.sin(ph), z, f)
+            pdf = bsdf.eval_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz, r * math.cos(ph), r * math.sin(ph), z, f)
             acc += f[0]
             acc_pdf += pdf
     da = 4.0 * math.pi / (2.0 * n * n)
@@ -74,7 +74,7 @@ def _samples(p, ks, kt, ps, pm, pg, ox, oy, oz, n, seed, out):
         st, u1 = next_float(st)
         st, u2 = next_float(st)
         st, u3 = next_float(st)
-        ok, ix, iy, iz, pdf, delta = BS.sample_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz, u0, u1, u2, u3, w)
+        ok, ix, iy, iz, pdf, delta = bsdf.sample_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz, u0, u1, u2, u3, w)
         if ok:
             out[k, 0], out[k, 1], out[k, 2] = ix, iy, iz
             k += 1
@@ -94,7 +94,7 @@ def _pdf_grid(p, ks, kt, ps, pm, pg, ox, oy, oz, n_theta, n_phi, sub):
                     z = -1.0 + 2.0 * (i + (a + 0.5) / sub) / n_theta
                     ph = 2.0 * math.pi * (j + (b + 0.5) / sub) / n_phi
                     r = math.sqrt(max(0.0, 1.0 - z * z))
-                    acc += BS.eval_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz,
+                    acc += bsdf.eval_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz,
                                           r * math.cos(ph), r * math.sin(ph), z, f)
             out[i, j] = acc / (sub * sub) * (2.0 / n_theta) * (2.0 * math.pi / n_phi)
     return out
@@ -111,7 +111,7 @@ def test_white_metal_furnace_is_one_with_compensation(roughness, cos_o):
     p = closure(roughness, cos_o=cos_o)
     wo = wo_of(cos_o)
     alb, _ = _albedo(p, one(1.0), one(0.0), 0.0, 1.0, 0.0, *wo, 40000, 1)
-    single = p[BS.P_E_METAL]
+    single = p[bsdf.P_E_METAL]
     assert single <= 1.0 + 1e-9
     if roughness >= 0.6:
         assert single < 0.97                      # the loss compensation makes up for is real
@@ -126,8 +126,8 @@ def test_sample_weights_agree_with_eval(roughness):
     for ps, pm, pg in ((0.3, 0.0, 0.0), (0.0, 0.7, 0.0), (0.0, 0.0, 0.9), (0.1, 0.4, 0.5)):
         ks, kt = one(0.7), one(0.9)
         p2 = p.copy()
-        p2[BS.P_SCHLICK] = 1.0
-        p2[BS.P_METAL] = 1.0
+        p2[bsdf.P_SCHLICK] = 1.0
+        p2[bsdf.P_METAL] = 1.0
         alb, _ = _albedo(p2, ks, kt, ps, pm, pg, *wo, 60000, 2)
         integ, pdf_mass = _eval_integral(p2, ks, kt, ps, pm, pg, *wo, 1500)
         assert alb[0] == pytest.approx(integ, rel=0.03), (ps, pm, pg)
@@ -177,8 +177,8 @@ def test_reflection_is_reciprocal():
         a[2], b[2] = abs(a[2]), abs(b[2])
         a /= np.linalg.norm(a)
         b /= np.linalg.norm(b)
-        BS.eval_glossy(p, one(0.6), one(0.0), 0.3, 0.7, 0.0, *a, *b, fa)
-        BS.eval_glossy(p, one(0.6), one(0.0), 0.3, 0.7, 0.0, *b, *a, fb)
+        bsdf.eval_glossy(p, one(0.6), one(0.0), 0.3, 0.7, 0.0, *a, *b, fa)
+        bsdf.eval_glossy(p, one(0.6), one(0.0), 0.3, 0.7, 0.0, *b, *a, fb)
         # f cos_i: divide the cosines out before comparing f
         assert fa[0] / b[2] == pytest.approx(fb[0] / a[2], rel=1e-9, abs=1e-12)
 
@@ -190,7 +190,7 @@ def test_clear_glass_conserves_energy(roughness, entering):
     p = closure(roughness, ior=1.5, entering=entering)
     alb, below = _albedo(p, one(0.0), one(1.0), 0.0, 0.0, 1.0, *wo_of(0.9), 60000, 5)
     assert alb[0] <= 1.0 + 0.01
-    f, _ = BS.fresnel_dielectric(0.9, 1.5 if entering else 1 / 1.5)
+    f, _ = bsdf.fresnel_dielectric(0.9, 1.5 if entering else 1 / 1.5)
     if roughness == 0.0:
         assert alb[0] == pytest.approx(1.0, abs=1e-9)
         assert below == pytest.approx(1.0 - f, abs=0.01)
@@ -207,20 +207,20 @@ def test_layered_diffuse_white_furnace(roughness, cos_o):
     """White diffuse under the IOR 1.5 layer: E_layer + (1 - E_layer) = 1, with the
     table's E_layer equal to the layer's albedo by sampling."""
     p = closure(roughness, ior=1.5, level=0.5, cos_o=cos_o)
-    e_layer = p[BS.P_E_LAYER]
+    e_layer = p[bsdf.P_E_LAYER]
     alb, _ = _albedo(p, one(0.0), one(0.0), 1.0, 0.0, 0.0, *wo_of(min(cos_o, 0.999)), 60000, 9)
     # the sampled weight is f/pdf of the layer itself: its albedo, times P_LAYER_W = 1
     assert alb[0] == pytest.approx(e_layer, abs=0.01)
-    pd, ps, pm, pg = BS.lobe_probabilities(p, one(1.0), one(0.0), one(0.0), cos_o)
+    pd, ps, pm, pg = bsdf.lobe_probabilities(p, one(1.0), one(0.0), one(0.0), cos_o)
     assert pd + ps == pytest.approx(1.0, abs=1e-12)
     assert 0.01 < ps < (0.35 if cos_o > 0.2 else 0.6)
 
 
 def test_specular_level_follows_blender():
     """Specular IOR Level 0.5 keeps F0 of the IOR, 0 removes the layer, 1 doubles F0."""
-    f0, eta = BS.layer_f0_eta(1.5, 0.5)
+    f0, eta = bsdf.layer_f0_eta(1.5, 0.5)
     assert f0 == pytest.approx(0.04) and eta == pytest.approx(1.5)
-    assert BS.layer_f0_eta(1.5, 0.0) == (0.0, 1.0)
-    f1, eta1 = BS.layer_f0_eta(1.5, 1.0)
+    assert bsdf.layer_f0_eta(1.5, 0.0) == (0.0, 1.0)
+    f1, eta1 = bsdf.layer_f0_eta(1.5, 1.0)
     assert f1 == pytest.approx(0.08)
     assert ((eta1 - 1) / (eta1 + 1)) ** 2 == pytest.approx(0.08)

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from engine.bvh import (MAX_DEPTH, MAX_LEAF, STACK_BUDGET, build_bvh, pack_bvh,
+from photon_lightmaps.engine.geometry.bvh import (MAX_DEPTH, MAX_LEAF, STACK_BUDGET, build_bvh, pack_bvh,
                         round_down_f32, round_up_f32)
 
 

@@ -5,23 +5,24 @@ import math
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import renderer, scene as S
+from photon_lightmaps.engine.transport import renderer
+from photon_lightmaps.engine.core import scene
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.demo_scenes import quad_mesh
-from photon_lightmaps.engine.photon_tracer import trace_photons
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
 
 
 def glass_ball_scene(k):
-    sc = S.Scene(texel_density=8.0, caustic_resolution=k)
-    floor = sc.add_material(S.Material("floor", diffuse=0.8))
-    glass = sc.add_material(S.Material("glass", diffuse=0.0, transmission=1.0, roughness=0.0, ior=1.5))
+    sc = scene.Scene(texel_density=8.0, caustic_resolution=k)
+    floor = sc.add_material(scene.Material("floor", diffuse=0.8))
+    glass = sc.add_material(scene.Material("glass", diffuse=0.0, transmission=1.0, roughness=0.0, ior=1.5))
     sc.add_object(quad_mesh((-2, -2, 0), (2, -2, 0), (2, 2, 0), (-2, 2, 0), material=floor), name="floor")
-    sc.add_object(S.Primitive("sphere", S.compose(S.translate(0, 0, 0.8), S.scale(0.5)), material=glass),
+    sc.add_object(scene.Primitive("sphere", scene.compose(scene.translate(0, 0, 0.8), scene.scale(0.5)), material=glass),
                   name="ball", lightmap=False)
     # a slanted sun puts the focus beside the ball, where an orthographic camera from
     # above sees it directly (through the ball it would be magnified)
-    sc.lights.append(S.Light("sun", power=3.0, angle=math.radians(1.0), transform=S.rotate("x", 40.0)))
-    sc.camera = S.Camera(S.translate(0, 0, 5), kind="orthographic", ortho_scale=4.0, width=48, height=48)
+    sc.lights.append(scene.Light("sun", power=3.0, angle=math.radians(1.0), transform=scene.rotate("x", 40.0)))
+    sc.camera = scene.Camera(scene.translate(0, 0, 5), kind="orthographic", ortho_scale=4.0, width=48, height=48)
     return sc
 
 

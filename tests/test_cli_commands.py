@@ -147,7 +147,7 @@ def test_compile_line_is_ended_before_other_output():
     import io
 
     from photon_lightmaps import cli
-    from photon_lightmaps.engine.kernel_watch import KernelWatch
+    from photon_lightmaps.engine.core.kernel_watch import KernelWatch
     out = io.StringIO()
     tracker = cli._LineTracker(out)
     watch = KernelWatch(cli.compile_line(tracker, clock=iter(range(100)).__next__))

@@ -12,13 +12,13 @@ import types
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
 import photon_lightmaps  # noqa: E402
 from photon_lightmaps import demo_blend, export  # noqa: E402
 from photon_lightmaps.export import csg as csg_export  # noqa: E402
-from photon_lightmaps.engine.primitives import KIND_IDS, N_FACES, prim_point, prim_surface  # noqa: E402
-from photon_lightmaps.engine.scene import CSGNode, Primitive, TriangleMesh  # noqa: E402
+from photon_lightmaps.engine.geometry.primitives import KIND_IDS, N_FACES, prim_point, prim_surface  # noqa: E402
+from photon_lightmaps.engine.core.scene import CSGNode, Primitive, TriangleMesh  # noqa: E402
 from photon_lightmaps.operators import csg_primitives  # noqa: E402
 
 

@@ -4,14 +4,15 @@ import math
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import csg as C
-from photon_lightmaps.engine import primitives as P
+from photon_lightmaps.engine.geometry import csg
+from photon_lightmaps.engine.geometry import primitives
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import trace_photons
-from photon_lightmaps.engine.raycast import intersect_closest, new_stack, trace_closest_batch
-from photon_lightmaps.engine.scene import (CSGNode, Instance, Light, Material, Primitive,
-                                           Prototype, Scene, SceneError, compose, scale,
-                                           translate)
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+from photon_lightmaps.engine.geometry.raycast import (
+    intersect_closest, new_stack, trace_closest_batch)
+from photon_lightmaps.engine.core.scene import (
+    CSGNode, Instance, Light, Material, Primitive, Prototype, Scene, SceneError, compose, scale,
+    translate)
 
 
 def _csg_scene(root, lights, rho=0.5, density=16.0):
@@ -35,7 +36,7 @@ def _texel_centres(kind, xf, R, nf):
     for f in range(nf):
         for y in range(R):
             for x in range(R):
-                p = P.prim_point(kind, np.zeros(4), f, (x + 0.5) / R, (y + 0.5) / R)[:3]
+                p = primitives.prim_point(kind, np.zeros(4), f, (x + 0.5) / R, (y + 0.5) / R)[:3]
                 out[y * W + f * R + x] = xf[:, :3] @ np.array(p) + xf[:, 3]
     return out
 
@@ -64,7 +65,7 @@ def test_light_enters_cavity_only_through_the_slot():
     R = int(lm.height[inner_id])
     sl = slice(int(lm.offset[inner_id]), int(lm.offset[inner_id]) + 6 * R * R)
     hits = lm.hits[sl]
-    centres = _texel_centres(P.BOX, scale(0.9), R, 6)
+    centres = _texel_centres(primitives.BOX, scale(0.9), R, 6)
     # where the segment light -> texel centre crosses the outer wall plane x = 1
     s = (light_pos[0] - 1.0) / (light_pos[0] - centres[:, 0])
     cross = light_pos + s[:, None] * (centres - light_pos)
@@ -123,9 +124,9 @@ def test_cut_sphere_visible_area_and_unbiased_irradiance():
     ball_full[sl] = True
     split = ball_full & (lm.area > 0)
     # boundary texels: visible area below the full texel area
-    from photon_lightmaps.engine import lightmap as LM
-    from photon_lightmaps.engine import texel_areas as TA
-    full = LM.faces_to_rows(TA.primitive_texel_areas(P.SPHERE, np.zeros(4), np.eye(3), R), 1, R)
+    from photon_lightmaps.engine.lightmaps import lightmap
+    from photon_lightmaps.engine.lightmaps import texel_areas
+    full = lightmap.faces_to_rows(texel_areas.primitive_texel_areas(primitives.SPHERE, np.zeros(4), np.eye(3), R), 1, R)
     partial = np.zeros_like(split)
     partial[sl] = (lm.area[sl] > 0) & (lm.area[sl] < 0.999 * full)
     assert partial.sum() > 5
@@ -156,18 +157,18 @@ def test_energy_audit_and_raycast_report_owner():
     hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
         g, new_stack(), 0.0, 1.0, 5.0, 0.0, 0.0, -1.0, 0.0, math.inf)
     assert hit and t == pytest.approx(4.5) and nz == pytest.approx(1.0)
-    assert g.shape_kind[shape] == P.TORUS
+    assert g.shape_kind[shape] == primitives.TORUS
     # corner of the box survives the subtraction of the sphere
     hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
         g, new_stack(), 0.95, 0.95, 5.0, 0.0, 0.0, -1.0, 0.0, math.inf)
-    assert hit and t == pytest.approx(4.0) and g.shape_kind[shape] == P.BOX
+    assert hit and t == pytest.approx(4.0) and g.shape_kind[shape] == primitives.BOX
     # down the axis: the box is carved away there and the torus has its hole
     assert not intersect_closest(g, new_stack(), 0.0, 0.0, 5.0, 0.0, 0.0, -1.0, 0.0, math.inf)[0]
     # from the carved-out centre towards a corner: the sphere's inside, normal flipped
     d = np.ones(3) / math.sqrt(3.0)
     hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
         g, new_stack(), 0.0, 0.0, 0.0, *d, 0.0, math.inf)
-    assert hit and t == pytest.approx(1.3) and g.shape_kind[shape] == P.SPHERE
+    assert hit and t == pytest.approx(1.3) and g.shape_kind[shape] == primitives.SPHERE
     assert np.dot([nx, ny, nz], d) == pytest.approx(-1.0)
 
 

@@ -1,4 +1,4 @@
-"""The optional OIDN pass (engine/denoise.py), inside the bpy process next to the numba kernels.
+"""The optional OIDN pass (engine/transport/denoise.py), inside the bpy process next to the numba kernels.
 
 pyoidn ships its own TBB and numba may run on TBB too: every test here runs a
 parallel numba kernel in the same process as OIDN, before and after it.
@@ -14,17 +14,16 @@ import sys
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
-from photon_lightmaps import bake as B  # noqa: E402
+from photon_lightmaps import bake  # noqa: E402
 from photon_lightmaps import demo_blend  # noqa: E402
-from photon_lightmaps.engine import denoise as DN  # noqa: E402
+from photon_lightmaps.engine.transport import denoise  # noqa: E402
 from photon_lightmaps.engine import session  # noqa: E402
 from photon_lightmaps.export import export_scene  # noqa: E402
 
 from blender_session import addon, bake_uv_cache  # noqa: E402,F401  (session-wide registration)
 
-needs_oidn = pytest.mark.skipif(not DN.available(), reason="pyoidn is not installed")
 
 
 def _rel_rmse(x, ref):
@@ -41,14 +40,13 @@ def _traced(photons, **kw):
 
 def test_missing_pyoidn_is_one_user_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "pyoidn", None)     # import pyoidn -> ImportError
-    with pytest.raises(DN.DenoiseUnavailable, match=r"^denoise: the pyoidn package is not available.*pyoidn==2\.5\.1"):
-        DN.denoise_image(np.zeros((4, 4, 3), np.float32))
+    with pytest.raises(denoise.DenoiseUnavailable, match=r"^denoise: the pyoidn package is not available.*pyoidn==2\.5\.1"):
+        denoise.denoise_image(np.zeros((4, 4, 3), np.float32))
     from photon_lightmaps.messages import is_user_error
-    assert is_user_error(DN.DenoiseUnavailable("x"))
-    assert not DN.available()
+    assert is_user_error(denoise.DenoiseUnavailable("x"))
+    assert not denoise.available()
 
 
-@needs_oidn
 def test_lightmap_tiles_and_uncovered_texels_do_not_bleed():
     rng = np.random.default_rng(0)
     r = 24
@@ -58,8 +56,8 @@ def test_lightmap_tiles_and_uncovered_texels_do_not_bleed():
     covered = np.ones((r, 2 * r), bool)
     covered[:4, r:] = False                             # a strip no chart covers, holding a sentinel
     img[:4, r:] = 7.0
-    out = DN.denoise_lightmap(img, covered, tiles=2)
-    alone = DN.denoise_lightmap(img[:, r:], covered[:, r:])
+    out = denoise.denoise_lightmap(img, covered, tiles=2)
+    alone = denoise.denoise_lightmap(img[:, r:], covered[:, r:])
     assert out.dtype == np.float32 and out.shape == img.shape
     assert np.array_equal(out[:, r:], alone), "light crossed the tile seam"
     assert np.all(out[:4, r:] == 7.0), "uncovered texels changed"
@@ -71,11 +69,10 @@ def test_fill_empty_continues_the_chart():
     known = np.zeros((8, 8), bool)
     known[2:5, 2:5] = True
     img[known] = 3.0
-    filled = DN._fill_empty(img, known)
+    filled = denoise._fill_empty(img, known)
     assert np.allclose(filled, 3.0)
 
 
-@needs_oidn
 def test_denoised_render_is_closer_to_the_reference_and_keeps_the_mean():
     demo_blend.build_cornell_blend(width=48, height=48)
     cs_ref, s_ref = _traced(400_000, seed=11, samples=32, gather_rays=16)
@@ -99,13 +96,12 @@ def test_denoised_render_is_closer_to_the_reference_and_keeps_the_mean():
     assert cs.timings["denoise"] > 0.0
 
 
-@needs_oidn
 def test_bake_with_denoise_keeps_uncovered_texels(bake_uv_cache):
     demo_blend.build_cornell_blend(width=16, height=16)
     objs = [bpy.data.objects[n] for n in ("floor", "tall_box")]
     kw = dict(photons=30_000, seed=2, resolution=32)
-    plain = B.bake_objects(bpy.context, objs, **kw, denoise=False)
-    den = B.bake_objects(bpy.context, objs, **kw, denoise=True)
+    plain = bake.bake_objects(bpy.context, objs, **kw, denoise=False)
+    den = bake.bake_objects(bpy.context, objs, **kw, denoise=True)
     assert den.seconds["denoise"] > 0.0
     for name in ("floor", "tall_box"):
         a, b = plain.maps[name].rgba, den.maps[name].rgba
@@ -120,7 +116,6 @@ def test_bake_with_denoise_keeps_uncovered_texels(bake_uv_cache):
     assert np.count_nonzero(plain.maps["tall_box"].rgba[..., 3] == 0.0) > 0   # the check above bit
 
 
-@needs_oidn
 def test_cli_flags_reach_the_render_engine_and_the_bake(tmp_path):
     import json
 

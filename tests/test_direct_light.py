@@ -6,13 +6,13 @@ import math
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import lightmap as LM
+from photon_lightmaps.engine.lightmaps import lightmap
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.demo_scenes import quad_mesh
-from photon_lightmaps.engine.photon_tracer import trace_photons
-from photon_lightmaps.engine.renderer import render
-from photon_lightmaps.engine.scene import (Camera, Light, Material, Scene, compose, rotate,
-                                           translate)
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+from photon_lightmaps.engine.transport.renderer import render
+from photon_lightmaps.engine.core.scene import (
+    Camera, Light, Material, Scene, compose, rotate, translate)
 
 H = 1.0      # light height above the floor
 HALF = 4.0   # floor half size

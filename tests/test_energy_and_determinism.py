@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine import demo_scenes
-from photon_lightmaps.engine import lightmap as LM
+from photon_lightmaps.engine.lightmaps import lightmap
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import Cancelled, trace_photons
-from photon_lightmaps.engine.renderer import render
-from photon_lightmaps.engine.scene import Light, Material, Primitive, compose, scale, translate
+from photon_lightmaps.engine.core.errors import Cancelled, trace_photons
+from photon_lightmaps.engine.transport.renderer import render
+from photon_lightmaps.engine.core.scene import Light, Material, Primitive, compose, scale, translate
 
 
 def test_energy_audit_closes_on_cornell_box():
@@ -42,7 +42,7 @@ import numba
 import photon_lightmaps.engine
 from photon_lightmaps.engine import demo_scenes
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import trace_photons
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
 for threads, seed in ((4, 7), (1, 7), (3, 7), (4, 8)):
     numba.set_num_threads(threads)
     cs = compile_scene(demo_scenes.cornell_box())

@@ -1,4 +1,4 @@
-"""The fast lightmap layout (engine/fast_layout.py): charts that never overlap,
+"""The fast lightmap layout (engine/lightmaps/fast_layout.py): charts that never overlap,
 stay MIN_GAP_TEXELS apart, share one texel scale, and fit the lightmap they are
 made for; folds are cut, and meshes of too many pieces are refused by count."""
 import math
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine import demo_scenes
-from photon_lightmaps.engine import fast_layout as FL
-from photon_lightmaps.engine.geometry import nondegenerate
+from photon_lightmaps.engine.lightmaps import fast_layout
+from photon_lightmaps.engine.geometry.assembly import nondegenerate
 
 
 def _sphere(n_theta, n_phi):
@@ -74,10 +74,10 @@ def _chart_gaps_ok(uv, chart, R, gap):
 
 def test_dense_sphere_gets_six_charts_one_texel_scale_and_the_gaps():
     v, t = _sphere(256, 512)                      # 261,120 triangles: xatlas crashes on it
-    L = FL.layout(v, t, 256)
+    L = fast_layout.layout(v, t, 256)
     assert L.resolution == 256 and L.charts == 6
     assert L.uv.shape == (t.shape[0], 3, 2) and L.uv.min() >= 0 and L.uv.max() <= 1
-    assert _chart_gaps_ok(L.uv, L.chart, L.resolution, FL.MIN_GAP_TEXELS)
+    assert _chart_gaps_ok(L.uv, L.chart, L.resolution, fast_layout.MIN_GAP_TEXELS)
     # One orientation for every chart (the front side's winding) ...
     s = _signed_area(L.uv)
     assert (s > 0).all() or (s < 0).all()
@@ -96,13 +96,13 @@ def test_small_lightmaps_grow_until_the_gaps_leave_room():
     their 3-texel gaps only at a sliver of the scale asked for: the layout
     doubles the side until the charts get at least half of it."""
     v, t = _sphere(32, 64)
-    L = FL.layout(v, t, 17)
+    L = fast_layout.layout(v, t, 17)
     assert L.resolution == 34
     p = v[t]
     a3 = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
     scale = math.sqrt(np.abs(_signed_area(L.uv)).sum() / a3) * L.resolution   # texels per metre
     assert scale >= 0.5 * 17 / math.sqrt(a3) * (1 / math.sqrt(3))
-    assert _chart_gaps_ok(L.uv, L.chart, L.resolution, FL.MIN_GAP_TEXELS)
+    assert _chart_gaps_ok(L.uv, L.chart, L.resolution, fast_layout.MIN_GAP_TEXELS)
 
 
 def test_a_ramp_that_winds_over_itself_is_cut_until_no_chart_overlaps():
@@ -113,18 +113,18 @@ def test_a_ramp_that_winds_over_itself_is_cut_until_no_chart_overlaps():
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     assert (np.argmax(np.abs(n), axis=1) == 2).all()
     assert _overlapping_pairs(p[..., :2], np.zeros(t.shape[0], int)) > 0
-    L = FL.layout(v, t, 64)
+    L = fast_layout.layout(v, t, 64)
     assert L.charts >= 3                          # 2.5 turns need at least 3 pieces
     assert _overlapping_pairs(L.uv, L.chart) == 0
-    assert _chart_gaps_ok(L.uv, L.chart, L.resolution, FL.MIN_GAP_TEXELS)
+    assert _chart_gaps_ok(L.uv, L.chart, L.resolution, fast_layout.MIN_GAP_TEXELS)
 
 
 def test_plane_and_cube_keep_one_chart_per_side():
     v, t = _grid(20, 20, lambda u, w: np.stack([u * 2, w, 0.3 * u], 1))   # a tilted sheet
-    L = FL.layout(v, t, 32)
+    L = fast_layout.layout(v, t, 32)
     assert L.charts == 1 and _overlapping_pairs(L.uv, L.chart) == 0
     m = demo_scenes.quad_mesh((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0))
-    L = FL.layout(m.vertices, m.triangles, 8)
+    L = fast_layout.layout(m.vertices, m.triangles, 8)
     assert L.charts == 1 and L.uv.min() >= 0 and L.uv.max() <= 1
 
 
@@ -133,7 +133,7 @@ def test_doubled_faces_end_as_separate_charts():
     such triangle ends as a chart of its own and the layout still finishes."""
     v, t = _grid(3, 3, lambda u, w: np.stack([u, w, 0 * u], 1))
     t2 = np.concatenate([t, t])
-    L = FL.layout(v, t2, 64)
+    L = fast_layout.layout(v, t2, 64)
     assert _overlapping_pairs(L.uv, L.chart) == 0
     assert L.charts == t2.shape[0]
 
@@ -145,9 +145,9 @@ def test_too_many_pieces_are_refused_with_their_count():
     base = rng.uniform(0, 10, (5000, 1, 3))
     v = (base + rng.uniform(0, 0.05, (5000, 3, 3))).reshape(-1, 3)
     t = np.arange(15000).reshape(-1, 3)
-    with pytest.raises(FL.LayoutError, match=r"5,000 separate charts .* 64×64"):
-        FL.layout(v, t, 16, max_resolution=64)
-    L = FL.layout(v, t, 16, max_resolution=1024)
+    with pytest.raises(fast_layout.LayoutError, match=r"5,000 separate charts .* 64×64"):
+        fast_layout.layout(v, t, 16, max_resolution=64)
+    L = fast_layout.layout(v, t, 16, max_resolution=1024)
     assert L.resolution >= 256 and L.charts == 5000
 
 
@@ -159,7 +159,7 @@ def test_a_polygons_triangles_share_a_chart():
     v, t = _grid(24, 24, bumpy)
     quads = t.shape[0] // 2
     group = np.concatenate([np.arange(quads), np.arange(quads)])
-    L = FL.layout(v, t, 64, groups=group)
+    L = fast_layout.layout(v, t, 64, groups=group)
     assert (L.chart[:quads] == L.chart[quads:]).all()
     assert L.charts > 1 and _overlapping_pairs(L.uv, L.chart) == 0
     # Corners a quad's two triangles share get one UV (their chart's projection).

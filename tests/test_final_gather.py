@@ -1,4 +1,4 @@
-"""Final gather (engine/final_gather.py): the same integral the lightmap lookup
+"""Final gather (engine/transport/final_gather.py): the same integral the lightmap lookup
 estimates, read one bounce away, so both agree in the mean, the furnace keeps
 its closed form, and the gather's own noise falls as 1/sqrt(rays)."""
 import math
@@ -7,13 +7,15 @@ import numpy as np
 import pytest
 from numba import njit
 
-from photon_lightmaps.engine import demo_scenes, final_gather as FG, renderer
-from photon_lightmaps.engine import bsdf as BS, lightmap as LM, orientation_lightmap as OL
+from photon_lightmaps.engine import demo_scenes
+from photon_lightmaps.engine.transport import final_gather, renderer
+from photon_lightmaps.engine.shading import bsdf
+from photon_lightmaps.engine.lightmaps import lightmap, orientation_lightmap
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import trace_photons
-from photon_lightmaps.engine.raycast import STACK_WORDS
-from photon_lightmaps.engine.sampling import stream_state
-from photon_lightmaps.engine.scene import Camera, compose, rotate, translate
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+from photon_lightmaps.engine.geometry.raycast import STACK_WORDS
+from photon_lightmaps.engine.core.sampling import stream_state
+from photon_lightmaps.engine.core.scene import Camera, compose, rotate, translate
 
 RHO, FLUX = 0.5, 100.0
 
@@ -70,7 +72,7 @@ def _many(cs_g, ms, bt, ts, ls, lm, ol, env, p, f, n_rays, n_trials, mode, out, 
     kd = np.empty(nb)
     ks = np.empty(nb)
     kt = np.empty(nb)
-    pc = np.empty(BS.P_SIZE)
+    pc = np.empty(bsdf.P_SIZE)
     ind = np.empty(nb)
     e = np.empty(nb)
     tp = np.empty(nb)
@@ -80,7 +82,7 @@ def _many(cs_g, ms, bt, ts, ls, lm, ol, env, p, f, n_rays, n_trials, mode, out, 
         state = stream_state(np.uint64(11), k)
         for b in range(nb):
             e[b] = 0.0
-        FG.gather_irradiance(cs_g, ms, bt, ts, ls, lm, ol, env, np.zeros(0, np.int64), stack, p[0], p[1], p[2], f[0], f[1], f[2],
+        final_gather.gather_irradiance(cs_g, ms, bt, ts, ls, lm, ol, env, np.zeros(0, np.int64), stack, p[0], p[1], p[2], f[0], f[1], f[2],
                              f[0], f[1], f[2], n_rays, mode, state, kd, ks, kt, pc, ind, tp, fw, rad, e, count,
                              0, out, rad)
         for b in range(nb):
@@ -116,7 +118,7 @@ def test_progressive_passes_add_up_to_the_one_pass_image_and_cancel_between_tile
     def stop(x0, y0, t, img):
         calls.append(1)
         return len(calls) < 12                  # 9 tiles per pass: stop in pass 2
-    from photon_lightmaps.engine.photon_tracer import Cancelled
+    from photon_lightmaps.engine.core.errors import Cancelled
     with pytest.raises(Cancelled):
         renderer.render(cs, samples=8, seed=4, gather=4, tile=8, passes=[1, 1, 2, 4], progress=stop)
     assert len(calls) == 12
@@ -133,15 +135,15 @@ def test_gather_noise_falls_as_one_over_sqrt_rays():
     glass ball, at most final_gather.CHAIN per gather ray."""
     cs = compile_scene(demo_scenes.cornell_box(width=8, height=8))
     trace_photons(cs, 200_000, seed=3, record_direct=True)
-    ol = OL.empty_maps(cs.geometry.inst_proto.shape[0])
+    ol = orientation_lightmap.empty_maps(cs.geometry.inst_proto.shape[0])
     p, f = np.array([0.3, 0.2, 1e-4]), np.array([0.0, 0.0, 1.0])
     stats = []
     for n in (8, 32, 128):
         out = np.zeros((400, cs.n_bands))
         count = np.zeros(1, np.int64)
         _many(cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights, cs.lightmaps, ol, cs.environment, p, f, n,
-              400, LM.MODE_BILINEAR, out, count)
-        assert 400 * n < count[0] <= 400 * n * FG.CHAIN
+              400, lightmap.MODE_BILINEAR, out, count)
+        assert 400 * n < count[0] <= 400 * n * final_gather.CHAIN
         stats.append((out[:, 0].mean(), out[:, 0].std()))
     print("\n" + "\n".join(f"{n} rays: mean {m:.4f}, std {s:.4f}" for n, (m, s) in zip((8, 32, 128), stats)))
     for (m0, s0), (m1, s1) in zip(stats, stats[1:]):
@@ -154,7 +156,7 @@ import hashlib
 import numba
 from photon_lightmaps.engine import demo_scenes, renderer
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import trace_photons
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
 for threads, seed in ((4, 5), (1, 5), (3, 5), (4, 6)):
     numba.set_num_threads(threads)
     cs = compile_scene(demo_scenes.cornell_box(width=24, height=24))

@@ -11,7 +11,7 @@ import pytest
 
 from photon_lightmaps.engine import demo_scenes
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import trace_photons
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
 
 RHO, FLUX = 0.5, 100.0
 

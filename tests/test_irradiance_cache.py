@@ -1,4 +1,4 @@
-"""The bake's irradiance cache (engine/irradiance_cache.py) against the per-texel gather.
+"""The bake's irradiance cache (engine/transport/irradiance_cache.py) against the per-texel gather.
 
 * Same light: every object's mean within 0.5 % of the per-texel gather over the
   same photon pass (measured: within 0.25 % on the Cornell room).
@@ -17,10 +17,10 @@ import numba
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import bake_gather as BG
+from photon_lightmaps.engine.transport import bake_gather
 from photon_lightmaps.engine import demo_scenes, session
 from photon_lightmaps.engine.demo_scenes import quad_mesh
-from photon_lightmaps.engine.scene import Instance, Prototype
+from photon_lightmaps.engine.core.scene import Instance, Prototype
 
 POINTS, RAYS = 64, 4       # the bake's defaults: 64 points x 4 rays = 256 rays per texel side
 
@@ -34,7 +34,7 @@ def traced(scene, photons=300_000):
 
 def gather(cs, cached, info=None):
     ids = sorted({int(l) for lids in cs.instance_lightmaps for l in lids})
-    return BG.gathered_indirect(cs, ids, (), POINTS, RAYS, seed=1, cached=cached, info=info)
+    return bake_gather.gathered_indirect(cs, ids, (), POINTS, RAYS, seed=1, cached=cached, info=info)
 
 
 def object_means(cs, got):
@@ -66,7 +66,7 @@ def test_object_means_match_the_per_texel_gather(cornell):
 def test_records_trace_far_fewer_rays(cornell):
     cs, full, cached, info = cornell
     ids = sorted({int(l) for lids in cs.instance_lightmaps for l in lids})
-    cat = BG._Texels(cs, ids, (), POINTS, 0, 1).mesh
+    cat = bake_gather.Texels(cs, ids, (), POINTS, 0, 1).mesh
     assert np.array_equal(cat["texel"], full.ids)
     sides = np.where(cat["side"] == 0, 2, 1)         # side 0: gathered on both sides
     full_rays = int((full.rays * POINTS * sides).sum())
@@ -77,10 +77,10 @@ def test_records_trace_far_fewer_rays(cornell):
 
 def test_records_are_densest_near_walls(cornell):
     """Records on the floor's outer ring of texels (next to a wall) against its middle."""
-    from photon_lightmaps.engine import irradiance_cache as IC
+    from photon_lightmaps.engine.transport import irradiance_cache as IC
     cs, _, _, _ = cornell
     ids = sorted({int(l) for lids in cs.instance_lightmaps for l in lids})
-    tex = BG._Texels(cs, ids, (), POINTS, 0, 1)
+    tex = bake_gather.Texels(cs, ids, (), POINTS, 0, 1)
     cache = _records_of(cs, tex, IC)
     floor = (np.abs(cache.pos[:, 2]) < 1e-6) & (cache.nrm[:, 2] > 0.5)
     x, y = cache.pos[floor, 0], cache.pos[floor, 1]
@@ -101,7 +101,7 @@ def _records_of(cs, tex, IC):
         made["cache"] = self
     IC.Cache.add = spy
     try:
-        IC.cached_mesh_gather(cs, tex.fixed, tex.mesh, POINTS, POINTS * RAYS, BG.STREAM_XOR)
+        IC.cached_mesh_gather(cs, tex.fixed, tex.mesh, POINTS, POINTS * RAYS, bake_gather.STREAM_XOR)
     finally:
         IC.Cache.add = original
     return made["cache"]
@@ -189,7 +189,7 @@ def test_render_reads_the_records_and_keeps_the_mean():
 def test_no_lattice_texel_still_gets_records(cornell, monkeypatch):
     """Where no texel of a lightmap sits on the first records' lattice (a small
     mesh), the rounds place every record; nothing is left without light."""
-    from photon_lightmaps.engine import irradiance_cache as IC
+    from photon_lightmaps.engine.transport import irradiance_cache as IC
     cs, full, _, _ = cornell
     monkeypatch.setattr(IC, "_first_sites", lambda cs, cat: np.zeros(0, np.int64))
     info = {}
@@ -205,10 +205,10 @@ def test_gradients_match_finite_differences(cornell):
     place, so the differences' own noise is about 0.004): the translational
     ones within 30 % (measured: 1-23 %, largest toward the open front), the
     rotational one (the normal tilted 0.15 rad) within 10 % (measured: 4-8 %)."""
-    from photon_lightmaps.engine import irradiance_cache as IC
+    from photon_lightmaps.engine.transport import irradiance_cache as IC
     cs = cornell[0]
     ids = sorted({int(l) for lids in cs.instance_lightmaps for l in lids})
-    tex = BG._Texels(cs, ids, (), POINTS, 0, 1)
+    tex = bake_gather.Texels(cs, ids, (), POINTS, 0, 1)
     S = 96
 
     def records(points, normals):

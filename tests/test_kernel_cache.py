@@ -1,4 +1,4 @@
-"""numba's kernel cache shared by processes (engine/kernel_cache.py): a save waits
+"""numba's kernel cache shared by processes (engine/core/kernel_cache.py): a save waits
 for another process's save of the same kernel, and processes that compile
 different signatures of one kernel at once leave an index whose every entry
 loads its own machine code."""
@@ -77,7 +77,7 @@ def test_a_second_copy_of_the_module_does_not_lock_twice(tmp_path):
     a second copy's install must not wrap the save again, which would wait for itself."""
     import importlib.util
 
-    from photon_lightmaps.engine import kernel_cache
+    from photon_lightmaps.engine.core import kernel_cache
     spec = importlib.util.spec_from_file_location("second_copy_of_kernel_cache", kernel_cache.__file__)
     copy = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(copy)

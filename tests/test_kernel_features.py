@@ -1,5 +1,5 @@
 """Kernels specialise on the scene's features: a scene of meshes and primitives
-never compiles the CSG or L-system traversal cores (engine/features.py)."""
+never compiles the CSG or L-system traversal cores (engine/core/features.py)."""
 import json
 import os
 import subprocess
@@ -8,10 +8,10 @@ import sys
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import features
-from photon_lightmaps.engine.geometry import compile_geometry, trace_buf
-from photon_lightmaps.engine.scene import (CSGNode, Instance, LSystem, Primitive, Prototype, Scene, scale,
-                                           translate)
+from photon_lightmaps.engine.core import features
+from photon_lightmaps.engine.geometry.assembly import compile_geometry, trace_buf
+from photon_lightmaps.engine.core.scene import (
+    CSGNode, Instance, LSystem, Primitive, Prototype, Scene, scale, translate)
 
 from photon_lightmaps.engine.demo_scenes import uv_sphere_mesh
 from tests.lsystem_grammars import ABOP_124A
@@ -65,7 +65,7 @@ class L(event.Listener):
 event.register("numba:compile", L())
 import numpy as np
 from photon_lightmaps.engine import raycast
-from photon_lightmaps.engine.geometry import compile_geometry
+from photon_lightmaps.engine.geometry.assembly import compile_geometry
 from tests.test_kernel_features import _add_solid, _meshes
 s = _meshes()
 if sys.argv[1] == "csg":

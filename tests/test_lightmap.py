@@ -4,16 +4,16 @@ import math
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import lightmap as LM
-from photon_lightmaps.engine import texel_areas as TA
-from photon_lightmaps.engine import primitives as P
+from photon_lightmaps.engine.lightmaps import lightmap
+from photon_lightmaps.engine.lightmaps import texel_areas
+from photon_lightmaps.engine.geometry import primitives
 
-ALL_KINDS = (P.SPHERE, P.BOX, P.CYLINDER, P.CONE, P.TORUS, P.PARABOLOID, P.DISK, P.QUAD)
+ALL_KINDS = (primitives.SPHERE, primitives.BOX, primitives.CYLINDER, primitives.CONE, primitives.TORUS, primitives.PARABOLOID, primitives.DISK, primitives.QUAD)
 TORUS_PARAMS = np.array([0.35, 0.0, 0.0, 0.0])
 
 
 def _params(kind):
-    return TORUS_PARAMS if kind == P.TORUS else np.zeros(4)
+    return TORUS_PARAMS if kind == primitives.TORUS else np.zeros(4)
 
 
 def _rotation(rng):
@@ -34,7 +34,7 @@ def test_triangle_areas_sum_to_world_area():
     uv[:50] *= 0.02                     # many tiny triangles inside one texel
     area3d = rng.random(500) * 10.0
     for w, h in ((1, 1), (7, 5), (64, 64), (33, 90)):
-        area, cov = TA.triangle_texel_areas(uv, area3d, w, h)
+        area, cov = texel_areas.triangle_texel_areas(uv, area3d, w, h)
         assert area.shape == (w * h,) and cov.shape == (w * h,)
         assert abs(area.sum() - area3d.sum()) <= 1e-12 * area3d.sum()
         assert np.all(area >= 0) and np.all((cov >= 0) & (cov <= 1))
@@ -44,12 +44,12 @@ def test_half_grid_triangles_exact():
     # Lower-left half of the unit square on a 2x2 grid: texel (0,0) full, (1,0) and
     # (0,1) half, (1,1) untouched.
     uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
-    area, cov = TA.triangle_texel_areas(uv, [2.0], 2, 2)
+    area, cov = texel_areas.triangle_texel_areas(uv, [2.0], 2, 2)
     np.testing.assert_array_equal(cov, [1.0, 0.5, 0.5, 0.0])
     np.testing.assert_array_equal(area, [1.0, 0.5, 0.5, 0.0])
     # The other diagonal half: cut through texels (0,0) and (1,1).
     uv = np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]])
-    area, cov = TA.triangle_texel_areas(uv, [4.0], 2, 2)
+    area, cov = texel_areas.triangle_texel_areas(uv, [4.0], 2, 2)
     np.testing.assert_array_equal(cov, [0.5, 1.0, 0.0, 0.5])
     np.testing.assert_array_equal(area, [1.0, 2.0, 0.0, 1.0])
 
@@ -66,7 +66,7 @@ def test_triangle_coverage_matches_supersampling():
         if ua < 1e-3:
             continue
         # area3d = UV area in texel units, so texel area == covered texel fraction.
-        area, cov = TA.triangle_texel_areas(tri, [ua * w * h], w, h)
+        area, cov = texel_areas.triangle_texel_areas(tri, [ua * w * h], w, h)
         a, b, c = tri[0]
         d1 = (gx - b[0]) * (a[1] - b[1]) - (a[0] - b[0]) * (gy - b[1])
         d2 = (gx - c[0]) * (b[1] - c[1]) - (b[0] - c[0]) * (gy - c[1])
@@ -87,10 +87,10 @@ def test_zero_uv_area_triangles_own_no_texels():
         [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],     # zero world area: adds nothing
         [[0.0, 0.0], [0.5, 0.0], [0.0, 0.5]],     # a real one
     ])
-    area, cov = TA.triangle_texel_areas(uv, [1.5, 0.25, 0.0, 2.0], 4, 4)
+    area, cov = texel_areas.triangle_texel_areas(uv, [1.5, 0.25, 0.0, 2.0], 4, 4)
     assert area.sum() == pytest.approx(2.0, rel=1e-12)
     assert area[[0, 1, 4]].sum() == pytest.approx(2.0, rel=1e-12)   # texels under the real one
-    pcs = TA.triangle_texel_pieces(uv, [1.5, 0.25, 0.0, 2.0], 4, 4)
+    pcs = texel_areas.triangle_texel_pieces(uv, [1.5, 0.25, 0.0, 2.0], 4, 4)
     assert set(pcs.tri.tolist()) == {3}
 
 
@@ -99,7 +99,7 @@ def test_triangle_world_areas_affine():
     p = rng.normal(size=(20, 3, 3))
     M = rng.normal(size=(3, 3))
     ref = 0.5 * np.linalg.norm(np.cross((p[:, 1] - p[:, 0]) @ M.T, (p[:, 2] - p[:, 0]) @ M.T), axis=1)
-    np.testing.assert_allclose(TA.triangle_world_areas(p, M), ref, rtol=1e-12)
+    np.testing.assert_allclose(texel_areas.triangle_world_areas(p, M), ref, rtol=1e-12)
 
 
 # ------------------------------------------------------------------ primitive texel areas
@@ -109,10 +109,10 @@ def test_primitive_areas_uniform_scale(kind):
     rng = np.random.default_rng(kind)
     s = 1.7
     M = s * _rotation(rng)
-    exact = P.prim_area(kind, _params(kind)) * s * s
-    nf = int(P.prim_nfaces(kind))
+    exact = primitives.prim_area(kind, _params(kind)) * s * s
+    nf = int(primitives.prim_nfaces(kind))
     for R in (1, 2, 5, 16):
-        a = TA.primitive_texel_areas(kind, _params(kind), M, R)
+        a = texel_areas.primitive_texel_areas(kind, _params(kind), M, R)
         assert a.shape == (nf * R * R,)
         assert np.all(a > 0)
         assert abs(a.sum() - exact) <= 1e-9 * exact, (R, a.sum(), exact)
@@ -122,9 +122,9 @@ def test_primitive_areas_uniform_scale(kind):
 def test_primitive_areas_nonuniform_scale_per_texel(kind):
     M = np.array([[2.0, 0.3, 0.0], [0.0, 0.5, 0.2], [0.1, 0.0, 1.3]])
     R, k = 6, 8
-    nf = int(P.prim_nfaces(kind))
-    a = TA.primitive_texel_areas(kind, _params(kind), M, R)
-    fine = TA.primitive_texel_areas(kind, _params(kind), M, R * k, order=8)
+    nf = int(primitives.prim_nfaces(kind))
+    a = texel_areas.primitive_texel_areas(kind, _params(kind), M, R)
+    fine = texel_areas.primitive_texel_areas(kind, _params(kind), M, R * k, order=8)
     ref = fine.reshape(nf, R, k, R, k).sum(axis=(2, 4)).reshape(-1)
     np.testing.assert_allclose(a, ref, rtol=1e-6)
     assert abs(a.sum() - fine.sum()) <= 1e-9 * fine.sum()
@@ -132,49 +132,49 @@ def test_primitive_areas_nonuniform_scale_per_texel(kind):
 
 def test_box_face_layout_exact():
     # Box [-1,1]^3 scaled by (1,2,3): faces ±x have area 2·2·(2·3) = 24, ±y 12, ±z 8.
-    a = TA.primitive_texel_areas(P.BOX, np.zeros(4), np.diag([1.0, 2.0, 3.0]), 4)
+    a = texel_areas.primitive_texel_areas(primitives.BOX, np.zeros(4), np.diag([1.0, 2.0, 3.0]), 4)
     faces = a.reshape(6, 16).sum(axis=1)
     np.testing.assert_allclose(faces, [24, 24, 12, 12, 8, 8], rtol=1e-13)
     # Row layout of the lightmap puts the tiles side by side.
-    rows = LM.faces_to_rows(a, 6, 4).reshape(4, 24)
+    rows = lightmap.faces_to_rows(a, 6, 4).reshape(4, 24)
     for f in range(6):
         np.testing.assert_array_equal(rows[:, 4 * f:4 * f + 4], a.reshape(6, 4, 4)[f])
 
 
 def test_set_primitive_areas_matches_texel_index():
-    lm = LM.allocate([(3, 3, 1), (3 * 4, 4, 3)], 1)
+    lm = lightmap.allocate([(3, 3, 1), (3 * 4, 4, 3)], 1)
     M = np.diag([1.0, 2.0, 0.5])
-    LM.set_primitive_areas(lm, 1, P.CYLINDER, np.zeros(4), M)
-    a = TA.primitive_texel_areas(P.CYLINDER, np.zeros(4), M, 4).reshape(3, 4, 4)
+    lightmap.set_primitive_areas(lm, 1, primitives.CYLINDER, np.zeros(4), M)
+    a = texel_areas.primitive_texel_areas(primitives.CYLINDER, np.zeros(4), M, 4).reshape(3, 4, 4)
     for f in range(3):
         for y in range(4):
             for x in range(4):
-                i = LM.texel_index(lm, 1, f, (x + 0.5) / 4, (y + 0.5) / 4)
+                i = lightmap.texel_index(lm, 1, f, (x + 0.5) / 4, (y + 0.5) / 4)
                 assert lm.area[i] == a[f, y, x]
-    assert np.all(lm.coverage[LM.texel_slice(lm, 1)] == 1.0)
-    assert np.all(lm.area[LM.texel_slice(lm, 0)] == 0.0)
+    assert np.all(lm.coverage[lightmap.texel_slice(lm, 1)] == 1.0)
+    assert np.all(lm.area[lightmap.texel_slice(lm, 0)] == 0.0)
 
 
 # ------------------------------------------------------------------ recording
 
 def _filled(layouts, n_bands=3, area=1.0):
-    lm = LM.allocate(layouts, n_bands)
+    lm = lightmap.allocate(layouts, n_bands)
     lm.area[:] = area
     lm.coverage[:] = 1.0
     return lm
 
 
 def test_texel_index_and_clamping():
-    lm = LM.allocate([(5, 5, 1), (8, 4, 2)], 1)
-    assert LM.texel_index(lm, 0, 0, 0.0, 0.0) == 0
-    assert LM.texel_index(lm, 0, 0, 1.0, 1.0) == 24
-    assert LM.texel_index(lm, 0, 0, 0.45, 0.61) == 3 * 5 + 2
-    assert LM.texel_index(lm, 0, 0, -3.0, math.nan) == 0
-    assert LM.texel_index(lm, 0, 7, 2.0, 0.0) == 4            # face clamped to the only tile
+    lm = lightmap.allocate([(5, 5, 1), (8, 4, 2)], 1)
+    assert lightmap.texel_index(lm, 0, 0, 0.0, 0.0) == 0
+    assert lightmap.texel_index(lm, 0, 0, 1.0, 1.0) == 24
+    assert lightmap.texel_index(lm, 0, 0, 0.45, 0.61) == 3 * 5 + 2
+    assert lightmap.texel_index(lm, 0, 0, -3.0, math.nan) == 0
+    assert lightmap.texel_index(lm, 0, 7, 2.0, 0.0) == 4            # face clamped to the only tile
     # lightmap 1: two 4x4 tiles side by side, starting at texel 25
-    assert LM.texel_index(lm, 1, 1, 0.0, 0.0) == 25 + 4
-    assert LM.texel_index(lm, 1, 1, 0.99, 0.99) == 25 + 3 * 8 + 7
-    assert LM.texel_index(lm, 1, 0, 1.0, 0.3) == 25 + 1 * 8 + 3   # s = 1 stays in tile 0
+    assert lightmap.texel_index(lm, 1, 1, 0.0, 0.0) == 25 + 4
+    assert lightmap.texel_index(lm, 1, 1, 0.99, 0.99) == 25 + 3 * 8 + 7
+    assert lightmap.texel_index(lm, 1, 0, 1.0, 0.3) == 25 + 1 * 8 + 3   # s = 1 stays in tile 0
 
 
 def test_accumulate_matches_reference_and_is_deterministic():
@@ -185,8 +185,8 @@ def test_accumulate_matches_reference_and_is_deterministic():
     ids = rng.integers(-1, n, 200_000)
     pw = rng.random((200_000, 3))
     for part in np.array_split(np.arange(ids.size), 5):
-        LM.accumulate(lm1, ids[part], pw[part])
-        LM.accumulate(lm2, ids[part], pw[part])
+        lightmap.accumulate(lm1, ids[part], pw[part])
+        lightmap.accumulate(lm2, ids[part], pw[part])
     assert lm1.flux.tobytes() == lm2.flux.tobytes()
     assert lm1.flux_sq.tobytes() == lm2.flux_sq.tobytes()
     keep = ids >= 0
@@ -198,63 +198,63 @@ def test_accumulate_matches_reference_and_is_deterministic():
     np.add.at(ref_sq, ids[keep], pw[keep].mean(axis=1) ** 2)
     np.testing.assert_allclose(lm1.flux_sq, ref_sq, rtol=1e-12)
     with pytest.raises(ValueError):
-        LM.accumulate(lm1, [n], np.ones((1, 3)))
+        lightmap.accumulate(lm1, [n], np.ones((1, 3)))
 
 
 def test_irradiance_is_flux_over_area_exactly():
     rng = np.random.default_rng(2)
-    lm = LM.allocate([(8, 8, 1)], 3)
+    lm = lightmap.allocate([(8, 8, 1)], 3)
     lm.area[:] = rng.random(64) + 0.1
-    LM.accumulate(lm, rng.integers(0, 64, 5000), rng.random((5000, 3)))
-    LM.finalize(lm)
+    lightmap.accumulate(lm, rng.integers(0, 64, 5000), rng.random((5000, 3)))
+    lightmap.finalize(lm)
     np.testing.assert_array_equal(lm.irradiance, lm.flux / lm.area[:, None])
-    assert np.all(lm.state == LM.STATE_MEASURED)
+    assert np.all(lm.state == lightmap.STATE_MEASURED)
 
 
 def test_zero_and_tiny_area_texels_never_nan():
-    lm = LM.allocate([(4, 4, 1), (3, 3, 1)], 2)
+    lm = lightmap.allocate([(4, 4, 1), (3, 3, 1)], 2)
     lm.area[:16] = 1.0
     lm.area[5] = 0.0          # photon recorded in a zero-area texel
     lm.area[6] = 1e-300       # sliver: below the empty threshold
-    LM.accumulate(lm, np.arange(25), np.ones((25, 2)))
-    LM.finalize(lm, passes=0)
+    lightmap.accumulate(lm, np.arange(25), np.ones((25, 2)))
+    lightmap.finalize(lm, passes=0)
     assert np.all(np.isfinite(lm.irradiance))
-    assert np.all(lm.irradiance[[5, 6]] == 0.0) and np.all(lm.state[[5, 6]] == LM.STATE_EMPTY)
+    assert np.all(lm.irradiance[[5, 6]] == 0.0) and np.all(lm.state[[5, 6]] == lightmap.STATE_EMPTY)
     assert np.all(lm.irradiance[16:] == 0.0)           # lightmap without any area
-    LM.finalize(lm)
+    lightmap.finalize(lm)
     assert np.all(np.isfinite(lm.irradiance))
     np.testing.assert_array_equal(lm.irradiance[[5, 6]], 1.0)   # dilated from neighbours
-    assert np.all(lm.irradiance[16:] == 0.0) and np.all(lm.state[16:] == LM.STATE_EMPTY)
+    assert np.all(lm.irradiance[16:] == 0.0) and np.all(lm.state[16:] == lightmap.STATE_EMPTY)
 
 
 def test_dilation_fills_rings_and_stays_in_tile():
     # Lightmap 0: 2 tiles of 10x10; tile 0 has one measured texel, tile 1 none.
-    lm = LM.allocate([(20, 10, 2), (6, 6, 1)], 1)
+    lm = lightmap.allocate([(20, 10, 2), (6, 6, 1)], 1)
     t = 3 * 20 + 3            # texel (3, 3) of tile 0
     lm.area[t] = 2.0
     lm.flux[t] = 8.0
     o1 = int(lm.offset[1])
     lm.area[o1:] = 1.0        # lightmap 1 is fully measured with E = 7
     lm.flux[o1:] = 7.0
-    LM.finalize(lm, passes=4)
+    lightmap.finalize(lm, passes=4)
     irr = lm.irradiance[:200, 0].reshape(10, 20)
     state = lm.state[:200].reshape(10, 20)
     # Chebyshev distance <= 4 from (3, 3) inside tile 0 gets E = 4, nothing else.
     yy, xx = np.mgrid[0:10, 0:20]
     ring = (np.maximum(abs(xx - 3), abs(yy - 3)) <= 4) & (xx < 10)
     np.testing.assert_array_equal(irr[ring], 4.0)
-    assert np.all(irr[~ring] == 0.0) and np.all(state[~ring] == LM.STATE_EMPTY)
-    assert np.all(state[:, 10:] == LM.STATE_EMPTY)      # never bled into tile 1
-    assert state[3, 3] == LM.STATE_MEASURED and state[3, 4] == LM.STATE_DILATED
+    assert np.all(irr[~ring] == 0.0) and np.all(state[~ring] == lightmap.STATE_EMPTY)
+    assert np.all(state[:, 10:] == lightmap.STATE_EMPTY)      # never bled into tile 1
+    assert state[3, 3] == lightmap.STATE_MEASURED and state[3, 4] == lightmap.STATE_DILATED
     np.testing.assert_array_equal(lm.irradiance[o1:, 0], 7.0)
 
 
 def test_dilation_averages_neighbours():
-    lm = LM.allocate([(3, 3, 1)], 1)
+    lm = lightmap.allocate([(3, 3, 1)], 1)
     lm.area[:] = 1.0
     lm.flux[:, 0] = np.arange(9.0)
     lm.area[4] = 0.0          # centre hole
-    LM.finalize(lm)
+    lightmap.finalize(lm)
     assert lm.irradiance[4, 0] == np.mean([0, 1, 2, 3, 5, 6, 7, 8])
 
 
@@ -271,7 +271,7 @@ def _grid_points(rng, n):
 @pytest.mark.parametrize("passes", [0, 1])
 def test_bilinear_constant_field_everywhere(passes):
     rng = np.random.default_rng(4)
-    lm = LM.allocate([(3 * 7, 7, 3), (10, 6, 1)], 3)
+    lm = lightmap.allocate([(3 * 7, 7, 3), (10, 6, 1)], 3)
     lm.area[:] = 0.5
     # Holes: a whole empty tile (2), empty blocks wider than the dilation reach,
     # scattered zero texels. Without dilation (passes=0) the lookups next to
@@ -282,68 +282,68 @@ def test_bilinear_constant_field_everywhere(passes):
     lm.area[rng.integers(0, lm.area.size, 10)] = 0.0
     c = np.array([0.25, 1.5, 3.0])
     lm.flux[:] = c * 0.5
-    LM.finalize(lm, passes=passes)
-    assert lm.state[6 * 21 + 13] == LM.STATE_EMPTY     # (13, 6): still empty after dilation
+    lightmap.finalize(lm, passes=passes)
+    assert lm.state[6 * 21 + 13] == lightmap.STATE_EMPTY     # (13, 6): still empty after dilation
     out = np.zeros(3)
     for lid, faces in ((0, (0, 1)), (1, (0,))):
         for f in faces:
             for s, t in _grid_points(rng, 300):
-                if lm.area[LM.texel_index(lm, lid, f, s, t)] == 0.0:
+                if lm.area[lightmap.texel_index(lm, lid, f, s, t)] == 0.0:
                     continue          # no surface there: hits cannot land in empty texels
-                LM.lookup_bilinear(lm, lid, f, s, t, out)
+                lightmap.lookup_bilinear(lm, lid, f, s, t, out)
                 np.testing.assert_allclose(out, c, rtol=1e-14)
-                LM.lookup(lm, lid, f, s, t, LM.MODE_BILINEAR, out)
+                lightmap.lookup(lm, lid, f, s, t, lightmap.MODE_BILINEAR, out)
                 np.testing.assert_allclose(out, c, rtol=1e-14)
     # The empty tile reads zero, never the neighbouring tile's values.
-    LM.lookup_bilinear(lm, 0, 2, 0.02, 0.5, out)
+    lightmap.lookup_bilinear(lm, 0, 2, 0.02, 0.5, out)
     assert np.all(out == 0.0)
 
 
 def test_bilinear_reproduces_linear_ramp():
     rng = np.random.default_rng(8)
     R = 8
-    lm = LM.allocate([(2 * R, R, 2)], 1)
+    lm = lightmap.allocate([(2 * R, R, 2)], 1)
     lm.area[:] = 1.0
     yy, xx = np.mgrid[0:R, 0:2 * R]
     xc = (xx % R + 0.5) / R
     yc = (yy + 0.5) / R
     face = xx // R
     lm.flux[:, 0] = (1.0 + 2.0 * xc - 3.0 * yc + 10.0 * face).reshape(-1)
-    LM.finalize(lm)
+    lightmap.finalize(lm)
     out = np.zeros(1)
     for _ in range(400):
         f = int(rng.integers(0, 2))
         s, t = 0.5 / R + rng.random(2) * (1 - 1.0 / R)
-        LM.lookup_bilinear(lm, 0, f, s, t, out)
+        lightmap.lookup_bilinear(lm, 0, f, s, t, out)
         assert abs(out[0] - (1 + 2 * s - 3 * t + 10 * f)) < 1e-12
     # At the border the lookup clamps to the edge texels (flat outside the centres).
-    LM.lookup_bilinear(lm, 0, 1, 0.0, 0.0, out)
+    lightmap.lookup_bilinear(lm, 0, 1, 0.0, 0.0, out)
     assert abs(out[0] - (1 + 2 * 0.5 / R - 3 * 0.5 / R + 10)) < 1e-12
 
 
 def test_constant_lookup_picks_containing_texel():
     rng = np.random.default_rng(9)
-    lm = LM.allocate([(2, 2, 1), (12, 5, 3)], 1)
+    lm = lightmap.allocate([(2, 2, 1), (12, 5, 3)], 1)
     lm.area[:] = 1.0
     lm.flux[:, 0] = np.arange(lm.area.size, dtype=float)
-    LM.finalize(lm)
+    lightmap.finalize(lm)
     out = np.zeros(1)
     for _ in range(300):
         f = int(rng.integers(0, 3))
         s, t = rng.random(2)
-        LM.lookup(lm, 1, f, s, t, LM.MODE_CONSTANT, out)
+        lightmap.lookup(lm, 1, f, s, t, lightmap.MODE_CONSTANT, out)
         assert out[0] == 4 + int(t * 5) * 12 + f * 4 + int(s * 4)
 
 
 # ------------------------------------------------------------------ statistics / helpers
 
 def test_texel_stats():
-    lm = LM.allocate([(2, 2, 1), (2, 1, 1)], 3)
+    lm = lightmap.allocate([(2, 2, 1), (2, 1, 1)], 3)
     lm.area[:4] = 0.5
     n = 400
-    LM.accumulate(lm, np.zeros(n, np.int64), np.full((n, 3), 0.01))
-    LM.accumulate(lm, [1], [[1.0, 2.0, 3.0]])
-    st = LM.texel_stats(lm)
+    lightmap.accumulate(lm, np.zeros(n, np.int64), np.full((n, 3), 0.01))
+    lightmap.accumulate(lm, [1], [[1.0, 2.0, 3.0]])
+    st = lightmap.texel_stats(lm)
     assert abs(st.rel_error[0] - 1.0 / math.sqrt(n)) < 1e-12
     assert abs(st.rel_error[1] - 1.0) < 1e-12
     assert np.isinf(st.rel_error[2])
@@ -354,17 +354,17 @@ def test_texel_stats():
 
 
 def test_resolution_for():
-    assert LM.resolution_for(1.0, 16.0) == 16
-    assert LM.resolution_for(4.0, 10.0) == 20
-    assert LM.resolution_for(1e-6, 16.0) == 2
-    assert LM.resolution_for(1e6, 16.0) == 1024
-    assert LM.resolution_for(0.0, 16.0) == 2 and LM.resolution_for(math.nan, 1.0) == 2
+    assert lightmap.resolution_for(1.0, 16.0) == 16
+    assert lightmap.resolution_for(4.0, 10.0) == 20
+    assert lightmap.resolution_for(1e-6, 16.0) == 2
+    assert lightmap.resolution_for(1e6, 16.0) == 1024
+    assert lightmap.resolution_for(0.0, 16.0) == 2 and lightmap.resolution_for(math.nan, 1.0) == 2
 
 
 def test_allocate_rejects_bad_layouts():
     with pytest.raises(ValueError):
-        LM.allocate([(10, 4, 3)], 3)
+        lightmap.allocate([(10, 4, 3)], 3)
     with pytest.raises(ValueError):
-        LM.allocate([(0, 4, 1)], 3)
-    lm = LM.allocate([(4, 2, 2), (3, 3, 1)], 2)
+        lightmap.allocate([(0, 4, 1)], 3)
+    lm = lightmap.allocate([(4, 2, 2), (3, 3, 1)], 2)
     assert list(lm.offset) == [0, 8] and lm.flux.shape == (17, 2)

@@ -1,4 +1,4 @@
-"""L-system grammars (engine/lsystem.py): ABOP examples, context, parameters, the seeded
+"""L-system grammars (engine/lsystem/grammar.py): ABOP examples, context, parameters, the seeded
 generator, lazy counting, and errors that point at the culprit."""
 import math
 import time
@@ -7,9 +7,9 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import lsystem as L
-from photon_lightmaps.engine.lsystem import Module
-from photon_lightmaps.engine.scene import SceneError
+from photon_lightmaps.engine.lsystem import grammar as L
+from photon_lightmaps.engine.lsystem.grammar import Module
+from photon_lightmaps.engine.core.scene import SceneError
 
 
 def grammar(axiom, *productions, n=None, **head):

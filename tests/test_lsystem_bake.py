@@ -15,13 +15,13 @@ import math
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
 from photon_lightmaps import demo_blend  # noqa: E402
 from photon_lightmaps.bake import hooks  # noqa: E402
-from photon_lightmaps.bake import lsystem_preview as PV  # noqa: E402
+from photon_lightmaps.bake import lsystem_preview  # noqa: E402
 from photon_lightmaps.bake import orientation as ol_bake  # noqa: E402
-from photon_lightmaps.export import lsystems as L  # noqa: E402
+from photon_lightmaps.export import lsystems  # noqa: E402
 
 from blender_session import empty_blender_file, addon  # noqa: E402,F401  (session-wide registration)
 
@@ -40,7 +40,7 @@ def flake_scene(scene, link="DATA"):
     s = 3.0
     demo_blend.mesh_object("ground", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)],
                            ground, uvs=demo_blend.quad_uvs())
-    ob = PV.new_lsystem_object("flake", preset="sphereflake", location=(0.0, 0.0, 1.0))
+    ob = lsystem_preview.new_lsystem_object("flake", preset="sphereflake", location=(0.0, 0.0, 1.0))
     props = ob.photon_lightmaps.lsystem
     props.use_render_iterations, props.render_iterations = True, 2
     for name, rgb in (("flake_0", (0.8, 0.8, 0.8)), ("flake_1", (0.8, 0.5, 0.3)), ("flake_2", (0.3, 0.6, 0.3))):
@@ -49,8 +49,8 @@ def flake_scene(scene, link="DATA"):
         for slot in ob.material_slots:
             m = slot.material
             slot.link, slot.material = "OBJECT", m
-    PV.update_preview(ob)
-    assert L.info(ob)["depth"] == 2
+    lsystem_preview.update_preview(ob)
+    assert lsystems.info(ob)["depth"] == 2
     demo_blend.add_light(scene, "SUN", "sun", power=3.0, rotation=SUN_ROTATION)
     demo_blend.set_world(scene)
     return ob
@@ -125,7 +125,7 @@ def test_ol_bake_bakes_and_hooks_an_lsystem_object_and_remove_restores_it():
     # Remove Orientation Lightmap on the L-system object: image and nodes go, the object stays
     bpy.context.view_layer.objects.active = ob
     assert bpy.ops.photon_lightmaps.remove_orientation_lightmap() == {"FINISHED"}
-    assert bpy.data.objects.get("flake") is not None and L.is_lsystem(bpy.data.objects["flake"])
+    assert bpy.data.objects.get("flake") is not None and lsystems.is_lsystem(bpy.data.objects["flake"])
     assert {m.name: material_state(m) for m in mats} == before
     assert sorted(ng.name for ng in bpy.data.node_groups) == groups_before
     assert sorted(im.name for im in bpy.data.images) == images_before
@@ -135,12 +135,12 @@ def test_ol_bake_bakes_and_hooks_an_lsystem_object_and_remove_restores_it():
 def test_a_collection_ol_covering_an_lsystem_bakes_it_in_its_own_image():
     scene = bpy.context.scene
     ob = flake_scene(scene)
-    from photon_lightmaps.operators import orientation_lightmaps as OPS
+    from photon_lightmaps.operators import orientation_lightmaps
     coll = bpy.data.collections.new("plants")
     scene.collection.children.link(coll)
     coll.objects.link(ob)
     scene.collection.objects.unlink(ob)
-    empty = OPS.add_orientation_lightmap(scene, coll, resolution=8, samples=4000)
+    empty = orientation_lightmaps.add_orientation_lightmap(scene, coll, resolution=8, samples=4000)
     res = ol_bake.bake_orientation_lightmaps(bpy.context, photons=20_000, seed=1, pack=True)
     assert res.lsystems == {} and ob.name not in res.images
     assert res.covered[empty.name] == [ob.name]
@@ -151,9 +151,9 @@ def test_a_collection_ol_covering_an_lsystem_bakes_it_in_its_own_image():
 def test_stubs_are_baked_into_the_objects_image():
     scene = bpy.context.scene
     ob = flake_scene(scene)
-    text = L.grammar_text(ob)
+    text = lsystems.grammar_text(ob)
     text.from_string(text.as_string().replace("derivation length:", "ol stub: @O levels 1\nderivation length:"))
-    PV.update_preview(ob)
+    lsystem_preview.update_preview(ob)
     res = ol_bake.bake_orientation_lightmaps(bpy.context, photons=20_000, seed=1, pack=True, hook_materials=False)
     names = [row["name"] for row in res.rows]
     assert sum(n.startswith(f"{ob.name} stub ") for n in names) == 9

@@ -9,20 +9,20 @@ depth (count, and for the per-symbol Repeat Zone every leaf's centre).
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
 from photon_lightmaps import export  # noqa: E402
-from photon_lightmaps.engine import lsystem as LS  # noqa: E402
-from photon_lightmaps.engine.dcsg import DCSG, DCSGUnsupported  # noqa: E402
-from photon_lightmaps.engine.turtle import interpret, to_primitives  # noqa: E402
-from photon_lightmaps.bake import lsystem_preview as PV  # noqa: E402
-from photon_lightmaps.export import lsystems as L  # noqa: E402
+from photon_lightmaps.engine.lsystem import grammar  # noqa: E402
+from photon_lightmaps.engine.geometry.dcsg import DCSG, DCSGUnsupported  # noqa: E402
+from photon_lightmaps.engine.lsystem.turtle import interpret, to_primitives  # noqa: E402
+from photon_lightmaps.bake import lsystem_preview  # noqa: E402
+from photon_lightmaps.export import lsystems  # noqa: E402
 from photon_lightmaps.ui import panels  # noqa: E402
 
 from blender_session import addon  # noqa: E402,F401  (session-wide registration)
 from lsystem_grammars import TAPERED  # noqa: E402
 
-ABOP_124A = L.FALLBACK_PRESET_TEXT
+ABOP_124A = lsystems.FALLBACK_PRESET_TEXT
 # two rewritable symbols, F -> FF (exits that grow with the depth)
 ABOP_124D = """axiom: X
 derivation length: 5
@@ -112,17 +112,17 @@ def realized_primitives(ob):
     if me is None:
         return 0
     ids = np.empty(len(me.polygons), np.int32)
-    me.attributes[PV.PRIMITIVE_ATTR].data.foreach_get("value", ids)
+    me.attributes[lsystem_preview.PRIMITIVE_ATTR].data.foreach_get("value", ids)
     return len(np.unique(ids))
 
 
 def engine_primitives(text, depth):
     """What the engine expands at `depth`: (count, object-space centres or None)."""
-    g = LS.parse(text)
+    g = grammar.parse(text)
     try:
         d = DCSG(g, steps=depth)
     except DCSGUnsupported:
-        prims = to_primitives(interpret(LS.derive(g, depth).modules, g.angle, g.width))
+        prims = to_primitives(interpret(grammar.derive(g, depth).modules, g.angle, g.width))
         return len(prims), None
     f = d.flatten()
     if not g.is_stochastic:
@@ -153,25 +153,25 @@ def assert_same_points(got, want, tol=1e-5, what=""):
 
 
 def lsystem(text, name="LSys", **settings):
-    ob = PV.new_lsystem_object(name, text=text)
+    ob = lsystem_preview.new_lsystem_object(name, text=text)
     for k, v in settings.items():
         setattr(ob.photon_lightmaps.lsystem, k, v)
     return ob
 
 
 def test_add_preset_creates_object_text_and_modifier():
-    name, _, _ = L.presets()[0]
+    name, _, _ = lsystems.presets()[0]
     assert bpy.ops.photon_lightmaps.lsystem_add(preset=name) == {"FINISHED"}
     ob = bpy.context.view_layer.objects.active
     assert ob is not None and ob.type == "MESH"
-    text = ob[L.TEXT_PROP]
-    assert isinstance(text, bpy.types.Text) and text.as_string() == L.preset_text(name)
-    mod = L.lsystem_modifier(ob)
+    text = ob[lsystems.TEXT_PROP]
+    assert isinstance(text, bpy.types.Text) and text.as_string() == lsystems.preset_text(name)
+    mod = lsystems.lsystem_modifier(ob)
     assert mod is not None and mod.type == "NODES"
     ng = mod.node_group
-    assert ng[L.TEXT_PROP] == text and ng[L.INFO_PROP]["version"] == L.FORMAT_VERSION
-    meta = L.info(ob)
-    assert meta["hash"] == L.text_hash(text.as_string()) and ob.photon_lightmaps.lsystem.status == ""
+    assert ng[lsystems.TEXT_PROP] == text and ng[lsystems.INFO_PROP]["version"] == lsystems.FORMAT_VERSION
+    meta = lsystems.info(ob)
+    assert meta["hash"] == lsystems.text_hash(text.as_string()) and ob.photon_lightmaps.lsystem.status == ""
     if meta["path"] == "symbols":
         kinds = {n.bl_idname for n in ng.nodes}
         assert {"GeometryNodeRepeatInput", "GeometryNodeRepeatOutput", "GeometryNodeSetGeometryName",
@@ -182,15 +182,15 @@ def test_add_preset_creates_object_text_and_modifier():
 @pytest.mark.parametrize("text,depth", [(ABOP_124A, 3), (ABOP_124A, 4), (ABOP_124D, 4), (TAPER, 5)])
 def test_symbol_preview_draws_the_engines_expansion(text, depth):
     ob = lsystem(text, preview_iterations=depth)
-    meta = L.info(ob)
+    meta = lsystems.info(ob)
     assert meta["path"] == "symbols" and meta["depth"] == depth
     gs = geometry(ob)
     got = leaves(gs)
     n, centres = engine_primitives(text, depth)
-    assert len(got) == n == DCSG(LS.parse(text), steps=depth).implicit_primitives
+    assert len(got) == n == DCSG(grammar.parse(text), steps=depth).implicit_primitives
     assert_same_points(got, centres)
     # every rewritable symbol that is instanced carries its name (the axiom's are not instanced)
-    plan = PV.symbol_plan(LS.parse(text))
+    plan = lsystem_preview.symbol_plan(grammar.parse(text))
     assert [s.label for s in plan.symbols] == meta["symbols"]
     instanced = {plan.symbols[c.symbol].label for s in plan.symbols for c in s.children if c.symbol is not None}
     assert reference_names(gs) == instanced
@@ -199,20 +199,20 @@ def test_symbol_preview_draws_the_engines_expansion(text, depth):
 @pytest.mark.parametrize("text,depth", [(PARAMETRIC, 4), (STOCHASTIC, 3), (CONTEXT, 3)])
 def test_flattened_preview_draws_the_engines_expansion(text, depth):
     ob = lsystem(text, preview_iterations=depth)
-    meta = L.info(ob)
+    meta = lsystems.info(ob)
     assert meta["path"] == "flattened" and meta["depth"] == depth and meta["note"]
     n, centres = engine_primitives(text, depth)
     assert realized_primitives(ob) == n
-    if not LS.parse(text).is_stochastic and centres is not None:
-        assert n == DCSG(LS.parse(text), steps=depth).implicit_primitives
+    if not grammar.parse(text).is_stochastic and centres is not None:
+        assert n == DCSG(grammar.parse(text), steps=depth).implicit_primitives
 
 
 def test_every_preset_previews_the_engines_expansion():
-    for name, _, _ in L.presets():
-        ob = PV.new_lsystem_object(name, preset=name)
+    for name, _, _ in lsystems.presets():
+        ob = lsystem_preview.new_lsystem_object(name, preset=name)
         assert ob.photon_lightmaps.lsystem.status == "", name
-        meta = L.info(ob)
-        n, centres = engine_primitives(L.preset_text(name), meta["depth"])
+        meta = lsystems.info(ob)
+        n, centres = engine_primitives(lsystems.preset_text(name), meta["depth"])
         if meta["path"] == "symbols":
             got = leaves(geometry(ob))
             assert len(got) == n, name
@@ -225,18 +225,18 @@ def test_preview_depth_is_capped_at_what_blender_displays():
     ob = lsystem(ABOP_124A, use_render_iterations=True, render_iterations=8)
     s = ob.photon_lightmaps.lsystem
     s.preview_iterations = 9
-    assert s.preview_iterations == L.MAX_PREVIEW_DEPTH
-    assert L.info(ob)["depth"] == L.MAX_PREVIEW_DEPTH
+    assert s.preview_iterations == lsystems.MAX_PREVIEW_DEPTH
+    assert lsystems.info(ob)["depth"] == lsystems.MAX_PREVIEW_DEPTH
     dg = bpy.context.evaluated_depsgraph_get()
     shown = sum(1 for i in dg.object_instances if i.is_instance and i.parent is not None
                 and i.parent.original == ob)
-    assert shown == 5 ** L.MAX_PREVIEW_DEPTH          # all six nested levels reach the depsgraph
+    assert shown == 5 ** lsystems.MAX_PREVIEW_DEPTH          # all six nested levels reach the depsgraph
     lines = [t for t, _ in panels.lsystem_summary(ob)]
     assert any("at most 6 nested" in t for t in lines)
     assert any("shows depth 6 of 8" in t for t in lines)
     # the render depth bounds the preview depth
     s.render_iterations = 2
-    assert L.info(ob)["depth"] == 2 and len(leaves(geometry(ob))) == 25
+    assert lsystems.info(ob)["depth"] == 2 and len(leaves(geometry(ob))) == 25
 
 
 def test_save_and_reload_keep_grammar_and_settings(tmp_path):
@@ -249,16 +249,16 @@ def test_save_and_reload_keep_grammar_and_settings(tmp_path):
     assert "Weed" not in bpy.data.objects
     bpy.ops.wm.open_mainfile(filepath=path)
     ob = bpy.data.objects["Weed"]
-    assert L.grammar_text(ob).as_string() == ABOP_124D
+    assert lsystems.grammar_text(ob).as_string() == ABOP_124D
     s = ob.photon_lightmaps.lsystem
     assert (s.preview_iterations, s.use_seed, s.seed, s.use_angle, s.angle, s.use_render_iterations,
             s.render_iterations) == (3, True, 7, True, 30.0, True, 4)
-    assert L.info(ob)["hash"] == L.text_hash(ABOP_124D)
-    assert L.lsystem_modifier(ob).node_group[L.TEXT_PROP] == L.grammar_text(ob)
+    assert lsystems.info(ob)["hash"] == lsystems.text_hash(ABOP_124D)
+    assert lsystems.lsystem_modifier(ob).node_group[lsystems.TEXT_PROP] == lsystems.grammar_text(ob)
     assert len(leaves(geometry(ob))) == count
     # nothing to regenerate after loading: the text is the one previewed
-    PV.check_texts()
-    assert L.info(ob)["hash"] == L.text_hash(ABOP_124D)
+    lsystem_preview.check_texts()
+    assert lsystems.info(ob)["hash"] == lsystems.text_hash(ABOP_124D)
 
 
 def test_library_linked_lsystem_keeps_its_grammar_and_exports(tmp_path):
@@ -270,11 +270,11 @@ def test_library_linked_lsystem_keeps_its_grammar_and_exports(tmp_path):
         dst.objects = ["Linked"]
     ob = dst.objects[0]
     bpy.context.scene.collection.objects.link(ob)
-    text = L.grammar_text(ob)
+    text = lsystems.grammar_text(ob)
     assert ob.library is not None and text is not None and text.library is not None
     assert text.as_string() == ABOP_124A
     assert len(leaves(geometry(ob))) == 125
-    PV.check_texts()                    # linked data is not written to
+    lsystem_preview.check_texts()                    # linked data is not written to
     scene, _, _ = export_current()
     assert [p.lsystems[0].grammar for p in scene.prototypes] == [ABOP_124A]
 
@@ -317,8 +317,8 @@ def test_export_carries_the_overrides():
     scene, _, _ = export_current()
     ls = scene.prototypes[0].lsystems[0]
     assert (ls.steps, ls.seed) == (9, 11)
-    g = LS.parse(ls.grammar)
-    assert g.angle == 40.0 and g.productions[0].text == LS.parse(ABOP_124A).productions[0].text
+    g = grammar.parse(ls.grammar)
+    assert g.angle == 40.0 and g.productions[0].text == grammar.parse(ABOP_124A).productions[0].text
     assert ls.grammar.count("\n") == ABOP_124A.count("\n")      # line numbers kept
     ob.photon_lightmaps.lsystem.use_angle = False
     scene, _, _ = export_current()
@@ -327,43 +327,43 @@ def test_export_carries_the_overrides():
 
 def test_syntax_error_shows_line_and_column_and_keeps_the_preview():
     ob = lsystem(ABOP_124A, preview_iterations=3)
-    ng = L.lsystem_modifier(ob).node_group
-    before = (len(leaves(geometry(ob))), len(ng.nodes), L.info(ob)["hash"])
-    text = L.grammar_text(ob)
+    ng = lsystems.lsystem_modifier(ob).node_group
+    before = (len(leaves(geometry(ob))), len(ng.nodes), lsystems.info(ob)["hash"])
+    text = lsystems.grammar_text(ob)
     text.from_string(ABOP_124A.replace("F --> F[+F]F[-F]F", "F --> F[+F]F[-F]F)"))
-    with pytest.raises(LS.LSystemSyntaxError) as err:
-        LS.parse(text.as_string())
+    with pytest.raises(grammar.LSystemSyntaxError) as err:
+        grammar.parse(text.as_string())
     assert (err.value.line, err.value.column) == (6, 18)
-    PV.check_texts()                    # what the timer runs; must not raise
+    lsystem_preview.check_texts()                    # what the timer runs; must not raise
     status = ob.photon_lightmaps.lsystem.status
     assert "line 6, column 18" in status and text.name in status
     assert status in [t for t, _ in panels.lsystem_summary(ob)]
-    assert (len(leaves(geometry(ob))), len(ng.nodes), L.info(ob)["hash"]) == before
+    assert (len(leaves(geometry(ob))), len(ng.nodes), lsystems.info(ob)["hash"]) == before
     # Update Preview reports it too, without raising
     bpy.context.view_layer.objects.active = ob
     assert bpy.ops.photon_lightmaps.lsystem_update() == {"FINISHED"}
     assert "line 6, column 18" in ob.photon_lightmaps.lsystem.status
     # editing the text again regenerates the preview
     text.from_string(ABOP_124A.replace("F --> F[+F]F[-F]F", "F --> F[+F]F"))
-    PV.check_texts()
+    lsystem_preview.check_texts()
     assert ob.photon_lightmaps.lsystem.status == ""
-    assert len(leaves(geometry(ob))) == 3 ** 3 == DCSG(LS.parse(text.as_string()), steps=3).implicit_primitives
+    assert len(leaves(geometry(ob))) == 3 ** 3 == DCSG(grammar.parse(text.as_string()), steps=3).implicit_primitives
 
 
 def test_panel_statistics_come_from_the_engine():
     ob = lsystem(ABOP_124A)
-    st = L.info(ob)["stats"]
-    d = DCSG(LS.parse(ABOP_124A))
+    st = lsystems.info(ob)["stats"]
+    d = DCSG(grammar.parse(ABOP_124A))
     s = d.stats()
     assert st["primitives"] == d.implicit_primitives == 5 ** 5
     assert st["dcsg_nodes"] == s["dcsg_nodes"] and st["graph_bytes"] == s["bytes"]
-    assert st["flat_bytes"] == 5 ** 5 * L.CYCLES_BYTES_PER_INSTANCE
+    assert st["flat_bytes"] == 5 ** 5 * lsystems.CYCLES_BYTES_PER_INSTANCE
     lines = [t for t, _ in panels.lsystem_summary(ob)]
     assert any("3,125" in t for t in lines) and any("DCSG nodes" in t for t in lines)
     assert any("OL stubs: none" in t for t in lines)
     stub = lsystem("axiom: A\nderivation length: 2\nol stub: A levels 1 2\nproduction:\nA --> F[+A]A\n",
                    name="Stubbed")
-    assert L.info(stub)["ol_stubs"] == ["A (levels 1, 2)"]
+    assert lsystems.info(stub)["ol_stubs"] == ["A (levels 1, 2)"]
 
 
 def test_duplicates_share_one_prototype_and_regenerate_independently():
@@ -376,20 +376,20 @@ def test_duplicates_share_one_prototype_and_regenerate_independently():
     assert len(scene.prototypes) == 1 and [i.prototype for i in scene.instances] == [0, 0]
     np.testing.assert_allclose(sorted(i.transform[0, 3] for i in scene.instances), [0.0, 5.0])
     dup.photon_lightmaps.lsystem.preview_iterations = 2
-    assert L.lsystem_modifier(dup).node_group != L.lsystem_modifier(ob).node_group
+    assert lsystems.lsystem_modifier(dup).node_group != lsystems.lsystem_modifier(ob).node_group
     assert (len(leaves(geometry(ob))), len(leaves(geometry(dup)))) == (125, 25)
 
 
 def test_a_deleted_grammar_text_is_reported_and_not_exported_as_a_mesh():
     ob = lsystem(PARAMETRIC, name="Orphan")       # the flattened preview is the object's mesh
     assert len(ob.data.polygons) > 0
-    bpy.data.texts.remove(L.grammar_text(ob))
-    assert L.is_lsystem(ob) and L.grammar_text(ob) is None
+    bpy.data.texts.remove(lsystems.grammar_text(ob))
+    assert lsystems.is_lsystem(ob) and lsystems.grammar_text(ob) is None
     scene, _, msgs = export_current()
     assert scene.prototypes == [] and scene.instances == []
     assert any("Orphan" in m and "no grammar Text" in m for _, m in msgs)
-    PV.check_texts()
-    assert "no grammar Text" in PV.update_preview(ob)
+    lsystem_preview.check_texts()
+    assert "no grammar Text" in lsystem_preview.update_preview(ob)
 
 
 class _Layout:
@@ -411,25 +411,25 @@ class _Layout:
 
 def test_panel_draws_the_grammar_status_and_statistics():
     ob = lsystem(ABOP_124A, name="Drawn")
-    L.grammar_text(ob).from_string("axiom: F\nproduction:\nF -> FF\n")
-    PV.update_preview(ob)
+    lsystems.grammar_text(ob).from_string("axiom: F\nproduction:\nF -> FF\n")
+    lsystem_preview.update_preview(ob)
     panel = panels.PHOTON_LIGHTMAPS_PT_lsystem
     layout = _Layout()
     ctx = type("Ctx", (), {"object": ob, "screen": None})()
     panel.draw(type("P", (), {"layout": layout})(), ctx)
     texts = [t for _, t in layout.out]
-    assert f"Grammar: {L.grammar_text(ob).name}" in texts        # no Text editor: just the name
+    assert f"Grammar: {lsystems.grammar_text(ob).name}" in texts        # no Text editor: just the name
     assert any("line 3, column" in t for t in texts)
     assert any("DCSG nodes" in t for t in texts)
 
 
 def test_timer_waits_for_typing_to_pause():
     ob = lsystem(ABOP_124A, preview_iterations=2)
-    text = L.grammar_text(ob)
-    PV.check_texts(settle=True)
+    text = lsystems.grammar_text(ob)
+    lsystem_preview.check_texts(settle=True)
     text.from_string(ABOP_124A.replace("F[+F]F[-F]F", "F[+F]F"))
-    PV.check_texts(settle=True)             # changed since the last poll: wait
-    assert L.info(ob)["hash"] == L.text_hash(ABOP_124A)
-    PV.check_texts(settle=True)             # unchanged for one poll: regenerate
-    assert L.info(ob)["hash"] == L.text_hash(text.as_string())
+    lsystem_preview.check_texts(settle=True)             # changed since the last poll: wait
+    assert lsystems.info(ob)["hash"] == lsystems.text_hash(ABOP_124A)
+    lsystem_preview.check_texts(settle=True)             # unchanged for one poll: regenerate
+    assert lsystems.info(ob)["hash"] == lsystems.text_hash(text.as_string())
     assert len(leaves(geometry(ob))) == 9

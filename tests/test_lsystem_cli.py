@@ -53,7 +53,7 @@ def test_bad_grammar_is_one_line_with_exit_code_2(tmp_path, capsys):
 
 
 def test_render_through_the_graph_in_the_studio(tmp_path, capsys):
-    from photon_lightmaps.engine.lsystem_presets import preset_text
+    from photon_lightmaps.engine.lsystem.presets import preset_text
     f = tmp_path / "tree.lsys"
     f.write_text(preset_text("sympodial_tree"))
     out = tmp_path / "tree.png"

@@ -31,7 +31,7 @@ import math
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
 from photon_lightmaps import demo_blend  # noqa: E402
 from photon_lightmaps.bake import lsystem_preview as PV  # noqa: E402

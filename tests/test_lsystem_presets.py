@@ -1,7 +1,7 @@
-"""Grammar presets (engine/lsystem_presets) and the turtle's box module in the scene graph.
+"""Grammar presets (engine/lsystem/presets) and the turtle's box module in the scene graph.
 
 Each preset must parse and render through the cyclic scene graph
-(engine/dcsg.py), standing for exactly what its derived string draws; the
+(engine/geometry/dcsg.py), standing for exactly what its derived string draws; the
 fractals are checked against their definitions (counts, an IFS iterated in
 numpy, touching spheres, the sponge's grid), the sympodial tree against the
 size and OL stubs a benchmark relies on.
@@ -15,14 +15,14 @@ import tomllib
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import dcsg as D
-from photon_lightmaps.engine import lsystem as LS
-from photon_lightmaps.engine import lsystem_presets as P
-from photon_lightmaps.engine import turtle as T
-from photon_lightmaps.engine.primitives import KIND_IDS
+from photon_lightmaps.engine.geometry import dcsg
+from photon_lightmaps.engine.lsystem import grammar as LS
+from photon_lightmaps.engine.lsystem import presets
+from photon_lightmaps.engine.lsystem import turtle
+from photon_lightmaps.engine.geometry.primitives import KIND_IDS
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PRESET_DIR = os.path.join(ROOT, "engine", "lsystem_presets")
+PRESET_DIR = os.path.join(ROOT, "engine", "lsystem", "presets")
 DRAWN = ("F", "@O", "@B")
 SPHERE, BOX = KIND_IDS["sphere"], KIND_IDS["box"]
 
@@ -37,7 +37,7 @@ def derived_primitives(grammar, steps=None):
     """(derivation, primitives, addresses) of derive -> turtle -> to_primitives; the
     primitives come as segments, spheres, boxes, each in string order."""
     der = LS.derive(grammar, steps)
-    prims = T.to_primitives(T.interpret(der.modules, grammar.angle, grammar.width))
+    prims = turtle.to_primitives(turtle.interpret(der.modules, grammar.angle, grammar.width))
     order = [i for s in DRAWN for i, m in enumerate(der.modules) if m.symbol == s]
     return der, prims, der.hashes[order]
 
@@ -55,10 +55,10 @@ def sorted_rows(x):
 
 def test_every_file_is_a_preset_with_a_header():
     files = sorted(f[:-5] for f in os.listdir(PRESET_DIR) if f.endswith(".lsys"))
-    assert files == sorted(P.PRESETS)
-    for name, (label, description) in P.PRESETS.items():
+    assert files == sorted(presets.PRESETS)
+    for name, (label, description) in presets.PRESETS.items():
         assert label and description
-        text = P.preset_text(name)
+        text = presets.preset_text(name)
         with open(os.path.join(PRESET_DIR, name + ".lsys"), encoding="utf-8") as f:
             assert f.read() == text
         head = text.splitlines()[0]
@@ -67,17 +67,17 @@ def test_every_file_is_a_preset_with_a_header():
 
 def test_unknown_preset_is_an_lsystem_error():
     with pytest.raises(LS.LSystemError, match="unknown.*sphereflake"):
-        P.load_preset("no_such_preset")
+        presets.load_preset("no_such_preset")
     with pytest.raises(LS.LSystemError):
-        P.preset_text("../__init__")
+        presets.preset_text("../__init__")
 
 
 def test_the_preset_files_ship_in_the_extension():
     """No exclude pattern of blender_manifest.toml's [build] drops a .lsys file."""
     with open(os.path.join(ROOT, "blender_manifest.toml"), "rb") as f:
         patterns = tomllib.load(f)["build"]["paths_exclude_pattern"]
-    for name in P.PRESETS:
-        rel = f"engine/lsystem_presets/{name}.lsys"
+    for name in presets.PRESETS:
+        rel = f"engine/lsystem/presets/{name}.lsys"
         parts = rel.split("/")
         for pat in patterns:
             anchored, body = pat.startswith("/"), pat.strip("/")
@@ -90,12 +90,12 @@ def test_the_preset_files_ship_in_the_extension():
 
 # ------------------------------------------------------------- every preset
 
-@pytest.mark.parametrize("name", list(P.PRESETS))
+@pytest.mark.parametrize("name", list(presets.PRESETS))
 def test_preset_builds_a_scene_graph_standing_for_its_string(name):
-    g = P.load_preset(name)
+    g = presets.load_preset(name)
     assert g.source_name == f"{name}.lsys"
     assert g.is_context_free and not g.is_stochastic
-    graph = D.DCSG(g)                           # no DCSGUnsupported
+    graph = dcsg.DCSG(g)                           # no DCSGUnsupported
     n = graph.implicit_primitives
     assert n == drawn_count(g) > 0
     if LS.count(g).length > 400_000:
@@ -114,29 +114,29 @@ def test_preset_builds_a_scene_graph_standing_for_its_string(name):
 
 
 def test_known_counts():
-    assert drawn_count(P.load_preset("abop_1_24a")) == 3125
-    der = LS.derive(P.load_preset("abop_1_24a"))
+    assert drawn_count(presets.load_preset("abop_1_24a")) == 3125
+    der = LS.derive(presets.load_preset("abop_1_24a"))
     assert sum(m.symbol == "F" for m in der.modules) == 3125
-    assert D.DCSG(P.load_preset("menger_sponge")).implicit_primitives == 20 ** 3 == 8000
-    assert D.DCSG(P.load_preset("ternary_tree")).implicit_primitives == 1 + 4 * (3 ** 6 - 1) // 2
-    flake = P.load_preset("sphereflake")
+    assert dcsg.DCSG(presets.load_preset("menger_sponge")).implicit_primitives == 20 ** 3 == 8000
+    assert dcsg.DCSG(presets.load_preset("ternary_tree")).implicit_primitives == 1 + 4 * (3 ** 6 - 1) // 2
+    flake = presets.load_preset("sphereflake")
     assert flake.derivation_length == 4
     for d in range(6):
-        assert D.DCSG(flake, steps=d).implicit_primitives == sum(9 ** k for k in range(d + 1))
-    assert D.DCSG(flake).implicit_primitives == 7381            # the thesis's level 4
-    tet = P.load_preset("sierpinski_tetrahedron")
+        assert dcsg.DCSG(flake, steps=d).implicit_primitives == sum(9 ** k for k in range(d + 1))
+    assert dcsg.DCSG(flake).implicit_primitives == 7381            # the thesis's level 4
+    tet = presets.load_preset("sierpinski_tetrahedron")
     assert tet.derivation_length == 6
     for n in range(8):
-        assert D.DCSG(tet, steps=n).implicit_primitives == 4 ** n
-    sponge = P.load_preset("menger_sponge")
+        assert dcsg.DCSG(tet, steps=n).implicit_primitives == 4 ** n
+    sponge = presets.load_preset("menger_sponge")
     for n in range(5):
-        assert D.DCSG(sponge, steps=n).implicit_primitives == 20 ** n
+        assert dcsg.DCSG(sponge, steps=n).implicit_primitives == 20 ** n
 
 
 @pytest.mark.parametrize("name,axiom", [("abop_1_24a", "F"), ("abop_1_24b", "F"), ("abop_1_24c", "F"),
                                         ("abop_1_24d", "X"), ("abop_1_24e", "X"), ("abop_1_24f", "X")])
 def test_abop_1_24_axioms_and_counts(name, axiom):
-    g = P.load_preset(name)
+    g = presets.load_preset(name)
     assert LS.format_string(g.axiom) == axiom
     n = g.derivation_length
     # F --> F... with k F in the successor: k^n; X-plants: F doubles, X adds its own
@@ -155,8 +155,8 @@ def test_abop_1_24_axioms_and_counts(name, axiom):
 
 @pytest.mark.parametrize("n", [2, 3])
 def test_hilbert_curve_visits_every_lattice_point_once(n):
-    der = LS.derive(P.load_preset("hilbert_3d"), n)
-    geom = T.interpret(der.modules, 90)
+    der = LS.derive(presets.load_preset("hilbert_3d"), n)
+    geom = turtle.interpret(der.modules, 90)
     assert geom.n_segments == 8 ** n - 1
     pts = np.vstack([geom.seg_start[:1], geom.seg_end])
     q = np.round(pts)
@@ -167,7 +167,7 @@ def test_hilbert_curve_visits_every_lattice_point_once(n):
 
 
 def test_menger_sponge_boxes_tile_the_sponge():
-    graph = D.DCSG(P.load_preset("menger_sponge"))
+    graph = dcsg.DCSG(presets.load_preset("menger_sponge"))
     flat = graph.flatten()
     assert flat.kind.shape == (8000,) and np.all(flat.kind == BOX)
     lin, c = flat.transform[:, :, :3], flat.transform[:, :, 3]
@@ -185,14 +185,14 @@ def test_menger_sponge_boxes_tile_the_sponge():
 
 
 def test_menger_sponge_rays_hit_the_boxes():
-    graph = D.DCSG(P.load_preset("menger_sponge"))
+    graph = dcsg.DCSG(presets.load_preset("menger_sponge"))
     flat = graph.flatten()
     c = flat.transform[:, :, 3]
     rng = np.random.default_rng(3)
     xy = rng.uniform(-0.5, 0.5, (400, 2))
     xy[0] = (0.01, 0.02)                                        # down the central tunnel
     o = np.column_stack([xy, np.full(len(xy), -2.0)])
-    t = D.trace_closest(graph, o, np.tile([0.0, 0.0, 1.0], (len(xy), 1)))[0]
+    t = dcsg.trace_closest(graph, o, np.tile([0.0, 0.0, 1.0], (len(xy), 1)))[0]
     # along +z a ray enters the lowest box whose footprint holds it, at its bottom face
     inside = np.all(np.abs(xy[:, None, :] - c[None, :, :2]) < 1 / 54, axis=2)
     z0 = np.where(inside, c[None, :, 2] - 1 / 54, np.inf).min(axis=1)
@@ -219,8 +219,8 @@ def _ifs(n, r0):
 
 @pytest.mark.parametrize("n", [1, 3, 6])
 def test_sierpinski_leaves_are_the_ifs_points(n):
-    g = P.load_preset("sierpinski_tetrahedron")
-    centre, radius = sphere_centres(D.DCSG(g, steps=n).flatten())
+    g = presets.load_preset("sierpinski_tetrahedron")
+    centre, radius = sphere_centres(dcsg.DCSG(g, steps=n).flatten())
     assert centre.shape == (4 ** n, 3)
     r0 = g.axiom[0].params[0]
     np.testing.assert_allclose(radius, r0 / 2 ** n, rtol=1e-12)
@@ -251,9 +251,9 @@ def _flake_parents(der, geom):
 
 
 def test_sphereflake_children_touch_their_parent():
-    g = P.load_preset("sphereflake")
+    g = presets.load_preset("sphereflake")
     der = LS.derive(g, 3)
-    geom = T.interpret(der.modules, g.angle, g.width)
+    geom = turtle.interpret(der.modules, g.angle, g.width)
     c, r = geom.spheres.center, geom.spheres.radius
     assert len(r) == 1 + 9 + 81 + 729
     parent = _flake_parents(der, geom)
@@ -284,9 +284,9 @@ def test_sphereflake_children_touch_their_parent():
 # ------------------------------------------------------------- the sympodial tree
 
 def test_sympodial_tree_size_and_ol_stubs():
-    g = P.load_preset("sympodial_tree")
+    g = presets.load_preset("sympodial_tree")
     assert g.ol_stubs
-    graph = D.DCSG(g)
+    graph = dcsg.DCSG(g)
     n = graph.implicit_primitives
     assert 30_000 <= n <= 60_000
     assert n == drawn_count(g)
@@ -314,7 +314,7 @@ production:
 A --> F(0.5) !(0.3) [ + ;(2) @B ] / [ - @B(0.2) A ]
 """
     g = LS.parse(text)
-    graph = D.DCSG(g)
+    graph = dcsg.DCSG(g)
     flat = graph.flatten()
     der, prims, addresses = derived_primitives(g)
     boxes = [p for p in prims if p.kind == "box"]
@@ -330,5 +330,5 @@ A --> F(0.5) !(0.3) [ + ;(2) @B ] / [ - @B(0.2) A ]
     i = index[addresses[[k for k, p in enumerate(prims) if p.kind == "box"][0]]]
     m = flat.transform[i]
     h = m[:, 2] / np.linalg.norm(m[:, 2])
-    t = D.trace_closest(graph, (m[:, 3] - 3 * h)[None], h[None])[0]
+    t = dcsg.trace_closest(graph, (m[:, 3] - 3 * h)[None], h[None])[0]
     assert t[0] == pytest.approx(3 - np.linalg.norm(m[:, 2]), abs=1e-9)

@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 
 from lsystem_grammars import quadrature_area
-from photon_lightmaps.engine import lightmap as LM
-from photon_lightmaps.engine import dcsg as D
-from photon_lightmaps.engine import lsystem as LS
+from photon_lightmaps.engine.lightmaps import lightmap
+from photon_lightmaps.engine.geometry import dcsg
+from photon_lightmaps.engine.lsystem import grammar
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import trace_photons
-from photon_lightmaps.engine.renderer import render
-from photon_lightmaps.engine.scene import (Camera, Instance, LSystem, Light, Material,
-                                           OrientationLightmap, Primitive, Prototype, Scene,
-                                           compose, rotate, scale, translate)
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+from photon_lightmaps.engine.transport.renderer import render
+from photon_lightmaps.engine.core.scene import (
+    Camera, Instance, LSystem, Light, Material, OrientationLightmap, Primitive, Prototype, Scene,
+    compose, rotate, scale, translate)
 
 TREE = """axiom: !(0.25) A(1)
 derivation length: 4
@@ -52,8 +52,8 @@ def _scene(lsystem=None, flattened=None, ols=()):
 
 
 def _flattened(text):
-    flat = D.DCSG(LS.parse(text)).flatten()
-    names = {v: k for k, v in __import__("photon_lightmaps.engine.primitives",
+    flat = dcsg.DCSG(grammar.parse(text)).flatten()
+    names = {v: k for k, v in __import__("photon_lightmaps.engine.geometry.primitives",
                                          fromlist=["KIND_IDS"]).KIND_IDS.items()}
 
     def make(bark, leaf):
@@ -69,7 +69,7 @@ def test_an_lsystem_gets_one_orientation_lightmap_of_its_own():
     assert [r["name"] for r in rows] == ["tree (L-system)"]
     assert cs.instance_lightmaps[1] == []            # no per-primitive lightmaps (7.2)
     # its area estimate is the flattened primitives' area (scale 1.3: x 1.69)
-    flat = D.DCSG(LS.parse(TREE)).flatten()
+    flat = dcsg.DCSG(grammar.parse(TREE)).flatten()
     assert rows[0]["area"] == pytest.approx(1.69 * quadrature_area(flat, 16), rel=4 * rows[0]["area_rel_error"])
     # the row counts the graph's samples once (no meshes under it) and their time
     assert rows[0]["samples"] == OrientationLightmap("x", []).samples
@@ -82,8 +82,8 @@ def test_photons_on_the_graph_are_the_photons_on_its_flattening():
     flat = compile_scene(_scene(flattened=_flattened(TREE), ols=ol))
     s1 = trace_photons(graph, 60_000, seed=11, record_direct=True)
     s2 = trace_photons(flat, 60_000, seed=11, record_direct=True)
-    a = LM.texel_slice(graph.lightmaps, int(graph.orientation.lid[0]))
-    b = LM.texel_slice(flat.lightmaps, int(flat.orientation.lid[0]))
+    a = lightmap.texel_slice(graph.lightmaps, int(graph.orientation.lid[0]))
+    b = lightmap.texel_slice(flat.lightmaps, int(flat.orientation.lid[0]))
     hits1, hits2 = graph.lightmaps.hits[a], flat.lightmaps.hits[b]
     assert hits1.sum() > 1500
     # the same paths: equal hits per bin but where a grazing tie went the other way
@@ -103,7 +103,7 @@ def test_stubs_receive_exactly_their_subtrees_and_the_parent_everything():
     assert parents[0] == -1 and all(0 <= p < len(rows) for p in parents[1:])
     trace_photons(cs, 60_000, seed=2, record_direct=True)
     lm = cs.lightmaps
-    flux = [lm.flux[LM.texel_slice(lm, int(cs.orientation.lid[k]))].sum() for k in range(len(rows))]
+    flux = [lm.flux[lightmap.texel_slice(lm, int(cs.orientation.lid[k]))].sum() for k in range(len(rows))]
     # every level holds its subtree: a parent's flux is at least the sum of its children's
     for k, p in enumerate(parents):
         if p >= 0:
@@ -138,6 +138,6 @@ def test_render_of_a_graph_matches_its_flattening():
     ("axiom: + -\n", "no finite extent"),
 ])
 def test_an_lsystem_out_of_range_is_refused_by_name(text, match):
-    from photon_lightmaps.engine.scene import SceneError
+    from photon_lightmaps.engine.core.scene import SceneError
     with pytest.raises(SceneError, match=f"L-system 'tree'.*{match}"):
         compile_scene(_scene(text))

@@ -11,15 +11,15 @@ import math
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
-from photon_lightmaps import demo_blend as D  # noqa: E402
-from benchmarks import luxcore_peer as L  # noqa: E402
+from photon_lightmaps import demo_blend  # noqa: E402
+from benchmarks import luxcore_peer  # noqa: E402
 
 # Not imported here: importing pyluxcore next to bpy aborts the process (their
 # bundled libraries clash), which is one more reason the renders run in a worker.
 # The test setup installs it (requirements.txt), so a missing one is an error, not a skip.
-if not L.available():
+if not luxcore_peer.available():
     pytest.fail("pyluxcore is not installed: run `make setup` (requirements.txt)", pytrace=False)
 
 RHO = 0.8
@@ -36,17 +36,17 @@ def plane_scene():
     def build(light_type, res=16, **light):
         sc = bpy.data.scenes.new("luxcore_test")
         made.append(sc)
-        mat = D.principled("luxcore_test_white", (RHO, RHO, RHO))
-        D.mesh_object("luxcore_test_floor", [(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)], [(0, 1, 2, 3)],
+        mat = demo_blend.principled("luxcore_test_white", (RHO, RHO, RHO))
+        demo_blend.mesh_object("luxcore_test_floor", [(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)], [(0, 1, 2, 3)],
                       mat, collection=sc.collection)
-        D.add_light(sc, light_type, "luxcore_test_light", **light)
-        D.add_camera(sc, (0.0, 0.0, 0.5), (0.0, 0.0, 0.0), lens=50.0, sensor=2.0)
-        D.set_world(sc)
+        demo_blend.add_light(sc, light_type, "luxcore_test_light", **light)
+        demo_blend.add_camera(sc, (0.0, 0.0, 0.5), (0.0, 0.0, 0.0), lens=50.0, sensor=2.0)
+        demo_blend.set_world(sc)
         w, h = (res, res) if isinstance(res, int) else res
         sc.render.resolution_x, sc.render.resolution_y, sc.render.resolution_percentage = w, h, 100
         vl = sc.view_layers[0]
         vl.update()
-        return L.export_scene(vl.depsgraph)
+        return luxcore_peer.export_scene(vl.depsgraph)
 
     yield build
     for sc in made:
@@ -64,7 +64,7 @@ def plane_scene():
 
 
 def _mean(spec_arrays, spp=4):
-    img, st = L.render_spec(*spec_arrays, mode="path", spp=spp, seed=1)
+    img, st = luxcore_peer.render_spec(*spec_arrays, mode="path", spp=spp, seed=1)
     assert np.all(np.isfinite(img))
     return float(img.mean()), st
 
@@ -97,7 +97,7 @@ def test_worker_image_shape_and_rows(plane_scene):
     """A non-square image comes back (H, W, 3), finite, rows top-down: a point light
     off to the camera's top side (+Y in Blender's camera) lights the top rows more."""
     spec, arrays = plane_scene("POINT", res=(24, 16), power=100.0, location=(0.0, 0.05, 0.3), radius=0.0)
-    img, st = L.render_spec(spec, arrays, mode="path", spp=2, seed=3)
+    img, st = luxcore_peer.render_spec(spec, arrays, mode="path", spp=2, seed=3)
     assert img.shape == (16, 24, 3) and img.dtype == np.float32
     assert np.all(np.isfinite(img)) and img.min() >= 0.0 and img.max() > 0.0
     assert img[:4].mean() > 1.01 * img[-4:].mean()
@@ -108,4 +108,4 @@ def test_worker_failure_raises(plane_scene):
     spec, arrays = plane_scene("POINT", power=10.0, location=(0.0, 0.0, H))
     spec["meshes"][0]["material"] = "no such material"
     with pytest.raises(Exception):
-        L.render_spec(spec, arrays, mode="path", spp=1)
+        luxcore_peer.render_spec(spec, arrays, mode="path", spp=1)

@@ -6,12 +6,12 @@ moves the mesh far from the origin, through each caller of the check."""
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import csg as C
-from photon_lightmaps.engine import texel_gather as TG
+from photon_lightmaps.engine.geometry import csg
+from photon_lightmaps.engine.transport import texel_gather
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.demo_scenes import uv_sphere_mesh
-from photon_lightmaps.engine.scene import (CSGNode, Light, Material, Primitive, Scene, TriangleMesh,
-                                           compose, scale, translate)
+from photon_lightmaps.engine.core.scene import (
+    CSGNode, Light, Material, Primitive, Scene, TriangleMesh, compose, scale, translate)
 
 FAR = np.array([123.25, -456.5, 78.75])
 
@@ -55,16 +55,16 @@ def _scrambled(shape, inward, seed, split=False, offset=FAR):
 def test_check_closed_mesh_sign(shape, split, seed):
     for inward in (False, True):
         v, t = _scrambled(shape, inward, seed, split)
-        assert C.check_closed_mesh(v, t, shape) == (-1 if inward else 1)
+        assert csg.check_closed_mesh(v, t, shape) == (-1 if inward else 1)
 
 
 def _intervals(mesh_v, mesh_t):
     """Intervals of (cube minus the mesh) along a ray through both centres."""
     cube = Primitive("box", transform=compose(translate(*FAR), scale(0.6)), name="cube")
     tree = CSGNode("difference", cube, TriangleMesh(mesh_v, mesh_t, name="hole"))
-    table = C.csg_table([tree])
+    table = csg.csg_table([tree])
     o, d = FAR + (-3.0, 0.011, 0.017), (1.0, 0.0, 0.0)     # t = x + 3 about the centre
-    return C.csg_all_intervals(table, int(table.roots[0]), o, d)["intervals"].reshape(-1, 2)
+    return csg.csg_all_intervals(table, int(table.roots[0]), o, d)["intervals"].reshape(-1, 2)
 
 
 @pytest.mark.parametrize("shape", sorted(SHAPES))
@@ -97,5 +97,5 @@ def _scene(shape, inward):
 def test_gather_reads_the_outside_whatever_the_order(shape, inward):
     cs = compile_scene(_scene(shape, inward))
     expected = -1 if inward else 1
-    assert TG.lit_sides(cs, 0) == expected
-    assert list(TG.instance_sides(cs)) == [expected]
+    assert texel_gather.lit_sides(cs, 0) == expected
+    assert list(texel_gather.instance_sides(cs)) == [expected]

@@ -19,18 +19,18 @@ import types
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
 from photon_lightmaps import demo_blend  # noqa: E402
 from photon_lightmaps.bake import hooks  # noqa: E402
 from photon_lightmaps.bake import orientation as ol_bake  # noqa: E402
 from photon_lightmaps.bake import render as render_engine  # noqa: E402
-from photon_lightmaps.engine import orientation_lightmap as OL  # noqa: E402
+from photon_lightmaps.engine.lightmaps import orientation_lightmap  # noqa: E402
 from photon_lightmaps.engine.compile import compile_scene  # noqa: E402
-from photon_lightmaps.engine.photon_tracer import trace_photons  # noqa: E402
-from photon_lightmaps.engine.primitives import _octa_encode  # noqa: E402
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons  # noqa: E402
+from photon_lightmaps.engine.geometry.primitives import octa_encode  # noqa: E402
 from photon_lightmaps.export import export_scene  # noqa: E402
-from photon_lightmaps.operators import orientation_lightmaps as OPS  # noqa: E402
+from photon_lightmaps.operators import orientation_lightmaps  # noqa: E402
 
 
 # numpy oracles for the node-group lookup (tests only)
@@ -114,8 +114,8 @@ def test_nested_collections_route_to_innermost_ol():
     inst = bpy.data.objects.new("src_instance", None)
     inst.instance_type, inst.instance_collection = "COLLECTION", src
     outer.objects.link(inst)
-    ol_out = OPS.add_orientation_lightmap(scene, outer, resolution=8)
-    ol_in = OPS.add_orientation_lightmap(scene, inner, resolution=4)
+    ol_out = orientation_lightmaps.add_orientation_lightmap(scene, outer, resolution=8)
+    ol_in = orientation_lightmaps.add_orientation_lightmap(scene, inner, resolution=4)
     warnings = []
     es, em = export(warnings)
 
@@ -144,7 +144,7 @@ def test_nested_collections_route_to_innermost_ol():
     assert int(cs.orientation.inst_ol[ids_of(em, "a")[0]]) == k_out
     assert int(cs.orientation.inst_ol[ids_of(em, "free")[0]]) == -1
     trace_photons(cs, 20_000, seed=1)
-    rows = OL.report(cs)
+    rows = orientation_lightmap.report(cs)
     # each level knows its own hit count; the outer one holds its whole subtree
     assert 0 < rows[k_in]["photons"] < rows[k_out]["photons"]
     assert rows[k_out]["instances"] == 5 and rows[k_in]["instances"] == 2
@@ -159,15 +159,15 @@ def test_bad_ol_input_is_named_in_warnings():
     full = new_coll("full", scene.collection)
     sphere("s", full)
     empty_coll = new_coll("nothing_here", scene.collection)
-    OPS.add_orientation_lightmap(scene, full, name="OL_first")
+    orientation_lightmaps.add_orientation_lightmap(scene, full, name="OL_first")
     # a second OL on the same collection (made by hand: the operator refuses it)
     dup = bpy.data.objects.new("OL_second", None)
     dup.photon_lightmaps.orientation_lightmap = True
     dup.photon_lightmaps.ol_collection = full
     full.objects.link(dup)
     with pytest.raises(ValueError, match="already has"):
-        OPS.add_orientation_lightmap(scene, full)
-    OPS.add_orientation_lightmap(scene, empty_coll, name="OL_empty")
+        orientation_lightmaps.add_orientation_lightmap(scene, full)
+    orientation_lightmaps.add_orientation_lightmap(scene, empty_coll, name="OL_empty")
     lost = bpy.data.objects.new("OL_lost", None)
     lost.photon_lightmaps.orientation_lightmap = True
     scene.collection.objects.link(lost)
@@ -179,7 +179,7 @@ def test_bad_ol_input_is_named_in_warnings():
     assert "'OL_lost'" in text and "no collection" in text
     assert [ol.name for ol in es.orientation_lightmaps] == ["OL_empty", "OL_first"]
     with pytest.raises(ValueError, match="top collection"):
-        OPS.add_orientation_lightmap(scene, scene.collection)
+        orientation_lightmaps.add_orientation_lightmap(scene, scene.collection)
 
 
 def test_demo_has_an_ol_covered_cluster():
@@ -281,7 +281,7 @@ def test_bake_writes_owned_exr_and_remove_restores_everything(tmp_path):
     clash.pixels.foreach_set(np.full(16, 0.5, np.float32))
     before = _snapshot()
 
-    ol = OPS.add_orientation_lightmap(scene, coll, resolution=8)
+    ol = orientation_lightmaps.add_orientation_lightmap(scene, coll, resolution=8)
     res = ol_bake.bake_orientation_lightmaps(bpy.context, photons=40_000, save_dir=str(tmp_path))
     img = bpy.data.images[res.images[ol.name]]
     # a user's image of the same name is kept; ours gets a new name
@@ -334,11 +334,11 @@ def test_suggest_proposes_small_objects_not_a_wall():
         for j in range(5):
             sphere(f"pebble_{k}", cluster, (-0.5 + 0.2 * i, -0.4 + 0.2 * j, 0.06), 0.06, mat, 1)
             k += 1
-    props, kept = OPS.suggest(bpy.context, photons=20_000, pilot_photons=20_000)
+    props, kept = orientation_lightmaps.suggest(bpy.context, photons=20_000, pilot_photons=20_000)
     by = {p.group: p for p in props}
     assert "pebbles" in kept and by["pebbles"].saving_bytes > 0, by["pebbles"]
     assert "big_wall" not in kept and not by["big_wall"].proposed, by["big_wall"]
-    assert by["big_wall"].directions <= OL.FEW_DIRECTIONS < by["pebbles"].directions
+    assert by["big_wall"].directions <= orientation_lightmap.FEW_DIRECTIONS < by["pebbles"].directions
     assert by["pebbles"].photons_per_bin > by["pebbles"].photons_per_texel
     print(f"\nsuggest: pebbles {by['pebbles'].photons_per_texel:.2f} photons/texel -> "
           f"{by['pebbles'].photons_per_bin:.1f}/bin, saves {by['pebbles'].saving_bytes / 1024:.1f} KiB; "
@@ -359,7 +359,7 @@ def test_octa_st_is_the_engines_map():
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     n[:5] = [(0, 0, 1), (0, 0, -1), (1, 0, 0), (0, -1, 0), (0.0, 0.6, -0.8)]
     s, t = octa_st(n)
-    ref = np.array([_octa_encode(*v) for v in n])
+    ref = np.array([octa_encode(*v) for v in n])
     assert np.allclose(np.c_[s, t], ref, atol=1e-12)
 
 
@@ -470,7 +470,7 @@ def test_ol_lit_sphere_renders_like_its_own_lightmap():
     a = render(photons=300_000)
     # 24² bins: about the texels of the sphere's own 23 x 23 lightmap at the default density,
     # so both store the same detail (an OL of one sphere is its own lightmap, thesis 6.2)
-    ol = OPS.add_orientation_lightmap(scene, coll, resolution=24)
+    ol = orientation_lightmaps.add_orientation_lightmap(scene, coll, resolution=24)
     b = render(photons=300_000)
     assert not a.orientation_lightmaps and [r["name"] for r in b.orientation_lightmaps] == [ol.name]
     ma, mb = a.image[mask].mean(), b.image[mask].mean()
@@ -496,7 +496,7 @@ def test_failure_warnings_reach_the_render_report():
     box = bpy.data.objects["tall_box"]
     coll.objects.link(box)
     scene.collection.objects.unlink(box)
-    OPS.add_orientation_lightmap(scene, coll, resolution=8)
+    orientation_lightmaps.add_orientation_lightmap(scene, coll, resolution=8)
     lost = bpy.data.objects.new("OL_lost", None)
     lost.photon_lightmaps.orientation_lightmap = True
     scene.collection.objects.link(lost)

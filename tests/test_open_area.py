@@ -1,4 +1,4 @@
-"""Texels partly buried under a solid that stands on them (engine/open_area.py).
+"""Texels partly buried under a solid that stands on them (engine/transport/open_area.py).
 
 A black box stands on a closed floor slab under a sun straight overhead: the
 box's shadow is exactly its footprint, so every open point of the floor's top
@@ -10,11 +10,11 @@ writes (the whole texel's mean, as Cycles' Diffuse bake averages it)."""
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import lightmap as LM
-from photon_lightmaps.engine import open_area as OA
+from photon_lightmaps.engine.lightmaps import lightmap
+from photon_lightmaps.engine.transport import open_area
 from photon_lightmaps.engine import session
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.scene import Light, Material, Scene, TriangleMesh
+from photon_lightmaps.engine.core.scene import Light, Material, Scene, TriangleMesh
 
 S = 2.0                 # sun strength, W/m²
 RES = 16                # floor texels per side over 2 m: 12.5 cm
@@ -75,7 +75,7 @@ def traced(request):
     cs = compile_scene(_scene(request.param))
     session.photon_pass(cs, session.Settings(photons=400_000, seed=5), record_direct=True)
     lm = cs.lightmaps
-    sl = LM.texel_slice(lm, cs.instance_lightmaps[0][0])
+    sl = lightmap.texel_slice(lm, cs.instance_lightmaps[0][0])
     return cs, lm, np.arange(sl.start, sl.stop), _exact_open(request.param).reshape(-1)
 
 
@@ -100,12 +100,12 @@ def test_rays_landing_on_the_open_part_read_the_sun(traced):
     # photon noise: measured up to 1.8 % over seeds 5-7 (0.15 % on the open texels)
     assert abs(read[partial].mean() / S - 1.0) < 0.025
     assert abs(read[exact == 1.0].mean() / S - 1.0) < 0.005
-    assert np.all(lm.state[rows[exact == 0.0]] != LM.STATE_MEASURED)
+    assert np.all(lm.state[rows[exact == 0.0]] != lightmap.STATE_MEASURED)
 
 
 def test_a_bake_writes_whole_texel_means(traced):
     cs, lm, rows, exact = traced
-    baked = OA.baked(lm, rows)[:, 0]
+    baked = open_area.baked(lm, rows)[:, 0]
     partial = (exact > 0.2) & (exact < 1.0)
     assert abs(baked[partial].sum() / (S * exact[partial].sum()) - 1.0) < 0.02    # measured up to 1.1 %
     assert np.all(baked[exact == 0.0] == 0.0)

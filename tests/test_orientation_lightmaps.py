@@ -10,17 +10,17 @@ import math
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import lightmap as LM
-from photon_lightmaps.engine import texel_areas as TA
-from photon_lightmaps.engine import orientation_lightmap as OL
-from photon_lightmaps.engine.area_estimation import estimate_areas
+from photon_lightmaps.engine.lightmaps import lightmap
+from photon_lightmaps.engine.lightmaps import texel_areas
+from photon_lightmaps.engine.lightmaps import orientation_lightmap
+from photon_lightmaps.engine.lightmaps.area_estimation import estimate_areas
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.geometry import compile_geometry
-from photon_lightmaps.engine.photon_tracer import trace_photons
-from photon_lightmaps.engine.renderer import render
-from photon_lightmaps.engine.scene import (Camera, Instance, Light, Material, OrientationLightmap,
-                                           Primitive, Prototype, Scene, SceneError, compose,
-                                           rotate, scale, translate)
+from photon_lightmaps.engine.geometry.assembly import compile_geometry
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+from photon_lightmaps.engine.transport.renderer import render
+from photon_lightmaps.engine.core.scene import (
+    Camera, Instance, Light, Material, OrientationLightmap, Primitive, Prototype, Scene,
+    SceneError, compose, rotate, scale, translate)
 
 
 def _scene(objects, ols=(), light=(1.0, 2.0, 4.0), floor=True):
@@ -39,7 +39,7 @@ def _scene(objects, ols=(), light=(1.0, 2.0, 4.0), floor=True):
 
 
 def _ol_slice(cs, k):
-    return LM.texel_slice(cs.lightmaps, int(cs.orientation.lid[k]))
+    return lightmap.texel_slice(cs.lightmaps, int(cs.orientation.lid[k]))
 
 
 # ------------------------------------------------------------------ limit case and energy
@@ -54,7 +54,7 @@ def test_ol_on_a_sphere_equals_its_lightmap():
                                                              samples=200_000)]))
     for cs in (plain, with_ol):
         trace_photons(cs, 200_000, seed=3, record_direct=True)
-    a = LM.texel_slice(plain.lightmaps, plain.instance_lightmaps[0][0])
+    a = lightmap.texel_slice(plain.lightmaps, plain.instance_lightmaps[0][0])
     b = _ol_slice(with_ol, 0)
     assert with_ol.instance_lightmaps[0] == [], "an OL-covered instance keeps no own lightmap"
     np.testing.assert_array_equal(plain.lightmaps.hits[a], with_ol.lightmaps.hits[b])
@@ -79,12 +79,12 @@ def test_ol_energy_equals_what_the_group_received():
     grouped = compile_scene(_scene(objs, [OrientationLightmap("group", [0, 1, 2, 3])]))
     s1 = trace_photons(plain, 100_000, seed=5)
     s2 = trace_photons(grouped, 100_000, seed=5)
-    own = sum(plain.lightmaps.flux[LM.texel_slice(plain.lightmaps, l)].sum(0)
+    own = sum(plain.lightmaps.flux[lightmap.texel_slice(plain.lightmaps, l)].sum(0)
               for i in range(4) for l in plain.instance_lightmaps[i])
     np.testing.assert_allclose(grouped.lightmaps.flux[_ol_slice(grouped, 0)].sum(0), own, rtol=1e-10)
     # the floor keeps its lightmap, unchanged
-    fa = LM.texel_slice(plain.lightmaps, plain.instance_lightmaps[4][0])
-    fb = LM.texel_slice(grouped.lightmaps, grouped.instance_lightmaps[4][0])
+    fa = lightmap.texel_slice(plain.lightmaps, plain.instance_lightmaps[4][0])
+    fb = lightmap.texel_slice(grouped.lightmaps, grouped.instance_lightmaps[4][0])
     np.testing.assert_array_equal(plain.lightmaps.flux[fa], grouped.lightmaps.flux[fb])
     for s in (s1, s2):
         assert s.audit_error() < 1e-12
@@ -115,7 +115,7 @@ def _geometry(objects):
 
 
 def _bin_of(n, R):
-    s, t = OL.bin_coords(*n)
+    s, t = orientation_lightmap.bin_coords(*n)
     return min(int(t * R), R - 1) * R + min(int(s * R), R - 1)
 
 
@@ -134,7 +134,7 @@ def _box_bins(xf, R):
 
 def _reference_bins(case, g, R):
     if case == "sphere":
-        return 0.49 * TA.primitive_texel_areas(1, np.zeros(4), np.eye(3), R).reshape(-1)
+        return 0.49 * texel_areas.primitive_texel_areas(1, np.zeros(4), np.eye(3), R).reshape(-1)
     if case == "box":
         return _box_bins(AREA_CASES["box"][0][1], R)
     return estimate_areas(g, [0], R, 4_000_000, seed=99, openness_samples=0).area
@@ -186,7 +186,7 @@ def test_parts_of_very_different_size_share_samples_by_area():
     exact = 4 * math.pi * (big ** 2 + (small ** 2).sum())
     assert abs(est.total / exact - 1.0) < min(0.01, 5 * est.total_rel_error)
     ref = 4 * math.pi * (big ** 2 + (small ** 2).sum()) / (4 * math.pi) * \
-        TA.primitive_texel_areas(1, np.zeros(4), np.eye(3), 8).reshape(-1)
+        texel_areas.primitive_texel_areas(1, np.zeros(4), np.eye(3), 8).reshape(-1)
     # ~31 samples a bin: each bin within 5 of its reported standard errors
     z = (est.area - ref) / (est.rel_error * est.area)
     assert np.abs(z).max() < 5.0 and np.abs(est.area / ref - 1.0).mean() < 0.2
@@ -197,7 +197,7 @@ def test_sphere_bin_areas_are_the_solid_angle_shares():
     sphere's exact texel areas (quadrature) give independently."""
     g = _geometry([("sphere", np.eye(4)[:3], ())])
     est = estimate_areas(g, [0], 8, 1_000_000, seed=1, openness_samples=0)
-    exact = TA.primitive_texel_areas(1, np.zeros(4), np.eye(3), 8).reshape(-1)
+    exact = texel_areas.primitive_texel_areas(1, np.zeros(4), np.eye(3), 8).reshape(-1)
     assert exact.sum() == pytest.approx(4 * math.pi, rel=1e-9)
     z = (est.area - exact) / (est.rel_error * est.area)
     assert np.abs(z).max() < 5.0
@@ -229,7 +229,7 @@ def test_area_of_1e5_instanced_parts_with_20000_samples():
 def test_csg_leaves_count_only_their_visible_surface():
     """A sphere with a box cut out of it: the estimate follows the solid's
     boundary, including the inward-facing faces of the cut."""
-    from photon_lightmaps.engine.scene import CSGNode
+    from photon_lightmaps.engine.core.scene import CSGNode
     sc = Scene()
     m = sc.add_material(Material())
     # unit sphere minus the box [0,2]x[-2,2]x[-2,2]: a hemisphere plus its flat disk
@@ -241,7 +241,7 @@ def test_csg_leaves_count_only_their_visible_surface():
     exact = 4.0 * (2 * math.pi + math.pi)
     assert est.total == pytest.approx(exact, rel=0.02)
     # the flat cut faces +x (normal of the solid: out of the remaining half)
-    s, t = OL.bin_coords(1.0, 0.0, 0.0)
+    s, t = orientation_lightmap.bin_coords(1.0, 0.0, 0.0)
     b = min(int(t * 8), 7) * 8 + min(int(s * 8), 7)
     assert est.area[b] == pytest.approx(4.0 * math.pi, rel=0.02)
 
@@ -265,7 +265,7 @@ def test_hierarchy_routes_hits_to_innermost_and_every_level_above():
     lm, pl = cs.lightmaps, plain.lightmaps
 
     def own(ids):
-        return sum(pl.flux[LM.texel_slice(pl, l)].sum(0) for i in ids for l in plain.instance_lightmaps[i])
+        return sum(pl.flux[lightmap.texel_slice(pl, l)].sum(0) for i in ids for l in plain.instance_lightmaps[i])
 
     def ol_flux(k):
         return lm.flux[_ol_slice(cs, k)].sum(0)
@@ -274,13 +274,13 @@ def test_hierarchy_routes_hits_to_innermost_and_every_level_above():
     np.testing.assert_allclose(ol_flux(2), own([2, 3]), rtol=1e-10)
     np.testing.assert_allclose(ol_flux(0), own(range(6)), rtol=1e-10)
     hits = [int(lm.hits[_ol_slice(cs, k)].sum()) for k in range(3)]
-    own_hits = int(sum(pl.hits[LM.texel_slice(pl, l)].sum() for i in (4, 5)
+    own_hits = int(sum(pl.hits[lightmap.texel_slice(pl, l)].sum() for i in (4, 5)
                        for l in plain.instance_lightmaps[i]))
     assert hits[0] == hits[1] + hits[2] + own_hits
     # a parent's bin areas are its subtree's
     a = [lm.area[_ol_slice(cs, k)] for k in range(3)]
     assert a[0].sum() > a[1].sum() + a[2].sum()
-    rows = OL.report(cs)
+    rows = orientation_lightmap.report(cs)
     assert [r["photons"] for r in rows] == hits
 
 
@@ -294,13 +294,13 @@ def test_lookup_moves_up_while_a_bin_is_too_noisy():
     n = np.array([0.3, 0.4, 0.866])
     n /= np.linalg.norm(n)
     ol = cs.orientation
-    OL.lookup(cs.lightmaps, ol, 1, n[0], n[1], n[2], LM.MODE_CONSTANT, out)
-    child = cs.lightmaps.irradiance[OL.bin_index(cs.lightmaps, ol, 1, *n)]
+    orientation_lightmap.lookup(cs.lightmaps, ol, 1, n[0], n[1], n[2], lightmap.MODE_CONSTANT, out)
+    child = cs.lightmaps.irradiance[orientation_lightmap.bin_index(cs.lightmaps, ol, 1, *n)]
     np.testing.assert_array_equal(out, child)
     # demand more photons than the child bin holds: the parent level answers
     strict = ol._replace(max_rel_error=np.array([1e-9, 1e-9]))
-    OL.lookup(cs.lightmaps, strict, 1, n[0], n[1], n[2], LM.MODE_CONSTANT, out)
-    parent = cs.lightmaps.irradiance[OL.bin_index(cs.lightmaps, ol, 0, *n)]
+    orientation_lightmap.lookup(cs.lightmaps, strict, 1, n[0], n[1], n[2], lightmap.MODE_CONSTANT, out)
+    parent = cs.lightmaps.irradiance[orientation_lightmap.bin_index(cs.lightmaps, ol, 0, *n)]
     np.testing.assert_array_equal(out, parent)
     assert child.min() > 0 and parent.min() > 0 and not np.array_equal(child, parent)
 
@@ -311,7 +311,7 @@ def test_backup_ol_keeps_lightmaps_and_records_both():
     assert all(len(cs.instance_lightmaps[i]) == 1 for i in range(6))
     trace_photons(cs, 50_000, seed=4)
     lm = cs.lightmaps
-    own = sum(lm.flux[LM.texel_slice(lm, cs.instance_lightmaps[i][0])].sum(0) for i in range(6))
+    own = sum(lm.flux[lightmap.texel_slice(lm, cs.instance_lightmaps[i][0])].sum(0) for i in range(6))
     np.testing.assert_allclose(lm.flux[_ol_slice(cs, 0)].sum(0), own, rtol=1e-10)
 
 
@@ -326,8 +326,8 @@ def test_zero_area_bins_are_never_blended_in():
     assert int((lm.area[sl] > 0).sum()) == 6
     out = np.zeros(3)
     for n in ((0, 0, 1), (1, 0, 0), (0, -1, 0)):
-        i = OL.bin_index(lm, cs.orientation, 0, *map(float, n))
-        OL.lookup(lm, cs.orientation, 0, *map(float, n), LM.MODE_BILINEAR, out)
+        i = orientation_lightmap.bin_index(lm, cs.orientation, 0, *map(float, n))
+        orientation_lightmap.lookup(lm, cs.orientation, 0, *map(float, n), lightmap.MODE_BILINEAR, out)
         np.testing.assert_allclose(out, lm.flux[i] / lm.area[i], rtol=1e-12)
 
 

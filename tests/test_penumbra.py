@@ -12,10 +12,10 @@ import math
 
 import numpy as np
 
-from photon_lightmaps.engine import lightmap as LM
-from photon_lightmaps.engine import texel_gather as TG
+from photon_lightmaps.engine.lightmaps import lightmap
+from photon_lightmaps.engine.transport import texel_gather
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.scene import Light, Material, Scene, TriangleMesh
+from photon_lightmaps.engine.core.scene import Light, Material, Scene, TriangleMesh
 
 S = 3.0                   # sun strength, W/m²
 ANGLE = math.radians(20.0)
@@ -64,7 +64,7 @@ def test_penumbra_texels_are_unbiased():
     sq = 0.0
     seeds = range(8)
     for seed in seeds:
-        ids, E = TG.direct_texel_irradiance(cs, [lid], 64, seed=seed)
+        ids, E = texel_gather.direct_texel_irradiance(cs, [lid], 64, seed=seed)
         grid = np.zeros(RES * RES)
         grid[ids - off] = E[:, 0]
         grid = grid.reshape(RES, RES)                            # rows: y; columns: x

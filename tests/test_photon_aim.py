@@ -1,14 +1,15 @@
-"""Importance emission (engine/photon_aim.py): photons aimed at what is baked
+"""Importance emission (engine/shading/photon_aim.py): photons aimed at what is baked
 land there many times more often and still give each light's exact irradiance."""
 import math
 
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import demo_scenes, photon_aim
+from photon_lightmaps.engine import demo_scenes
+from photon_lightmaps.engine.shading import photon_aim
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import trace_photons
-from photon_lightmaps.engine.scene import Light, Material, Scene, compose, rotate, translate
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+from photon_lightmaps.engine.core.scene import Light, Material, Scene, compose, rotate, translate
 
 SUN = 3.0          # W/m² on a plane facing the sun
 TILT = 40.0        # degrees from the zenith

@@ -1,17 +1,17 @@
-"""Analytic primitives: intersections, charts, derivatives, areas (engine/primitives.py)."""
+"""Analytic primitives: intersections, charts, derivatives, areas (engine/geometry/primitives.py)."""
 import math
 
 import numpy as np
 import pytest
 from numba import njit
 
-from photon_lightmaps.engine import primitives as P
-from photon_lightmaps.engine.primitives import (BOX, CONE, CYLINDER, DISK, FRUSTUM, KIND_IDS, N_FACES,
-                               PARABOLOID, QUAD, SPHERE, TORUS, check_primitive, hits_batch,
-                               inverse_concentric, prim_area, prim_hits, prim_inside,
-                               prim_local_bounds, prim_nfaces, prim_point, prim_surface)
-from photon_lightmaps.engine.sampling import concentric_disk
-from photon_lightmaps.engine.scene import PRIMITIVE_KINDS, Primitive, SceneError
+from photon_lightmaps.engine.geometry import primitives
+from photon_lightmaps.engine.geometry.primitives import (
+    BOX, CONE, CYLINDER, DISK, FRUSTUM, KIND_IDS, N_FACES, PARABOLOID, QUAD, SPHERE, TORUS,
+    check_primitive, hits_batch, inverse_concentric, prim_area, prim_hits, prim_inside,
+    prim_local_bounds, prim_nfaces, prim_point, prim_surface)
+from photon_lightmaps.engine.core.sampling import concentric_disk
+from photon_lightmaps.engine.core.scene import PRIMITIVE_KINDS, Primitive, SceneError
 
 TORUS_R = 0.4
 FRUSTUM_T = 0.4
@@ -40,11 +40,11 @@ def _march(kind, params, origins, dirs, tmin, tmax, nsteps, counts, cross):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
         t = tmin[i]
-        prev = P.prim_inside(kind, params, ox + t * dx, oy + t * dy, oz + t * dz)
+        prev = primitives.prim_inside(kind, params, ox + t * dx, oy + t * dy, oz + t * dz)
         c = 0
         for k in range(1, nsteps + 1):
             t = tmin[i] + k * h
-            cur = P.prim_inside(kind, params, ox + t * dx, oy + t * dy, oz + t * dz)
+            cur = primitives.prim_inside(kind, params, ox + t * dx, oy + t * dy, oz + t * dz)
             if cur != prev:
                 if c < cross.shape[1]:
                     cross[i, c] = t - 0.5 * h
@@ -59,7 +59,7 @@ def _surface_batch(kind, params, pts):
     face = np.empty(m, dtype=np.int64)
     out = np.empty((m, 5))
     for i in range(m):
-        f, u, v, nx, ny, nz = P.prim_surface(kind, params, pts[i, 0], pts[i, 1], pts[i, 2])
+        f, u, v, nx, ny, nz = primitives.prim_surface(kind, params, pts[i, 0], pts[i, 1], pts[i, 2])
         face[i] = f
         out[i, 0] = u
         out[i, 1] = v
@@ -74,7 +74,7 @@ def _point_batch(kind, params, face, us, vs):
     m = us.shape[0]
     out = np.empty((m, 9))
     for i in range(m):
-        r = P.prim_point(kind, params, face, us[i], vs[i])
+        r = primitives.prim_point(kind, params, face, us[i], vs[i])
         for j in range(9):
             out[i, j] = r[j]
     return out
@@ -85,7 +85,7 @@ def _inside_batch(kind, params, pts):
     m = pts.shape[0]
     out = np.empty(m, dtype=np.bool_)
     for i in range(m):
-        out[i] = P.prim_inside(kind, params, pts[i, 0], pts[i, 1], pts[i, 2])
+        out[i] = primitives.prim_inside(kind, params, pts[i, 0], pts[i, 1], pts[i, 2])
     return out
 
 
@@ -173,10 +173,10 @@ def hits_of(kind, o, d, params=None):
 def test_kind_ids_and_faces():
     assert set(KIND_IDS) == set(PRIMITIVE_KINDS)
     assert [KIND_IDS[k] for k in PRIMITIVE_KINDS] == list(range(1, 10))
-    ids = (P.TRIANGLE, SPHERE, BOX, CYLINDER, CONE, TORUS, PARABOLOID, DISK, QUAD, FRUSTUM)
+    ids = (primitives.TRIANGLE, SPHERE, BOX, CYLINDER, CONE, TORUS, PARABOLOID, DISK, QUAD, FRUSTUM)
     assert ids == tuple(range(10))
     assert list(N_FACES) == [1, 1, 6, 3, 2, 1, 2, 1, 1, 3]
-    from photon_lightmaps.engine.csg import CSG
+    from photon_lightmaps.engine.geometry.csg import CSG
     assert CSG == len(N_FACES) == 10          # the CSG shape kind follows every primitive id
     for k in range(10):
         assert prim_nfaces(k) == N_FACES[k]

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from numba import njit
 
-from engine import raycast as R
-from engine.geometry import STACK_WORDS, compile_geometry, new_stack, trace_arrays
-from engine.primitives import KIND_IDS, prim_hits, prim_surface
-from engine.scene import (Instance, Primitive, Prototype, Scene, SceneError, TriangleMesh,
+from photon_lightmaps.engine.geometry import raycast
+from photon_lightmaps.engine.geometry.assembly import STACK_WORDS, compile_geometry, new_stack, trace_arrays
+from photon_lightmaps.engine.geometry.primitives import KIND_IDS, prim_hits, prim_surface
+from photon_lightmaps.engine.core.scene import (Instance, Primitive, Prototype, Scene, SceneError, TriangleMesh,
                           compose, rotate, scale, translate)
-from engine.triangle import intersect_triangle
+from photon_lightmaps.engine.geometry.triangle import intersect_triangle
 
 
 # ------------------------------------------------------------------ helpers
@@ -138,7 +138,7 @@ def _closest_loop(g, o, d, tmin, tmax):
     surf = np.empty((n, 5))
     occ = np.empty(n, np.bool_)
     for r in range(n):
-        hit, tt, inst, shape, face, u, v, nx, ny, nz = R.intersect_closest(
+        hit, tt, inst, shape, face, u, v, nx, ny, nz = raycast.intersect_closest(
             g, stack, o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2], tmin, tmax[r])
         t[r] = tt
         ids[r, 0] = inst
@@ -149,7 +149,7 @@ def _closest_loop(g, o, d, tmin, tmax):
         surf[r, 2] = nx
         surf[r, 3] = ny
         surf[r, 4] = nz
-        occ[r] = R.occluded(g, stack, o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2],
+        occ[r] = raycast.occluded(g, stack, o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2],
                             tmin, tmax[r])
     return t, ids, surf, occ
 
@@ -178,10 +178,10 @@ def test_matches_brute_force(n_tri, n_rays):
     for r in np.nonzero(hit)[0]:                           # reported shape gives that t
         assert shape_t(g, ids[r, 0], ids[r, 1], o[r], d[r]) == t[r]
     assert np.array_equal(occ, np.isfinite(ref))
-    tb, ib, sb = R.trace_closest_batch(g, o, d, np.inf)
+    tb, ib, sb = raycast.trace_closest_batch(g, o, d, np.inf)
     ref_inf = brute(g, o, d, np.inf)
     assert np.array_equal(tb, ref_inf)
-    assert np.array_equal(R.occluded_batch(g, o, d, 0.7), ref_inf < 0.7)
+    assert np.array_equal(raycast.occluded_batch(g, o, d, 0.7), ref_inf < 0.7)
 
 
 def _random_xf(rng, mirror=False):
@@ -258,15 +258,15 @@ def test_watertight_closed_mesh():
         hit_dir = np.einsum("ij,ij->i", p - o, n) < -0.5 * np.linalg.norm(p - o, axis=1)
         o, q = o[hit_dir], p[hit_dir]
         assert len(o) > 0.8 * len(p)
-        t, inst, shape = R.trace_closest_batch(g, o, (q - o) * 1.5)
+        t, inst, shape = raycast.trace_closest_batch(g, o, (q - o) * 1.5)
         assert np.all(shape >= 0), f"{np.sum(shape < 0)} rays slipped through"
-        assert np.all(R.occluded_batch(g, o, (q - o) * 1.5))
+        assert np.all(raycast.occluded_batch(g, o, (q - o) * 1.5))
     o = np.tile(centre, (len(p), 1))
-    t, inst, shape = R.trace_closest_batch(g, o, (p - o) * 1.5)
+    t, inst, shape = raycast.trace_closest_batch(g, o, (p - o) * 1.5)
     assert np.all(shape >= 0), f"{np.sum(shape < 0)} rays slipped through"
-    assert np.all(R.occluded_batch(g, o, (p - o) * 1.5))
+    assert np.all(raycast.occluded_batch(g, o, (p - o) * 1.5))
     d = p - centre
-    t, inst, shape = R.trace_closest_batch(g, np.tile(centre, (len(p), 1)), d)
+    t, inst, shape = raycast.trace_closest_batch(g, np.tile(centre, (len(p), 1)), d)
     assert np.allclose(t, 1.0, atol=1e-9)                    # the target itself is the hit
 
 
@@ -320,14 +320,14 @@ def test_watertight_exact_edges():
             o.append(p)
             d.append(np.tile(dd, (a.size, 1)))
     o, d = np.concatenate(o), np.concatenate(d)
-    t, inst, shape = R.trace_closest_batch(g, o, d)
+    t, inst, shape = raycast.trace_closest_batch(g, o, d)
     assert np.all(shape >= 0), f"{np.sum(shape < 0)} rays slipped through"
     assert np.array_equal(t, np.full(len(o), 3.0))
-    assert np.all(R.occluded_batch(g, o, d))
+    assert np.all(raycast.occluded_batch(g, o, d))
     # and from the inside through the same points
     c = np.full((len(o), 3), n / 2.0)
     q = o + 3.0 * d
-    t, inst, shape = R.trace_closest_batch(g, c, q - c)
+    t, inst, shape = raycast.trace_closest_batch(g, c, q - c)
     assert np.all(shape >= 0) and np.allclose(t, 1.0, rtol=1e-15)
 
 
@@ -346,7 +346,7 @@ def test_degenerate_triangles_dropped_and_counted():
     (key, n), = info["degenerate"].items()
     assert "flaky" in key and n == 4
     assert g.tri_p.shape == (2, 3, 3) and g.tri_uv.shape == (2, 3, 2)
-    t, inst, shape = R.trace_closest_batch(g, [[0.2, 0.2, 1.0]], [[0, 0, -1.0]])
+    t, inst, shape = raycast.trace_closest_batch(g, [[0.2, 0.2, 1.0]], [[0, 0, -1.0]])
     assert t[0] == 1.0
 
 
@@ -360,10 +360,10 @@ def test_empty_scenes_miss():
     for sc in (Scene(), empty_proto):
         g, info = compile_geometry(sc)
         assert info["n_shapes"] == 0
-        t, inst, shape = R.trace_closest_batch(g, o, d)
+        t, inst, shape = raycast.trace_closest_batch(g, o, d)
         assert np.all(shape == -1) and np.all(inst == -1) and np.all(np.isinf(t))
-        assert not R.occluded_batch(g, o, d).any()
-        hit = R.intersect_closest(g, new_stack(), 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, math.inf)
+        assert not raycast.occluded_batch(g, o, d).any()
+        hit = raycast.intersect_closest(g, new_stack(), 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, math.inf)
         assert not hit[0] and hit[2] == -1 and hit[3] == -1
     # running sum of surfaces: a mesh without triangles has none (no lightmap id to skip)
     assert compile_geometry(empty_proto)[0].inst_lm_base.tolist() == [0, 0, 0]
@@ -455,13 +455,13 @@ def test_interval_is_open():
     sc.add_object(Primitive("sphere", name="ball"))
     g, _ = compile_geometry(sc)
     st = new_stack()
-    hit = R.intersect_closest(g, st, 0.0, 0.0, -3.0, 0.0, 0.0, 2.0, 0.0, math.inf)
+    hit = raycast.intersect_closest(g, st, 0.0, 0.0, -3.0, 0.0, 0.0, 2.0, 0.0, math.inf)
     assert hit[0] and hit[1] == 1.0 and np.allclose(hit[7:], (0, 0, -1))
-    again = R.intersect_closest(g, st, 0.0, 0.0, -3.0, 0.0, 0.0, 2.0, 1.0, math.inf)
+    again = raycast.intersect_closest(g, st, 0.0, 0.0, -3.0, 0.0, 0.0, 2.0, 1.0, math.inf)
     assert again[0] and again[1] == 2.0 and np.allclose(again[7:], (0, 0, 1))   # exit point
-    assert not R.intersect_closest(g, st, 0.0, 0.0, -3.0, 0.0, 0.0, 2.0, 0.0, 1.0)[0]
-    assert not R.occluded(g, st, 0.0, 0.0, -3.0, 0.0, 0.0, 2.0, 0.0, 1.0)
-    assert R.occluded(g, st, 0.0, 0.0, -3.0, 0.0, 0.0, 2.0, 0.0, 1.0 + 1e-12)
+    assert not raycast.intersect_closest(g, st, 0.0, 0.0, -3.0, 0.0, 0.0, 2.0, 0.0, 1.0)[0]
+    assert not raycast.occluded(g, st, 0.0, 0.0, -3.0, 0.0, 0.0, 2.0, 0.0, 1.0)
+    assert raycast.occluded(g, st, 0.0, 0.0, -3.0, 0.0, 0.0, 2.0, 0.0, 1.0 + 1e-12)
 
 
 def test_threads_agree():
@@ -471,11 +471,11 @@ def test_threads_agree():
     old = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        a = R.trace_closest_batch(g, o, d)
-        oa = R.occluded_batch(g, o, d, 0.5)
+        a = raycast.trace_closest_batch(g, o, d)
+        oa = raycast.occluded_batch(g, o, d, 0.5)
         numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
-        b = R.trace_closest_batch(g, o, d)
-        ob = R.occluded_batch(g, o, d, 0.5)
+        b = raycast.trace_closest_batch(g, o, d)
+        ob = raycast.occluded_batch(g, o, d, 0.5)
     finally:
         numba.set_num_threads(old)
     for x, y in zip(a, b):

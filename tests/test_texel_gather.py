@@ -1,4 +1,4 @@
-"""Direct light gathered per texel (engine/texel_gather.py): texel averages of
+"""Direct light gathered per texel (engine/transport/texel_gather.py): texel averages of
 analytic irradiance fields, both sides of open surfaces, the inside of a closed
 solid, occlusion, and determinism; plus the piece lists it samples from.
 """
@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import lightmap as LM
-from photon_lightmaps.engine import texel_areas as TA
-from photon_lightmaps.engine import texel_gather as TG
+from photon_lightmaps.engine.lightmaps import lightmap
+from photon_lightmaps.engine.lightmaps import texel_areas
+from photon_lightmaps.engine.transport import texel_gather
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.demo_scenes import furnace_sphere
-from photon_lightmaps.engine.photon_tracer import trace_photons
-from photon_lightmaps.engine.scene import (Light, Material, Primitive, Scene, TriangleMesh, compose,
-                                           scale, translate)
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+from photon_lightmaps.engine.core.scene import (
+    Light, Material, Primitive, Scene, TriangleMesh, compose, scale, translate)
 
 HALF = 1.0   # floor half size: the floor is [-HALF, HALF]² at z = 0
 RES = 8
@@ -68,9 +68,9 @@ def disk_E(P, a, h):
 
 
 def gathered(cs, n=64, seed=0, lm_id=0):
-    ids, E = TG.direct_texel_irradiance(cs, [lm_id], samples_per_texel=n, seed=seed)
+    ids, E = texel_gather.direct_texel_irradiance(cs, [lm_id], samples_per_texel=n, seed=seed)
     lm = cs.lightmaps
-    out = np.zeros((lm.area[LM.texel_slice(lm, lm_id)].size, cs.n_bands))
+    out = np.zeros((lm.area[lightmap.texel_slice(lm, lm_id)].size, cs.n_bands))
     out[ids - lm.offset[lm_id]] = E
     w, h = int(lm.width[lm_id]), int(lm.height[lm_id])
     return out.reshape(h, w, -1)
@@ -149,12 +149,12 @@ def test_furnace_direct_plus_indirect_photons():
                                       resolution=12))
     stats = trace_photons(cs, 200_000, seed=4, max_bounces=64, record_direct=False)
     lm = cs.lightmaps
-    ids, E = TG.direct_texel_irradiance(cs, samples_per_texel=16, seed=1)
+    ids, E = texel_gather.direct_texel_irradiance(cs, samples_per_texel=16, seed=1)
     a = lm.area[ids]
     e_dir = flux / (4 * math.pi * R * R)
     assert (E[:, 0] * a).sum() / a.sum() == pytest.approx(e_dir, rel=0.01)
     assert E.min() > 0.0                    # every texel sees the source from inside
-    TG.add_direct(lm, ids, E)
+    texel_gather.add_direct(lm, ids, E)
     mean = (lm.irradiance[ids] * a[:, None]).sum(axis=0) / a.sum()
     # Indirect photon mean: relative error ~ 1/sqrt(photons) (RR on the path length).
     np.testing.assert_allclose(mean, e_dir / (1 - rho), rtol=0.01)
@@ -169,7 +169,7 @@ def test_sphere_outside_light_skips_inner_side():
     cs = compile_scene(s)
     pk, params = 1, np.zeros(4)
     xf = cs.geometry.inst_xf[0] @ np.vstack([cs.geometry.prim_xf[0], [0, 0, 0, 1]])
-    assert not TG._needs_inner_side(cs, pk, params, xf)
+    assert not texel_gather._needs_inner_side(cs, pk, params, xf)
     got = gathered(cs, n=16)[..., 0]
     assert got.max() > 0 and (got == 0).sum() > 0.3 * got.size   # the far half is dark
 
@@ -181,10 +181,10 @@ def test_deterministic_and_independent_of_allocation():
     s.add_object(Primitive("quad", material=0), translate(0, 0, -0.5), name="other",
                  lightmap_resolution=4)
     cs = compile_scene(s)
-    a = TG.direct_texel_irradiance(cs, seed=7)
-    b = TG.direct_texel_irradiance(cs, seed=7)
+    a = texel_gather.direct_texel_irradiance(cs, seed=7)
+    b = texel_gather.direct_texel_irradiance(cs, seed=7)
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
-    c = TG.direct_texel_irradiance(cs, seed=8)
+    c = texel_gather.direct_texel_irradiance(cs, seed=8)
     assert not np.array_equal(a[1], c[1])
     # Without the second object's lightmap the floor's texels get the same samples.
     s.instances[1].lightmap = False
@@ -199,11 +199,11 @@ def test_texel_pieces_add_up_to_texel_areas():
     uv = rng.random((40, 3, 2)) * 1.1 - 0.05                       # some stick out of [0,1]²
     uv[5] = [[0.3, 0.3], [0.3, 0.3], [0.31, 0.3]]                  # degenerate UV triangle
     area3d = rng.random(40) + 0.1
-    area, _ = TA.triangle_texel_areas(uv, area3d, 9, 7)
-    pcs = TA.triangle_texel_pieces(uv, area3d, 9, 7)
+    area, _ = texel_areas.triangle_texel_areas(uv, area3d, 9, 7)
+    pcs = texel_areas.triangle_texel_pieces(uv, area3d, 9, 7)
     sums = np.array([pcs.area[pcs.start[j]:pcs.start[j + 1]].sum() for j in range(63)])
     np.testing.assert_allclose(sums, area, rtol=1e-12, atol=1e-15)
-    assert pcs.nv.min() >= 3 and pcs.nv.max() <= TA.MAX_PIECE_VERTICES
+    assert pcs.nv.min() >= 3 and pcs.nv.max() <= texel_areas.MAX_PIECE_VERTICES
     # Every piece lies inside its triangle (barycentrics) and inside its texel (UV).
     for p in range(pcs.tri.size):
         b = pcs.bary[p, :pcs.nv[p]]
@@ -219,16 +219,16 @@ def test_dense_mesh_pieces_split_over_threads_match_one_call():
     """A mesh of more than 2 x PIECES_BLOCK triangles is clipped in blocks on the
     thread pool; joined in triangle order, the pieces are those of one call."""
     rng = np.random.default_rng(5)
-    n = 2 * TA.PIECES_BLOCK + 1234
+    n = 2 * texel_areas.PIECES_BLOCK + 1234
     centre = rng.random((n, 1, 2))
     uv = centre + rng.normal(scale=0.004, size=(n, 3, 2))
     area3d = rng.random(n) + 0.1
-    one = TA._triangle_texel_pieces(*TA._atlas_inputs(uv, area3d, 64, 64))
-    pcs = TA.triangle_texel_pieces(uv, area3d, 64, 64)
+    one = texel_areas._triangle_texel_pieces(*texel_areas._atlas_inputs(uv, area3d, 64, 64))
+    pcs = texel_areas.triangle_texel_pieces(uv, area3d, 64, 64)
     order = np.argsort(one[1], kind="stable")
     np.testing.assert_array_equal(pcs.tri, one[0][order])
     np.testing.assert_array_equal(pcs.area, one[2][order])
     np.testing.assert_array_equal(pcs.nv, one[3][order])
-    used = np.arange(TA.MAX_PIECE_VERTICES)[None, :] < pcs.nv[:, None]
+    used = np.arange(texel_areas.MAX_PIECE_VERTICES)[None, :] < pcs.nv[:, None]
     np.testing.assert_array_equal(pcs.bary[used], one[4][order][used])
-    assert pcs.tri.max() > 2 * TA.PIECES_BLOCK      # the last block's rows are offset back
+    assert pcs.tri.max() > 2 * texel_areas.PIECES_BLOCK      # the last block's rows are offset back

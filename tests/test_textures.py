@@ -1,5 +1,5 @@
-"""Material textures: mip pyramids and trilinear lookups (engine/texture.py), textured
-lobe weights and normal maps at hits (engine/materials.py), and the Blender side
+"""Material textures: mip pyramids and trilinear lookups (engine/shading/texture.py), textured
+lobe weights and normal maps at hits (engine/shading/materials.py), and the Blender side
 (export/textures.py): Cycles bakes of image and procedural textures, the bake
 cache, a missing image, and the user's data left as it was."""
 import math
@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from numba import njit
 
-from photon_lightmaps.engine import materials as MAT
-from photon_lightmaps.engine import texture as TX
+from photon_lightmaps.engine.shading import materials
+from photon_lightmaps.engine.shading import texture as TX
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.raycast import intersect_closest, new_stack
-from photon_lightmaps.engine.scene import (Material, Scene, SceneError, Texture, TriangleMesh,
-                                           compose, rotate, scale, translate)
+from photon_lightmaps.engine.geometry.raycast import intersect_closest, new_stack
+from photon_lightmaps.engine.core.scene import (
+    Material, Scene, SceneError, Texture, TriangleMesh, compose, rotate, scale, translate)
 
 
 # ----------------------------------------------------------------- sampling
@@ -133,10 +133,10 @@ def test_bad_textures_refused():
     with pytest.raises(SceneError, match="bands"):
         TX.compile_textures(Scene(n_bands=4, textures=[Texture(np.zeros((2, 2, 3)))]))
     with pytest.raises(SceneError, match="unknown texture input"):
-        MAT.compile_materials(Scene(materials=[Material(textures={"albedo": 0})],
+        materials.compile_materials(Scene(materials=[Material(textures={"albedo": 0})],
                                     textures=[Texture(np.zeros((2, 2, 3)))]))
     with pytest.raises(SceneError, match="not one of the scene"):
-        MAT.compile_materials(Scene(materials=[Material(textures={"base_color": 1})],
+        materials.compile_materials(Scene(materials=[Material(textures={"base_color": 1})],
                                     textures=[Texture(np.zeros((2, 2, 3)))]))
 
 
@@ -165,8 +165,8 @@ def _shade(g, ms, ts, stack, ox, oy, oz, dx, dy, dz, footprint, nb):
     ks = np.zeros(nb)
     kt = np.zeros(nb)
     m = g.shape_material[shape]
-    rough, ior, spec = MAT.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, footprint, kd, ks, kt)
-    sx, sy, sz = MAT.shading_normal(ms, ts, g, inst, m, shape, face, u, v, footprint, nx, ny, nz)
+    rough, ior, spec = materials.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, footprint, kd, ks, kt)
+    sx, sy, sz = materials.shading_normal(ms, ts, g, inst, m, shape, face, u, v, footprint, nx, ny, nz)
     return hit, kd, ks, kt, rough, ior, spec, np.array([nx, ny, nz]), np.array([sx, sy, sz])
 
 
@@ -273,7 +273,8 @@ def test_normal_map_follows_the_instance():
 # ------------------------------------------------------------------ Blender side
 
 def _bpy():
-    return pytest.importorskip("bpy")
+    import bpy
+    return bpy
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""3D turtle interpretation of L-system module strings (engine/turtle.py)."""
+"""3D turtle interpretation of L-system module strings (engine/lsystem/turtle.py)."""
 import math
 import re
 import time
@@ -6,8 +6,9 @@ import time
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine.scene import SceneError
-from photon_lightmaps.engine.turtle import TurtleState, frame_after, interpret, to_primitives
+from photon_lightmaps.engine.core.scene import SceneError
+from photon_lightmaps.engine.lsystem.turtle import (
+    TurtleState, frame_after, interpret, to_primitives)
 
 _TOKEN = re.compile(r"(@?[^\s(])(?:\(([^)]*)\))?")
 

@@ -1,16 +1,16 @@
 """Renders never wait minutes on an unwrap, and dense meshes keep their own
 light: a mesh without lightmap UVs above the scene's unwrap limit gets the fast
-box-projection layout (engine/fast_layout.py), no xatlas worker starts, the
+box-projection layout (engine/lightmaps/fast_layout.py), no xatlas worker starts, the
 choice is reported, and the image agrees with the xatlas-laid-out render."""
 from dataclasses import replace
 
 import numpy as np
 
 from photon_lightmaps.engine import demo_scenes, session
-from photon_lightmaps.engine import lightmap as LM
-from photon_lightmaps.engine import uv_atlas as UA
+from photon_lightmaps.engine.lightmaps import lightmap
+from photon_lightmaps.engine.lightmaps import uv_atlas
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.scene import translate
+from photon_lightmaps.engine.core.scene import translate
 
 
 def _scene(n_theta, n_phi, limit, size=32):
@@ -44,10 +44,10 @@ def _compare(a, b):
 
 
 def test_dense_mesh_gets_the_fast_layout_its_own_lightmap_and_no_xatlas_worker():
-    UA.clear_memory_cache()
-    before = UA.worker_launches
+    uv_atlas.clear_memory_cache()
+    before = uv_atlas.worker_launches
     cs = compile_scene(_scene(256, 512, limit=20_000))       # 261,120 triangles, the default limit
-    assert UA.worker_launches == before
+    assert uv_atlas.worker_launches == before
     row, = [r for r in cs.info["layouts"] if r["mesh"] == "ball"]
     assert row["layout"] == "fast layout" and row["triangles"] > 200_000
     assert "unwrap limit of 20,000" in row["reason"] and row["charts"] == 6
@@ -66,9 +66,9 @@ def test_limit_zero_unwraps_and_a_cached_unwrap_is_used_above_the_limit():
     sc = _scene(16, 32, limit=0)
     cs = compile_scene(sc)
     assert [r["layout"] for r in cs.info["layouts"] if r["mesh"] == "ball"] == ["xatlas"]
-    before = UA.worker_launches
+    before = uv_atlas.worker_launches
     cs = compile_scene(replace(sc, unwrap_limit=100))       # cached now: no reason to skip it
-    assert UA.worker_launches == before
+    assert uv_atlas.worker_launches == before
     assert [r["layout"] for r in cs.info["layouts"] if r["mesh"] == "ball"] == ["xatlas"]
     assert cs.geometry.inst_lm_base[-1] >= 0
 
@@ -81,7 +81,7 @@ def test_fast_layout_render_agrees_with_the_xatlas_render(monkeypatch, tmp_path)
     blocks within 0.6 % RMS."""
     monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(tmp_path / "a"))
     _, a = _render(_scene(16, 32, limit=0))
-    UA.clear_memory_cache()         # the unwrap just made must not count as cached
+    uv_atlas.clear_memory_cache()         # the unwrap just made must not count as cached
     monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(tmp_path / "b"))
     cs, b = _render(_scene(16, 32, limit=100))
     assert [r["layout"] for r in cs.info["layouts"] if r["mesh"] == "ball"] == ["fast layout"]
@@ -99,13 +99,13 @@ def test_dense_ball_render_agrees_with_an_xatlas_ball(monkeypatch, tmp_path):
     flux per area within 1 %."""
     monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(tmp_path))
     ca, a = _render(_scene(32, 64, limit=0))
-    before = UA.worker_launches
+    before = uv_atlas.worker_launches
     cb, b = _render(_scene(256, 512, limit=20_000))
-    assert UA.worker_launches == before
+    assert uv_atlas.worker_launches == before
     assert [r["layout"] for r in cb.info["layouts"] if r["mesh"] == "ball"] == ["fast layout"]
     e = []
     for cs in (ca, cb):
-        sl = LM.texel_slice(cs.lightmaps, int(cs.instance_lightmaps[-1][0]))
+        sl = lightmap.texel_slice(cs.lightmaps, int(cs.instance_lightmaps[-1][0]))
         assert cs.lightmaps.hits[sl].sum() > 10_000
         e.append(cs.lightmaps.flux[sl].sum() / cs.lightmaps.area[sl].sum())
     rel_mean, rms = _compare(a, b)
@@ -117,9 +117,9 @@ def test_unwraps_report_progress_and_can_be_cancelled(monkeypatch, tmp_path):
     """The render's stats line follows the xatlas batch from its start, and Esc
     kills the worker (the scene compile raises Cancelled, nothing is cached)."""
     import pytest
-    from photon_lightmaps.engine.photon_tracer import Cancelled
+    from photon_lightmaps.engine.core.errors import Cancelled
     monkeypatch.setenv("PHOTON_LIGHTMAPS_CACHE", str(tmp_path))
-    UA.clear_memory_cache()
+    uv_atlas.clear_memory_cache()
     with pytest.raises(Cancelled):
         compile_scene(_scene(16, 32, limit=0), should_stop=lambda: True)
     assert not list(tmp_path.glob("uv/*.npz"))

@@ -5,9 +5,9 @@ import time
 import numpy as np
 import pytest
 
-from photon_lightmaps.engine import texel_areas as TA
-from photon_lightmaps.engine import uv_atlas as UA
-from photon_lightmaps.engine.scene import SceneError
+from photon_lightmaps.engine.lightmaps import texel_areas
+from photon_lightmaps.engine.lightmaps import uv_atlas as UA
+from photon_lightmaps.engine.core.scene import SceneError
 
 
 def _torus_mesh(n=32, m=14, major=1.0, minor=0.35):
@@ -75,7 +75,7 @@ def test_charts_never_share_or_touch_texels(cache, torus):
     masks = []
     for c in charts:
         sel = res.chart == c
-        _, cov = TA.triangle_texel_areas(res.uv[sel], np.ones(sel.sum()), R, R)
+        _, cov = texel_areas.triangle_texel_areas(res.uv[sel], np.ones(sel.sum()), R, R)
         masks.append((cov > 0).reshape(R, R))
     # A bilinear lookup reads up to 1.5 texels from its chart and dilation reaches
     # one further: texels of different charts must be at least 3 texels apart.
@@ -156,8 +156,8 @@ def test_reordered_xatlas_output_is_mapped_back():
 def test_unwrap_feeds_exact_texel_areas(cache, torus):
     v, tri = torus
     res = UA.unwrap_atlas(v, tri, resolution=40)
-    a3 = TA.triangle_world_areas(v[tri])
-    area, cov = TA.triangle_texel_areas(res.uv, a3, res.resolution, res.resolution)
+    a3 = texel_areas.triangle_world_areas(v[tri])
+    area, cov = texel_areas.triangle_texel_areas(res.uv, a3, res.resolution, res.resolution)
     assert abs(area.sum() - a3.sum()) <= 1e-12 * a3.sum()
     assert cov.max() <= 1.0 and (cov > 0).sum() > 0.2 * cov.size
 
@@ -245,7 +245,7 @@ def test_cache_hits_start_no_worker(cache, torus):
 
 
 def test_should_stop_kills_the_worker(cache, torus, monkeypatch):
-    from photon_lightmaps.engine.photon_tracer import Cancelled
+    from photon_lightmaps.engine.core.errors import Cancelled
     procs = []
 
     class Recorded(subprocess.Popen):

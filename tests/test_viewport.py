@@ -11,9 +11,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from photon_lightmaps.bake import viewport as V
+from photon_lightmaps.bake import viewport
 from photon_lightmaps.engine import demo_scenes, session
-from photon_lightmaps.engine.scene import Camera, compose, rotate, translate
+from photon_lightmaps.engine.core.scene import Camera, compose, rotate, translate
 
 SETTINGS = session.Settings(photons=3000, samples=3, seed=7, gather_rays=2)
 
@@ -36,12 +36,12 @@ def run_out(s, limit=50):
 
 def test_samples_add_up_to_the_f12_render_and_a_moved_view_keeps_the_photons():
     scene = room()
-    s = V.ViewportSession()
+    s = viewport.ViewportSession()
     s.update_scene(scene, SETTINGS)
     assert s.update_view(scene.camera) and not s.update_view(scene.camera)   # the same view: no restart
     assert s.step() and s.photon_passes == 1 and s.image() is None         # compile + photons
     assert s.step() and s.samples == 0
-    assert s.image().shape[:2] == (12 // V.PREVIEW_DIVISOR, 16 // V.PREVIEW_DIVISOR)   # the preview
+    assert s.image().shape[:2] == (12 // viewport.PREVIEW_DIVISOR, 16 // viewport.PREVIEW_DIVISOR)   # the preview
     run_out(s)
     assert s.samples == SETTINGS.samples and not s.busy()
     f12 = session.render(s.cs, SETTINGS)
@@ -59,7 +59,7 @@ def test_samples_add_up_to_the_f12_render_and_a_moved_view_keeps_the_photons():
 
 def test_the_worker_thread_finishes_and_errors_stay_in_the_session():
     scene = room()
-    s = V.ViewportSession()
+    s = viewport.ViewportSession()
     s.update_scene(scene, SETTINGS)
     s.update_view(scene.camera)
     s.start()
@@ -89,20 +89,19 @@ def test_the_view_camera_matches_the_viewport_projection(width, height):
     sx, sy = (t, t * width / height) if width >= height else (t * height / width, t)
     view = np.linalg.inv(np.vstack([compose(translate(1.0, -4.0, 2.0), rotate("x", 80.0)), [0, 0, 0, 1]]))
     persp = np.diag([sx, sy, -1.0, 0.0])
-    cam = V.view_camera(SimpleNamespace(view_matrix=view, window_matrix=persp, is_perspective=True),
+    cam = viewport.view_camera(SimpleNamespace(view_matrix=view, window_matrix=persp, is_perspective=True),
                         width, height)
     assert cam.kind == "perspective" and abs(cam.fov - fov) < 1e-12
     assert np.allclose(cam.transform, np.linalg.inv(view)[:3])
     ortho = np.diag([2.0 / 6.0, 2.0 / 6.0 * max(width, height) / min(width, height), -0.1, 1.0])
     if height > width:
         ortho = np.diag([2.0 / 6.0 * height / width, 2.0 / 6.0, -0.1, 1.0])
-    cam = V.view_camera(SimpleNamespace(view_matrix=view, window_matrix=ortho, is_perspective=False),
+    cam = viewport.view_camera(SimpleNamespace(view_matrix=view, window_matrix=ortho, is_perspective=False),
                         width, height)
     assert cam.kind == "orthographic" and abs(cam.ortho_scale - 6.0) < 1e-12
 
 
 def test_the_engine_draws_the_rendered_viewport():
-    pytest.importorskip("bpy")
-    from photon_lightmaps.operators.render_engine import PhotonLightmapsRenderEngine as E
-    assert "view_update" in E.__dict__ and "view_draw" in E.__dict__
-    assert E.bl_use_eevee_viewport          # Material Preview stays EEVEE's
+    from photon_lightmaps.operators.render_engine import PhotonLightmapsRenderEngine
+    assert "view_update" in PhotonLightmapsRenderEngine.__dict__ and "view_draw" in PhotonLightmapsRenderEngine.__dict__
+    assert PhotonLightmapsRenderEngine.bl_use_eevee_viewport          # Material Preview stays EEVEE's

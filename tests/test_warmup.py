@@ -6,8 +6,9 @@ import threading
 import numba
 import pytest
 
-from photon_lightmaps.engine import features, warmup
-from photon_lightmaps.engine.geometry import compile_geometry
+from photon_lightmaps.engine.core import features
+from photon_lightmaps.engine import warmup
+from photon_lightmaps.engine.geometry.assembly import compile_geometry
 
 
 class Fake:

@@ -9,15 +9,16 @@ from numba import njit
 from scipy import stats as sps
 
 from photon_lightmaps.engine import demo_scenes
-from photon_lightmaps.engine import environment as E
-from photon_lightmaps.engine import lights as L
-from photon_lightmaps.engine import texel_gather as TG
+from photon_lightmaps.engine.shading import environment
+from photon_lightmaps.engine.shading import lights
+from photon_lightmaps.engine.transport import texel_gather
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.photon_tracer import trace_photons
-from photon_lightmaps.engine.raycast import STACK_WORDS
-from photon_lightmaps.engine.sampling import cosine_hemisphere, next_float, stream_state, to_world, \
-    uniform_sphere
-from photon_lightmaps.engine.scene import EnvironmentMap, Material, Primitive, Scene, scale, translate
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
+from photon_lightmaps.engine.geometry.raycast import STACK_WORDS
+from photon_lightmaps.engine.core.sampling import (
+    cosine_hemisphere, next_float, stream_state, to_world, uniform_sphere)
+from photon_lightmaps.engine.core.scene import (
+    EnvironmentMap, Material, Primitive, Scene, scale, translate)
 
 
 def random_map(h=8, w=16, seed=0, patch=True):
@@ -46,7 +47,7 @@ def pixel_centres_grid(h, w, k):
 def _pdfs(ev, dirs):
     out = np.empty(dirs.shape[0])
     for i in range(dirs.shape[0]):
-        out[i] = E.pdf(ev, dirs[i, 0], dirs[i, 1], dirs[i, 2])
+        out[i] = environment.pdf(ev, dirs[i, 0], dirs[i, 1], dirs[i, 2])
     return out
 
 
@@ -58,7 +59,7 @@ def _samples(ev, n, seed):
     for i in range(n):
         state, u1 = next_float(state)
         state, u2 = next_float(state)
-        wx, wy, wz, p = E.sample_radiance(ev, u1, u2, rad[i])
+        wx, wy, wz, p = environment.sample_radiance(ev, u1, u2, rad[i])
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = wx, wy, wz, p
     return out, rad
 
@@ -67,7 +68,7 @@ def _samples(ev, n, seed):
 def _radiances(ev, dirs):
     out = np.empty((dirs.shape[0], ev.pixels.shape[2]))
     for i in range(dirs.shape[0]):
-        E.radiance(ev, dirs[i, 0], dirs[i, 1], dirs[i, 2], out[i])
+        environment.radiance(ev, dirs[i, 0], dirs[i, 1], dirs[i, 2], out[i])
     return out
 
 
@@ -100,7 +101,7 @@ def _photons(ls, g, n, old):
         if old:
             r = _old_env_photon(ls, 0, state)
         else:
-            r = L.emit_photon(ls, g, state)
+            r = lights.emit_photon(ls, g, state)
         st, li, ox, oy, oz, dx, dy, dz, wt = r
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = li, ox, oy, oz
         out[i, 4], out[i, 5], out[i, 6], out[i, 7] = dx, dy, dz, wt
@@ -119,12 +120,12 @@ def _direct_both(g, ls, pts, n):
         s2 = stream_state(9, i)
         for _ in range(n):
             s1 = _old_direct(g, ls, stack, pts[i, 0], pts[i, 1], pts[i, 2], 0.0, 0.0, 1.0, s1, a[i])
-            s2 = TG.direct_irradiance(g, ls, stack, pts[i, 0], pts[i, 1], pts[i, 2], 0.0, 0.0, 1.0, s2, b[i])
+            s2 = texel_gather.direct_irradiance(g, ls, stack, pts[i, 0], pts[i, 1], pts[i, 2], 0.0, 0.0, 1.0, s2, b[i])
     return a, b
 
 
 try:
-    from photon_lightmaps.engine.renderer import direct_irradiance as _old_direct
+    from photon_lightmaps.engine.transport.renderer import direct_irradiance as _old_direct
 except ImportError:     # the renderer's own copy may go; the kernel-level checks stay
     _old_direct = None
 
@@ -147,7 +148,7 @@ def test_constant_world_is_bit_identical_to_the_uniform_path():
     env = np.array([0.3, 0.5, 0.7])
     cs = compile_scene(world_scene(env))
     ls = cs.lights
-    assert ls.env_constant and ls.kind.tolist() == [L.ENVIRONMENT]
+    assert ls.env_constant and ls.kind.tolist() == [lights.ENVIRONMENT]
     R = ls.bound_radius
     # radiance, flux and the compiled world exactly as the constant formulas give them
     assert np.array_equal(ls.radiance[0], env)
@@ -174,8 +175,8 @@ def _light_samples(ls, g, li, n):
         state, u1 = next_float(state)
         state, u2 = next_float(state)
         state, u3 = next_float(state)
-        r = L.sample_light(ls, g, li, 0.1, 0.2, 0.3, u1, u2, u3)
-        q = L.sample_light_radiance(ls, g, li, 0.1, 0.2, 0.3, u1, u2, u3, rad)
+        r = lights.sample_light(ls, g, li, 0.1, 0.2, 0.3, u1, u2, u3)
+        q = lights.sample_light_radiance(ls, g, li, 0.1, 0.2, 0.3, u1, u2, u3, rad)
         a[i, 0], a[i, 1], a[i, 2], a[i, 3], a[i, 4], a[i, 5] = r
         b[i, 0], b[i, 1], b[i, 2], b[i, 3], b[i, 4], b[i, 5] = q
         for k in range(rad.shape[0]):
@@ -199,7 +200,7 @@ def test_sample_light_radiance_matches_sample_light_for_constant_lights():
 
 def test_map_pdf_integrates_to_one_and_power_is_the_integral():
     px = random_map()
-    ev = E.compile_environment(EnvironmentMap(px), 3)
+    ev = environment.compile_environment(EnvironmentMap(px), 3)
     h, w = px.shape[:2]
     dirs, ds = pixel_centres_grid(h, w, 4)
     d_omega = ds[:, None] * (2 * math.pi / (w * 4))           # per grid point
@@ -219,7 +220,7 @@ def test_map_samples_follow_the_pdf_chi_square():
     """Histogram of sample() on a grid 3x finer than the map (pixel and in-pixel placement)
     against the expected counts N * pdf * dOmega (pbrt / Mitsuba style chi-square)."""
     px = random_map(h=6, w=12)
-    ev = E.compile_environment(EnvironmentMap(px), 3)
+    ev = environment.compile_environment(EnvironmentMap(px), 3)
     n = 400_000
     smp, rad = _samples(ev, n, 1)
     d = smp[:, :3]
@@ -250,7 +251,7 @@ def test_map_samples_follow_the_pdf_chi_square():
 
 def test_importance_estimate_of_irradiance_equals_quadrature():
     px = random_map(h=16, w=32, seed=4)
-    ev = E.compile_environment(EnvironmentMap(px), 3)
+    ev = environment.compile_environment(EnvironmentMap(px), 3)
     h, w = px.shape[:2]
     dirs, ds = pixel_centres_grid(h, w, 8)
     d_omega = ds[:, None] * (2 * math.pi / (w * 8))
@@ -269,12 +270,12 @@ def test_direction_mapping_is_blenders():
     h, w = 8, 16
     px = np.zeros((h, w, 1))
     px[..., 0] = np.arange(h)[:, None] * 100 + np.arange(w)[None, :]
-    ev = E.compile_environment(EnvironmentMap(px), 1)
+    ev = environment.compile_environment(EnvironmentMap(px), 1)
     out = np.empty(1)
     for d, (j, i) in (((1, 0, 0.01), (4, 8)), ((0, 1, 0.01), (4, 4)), ((-1, 1e-9, 0.01), (4, 0)),
                       ((0, -1, 0.01), (4, 12)), ((0.01, 0, 1), (7, 8)), ((0.01, 0, -1), (0, 8)),
                       ((1, 1, -0.01), (3, 6))):
-        E.radiance(ev, *d, out)
+        environment.radiance(ev, *d, out)
         assert out[0] == j * 100 + i, (d, out[0])
 
 
@@ -303,7 +304,7 @@ def test_furnace_plane_under_a_uniform_and_a_half_map():
         cs = compile_scene(plane_scene(EnvironmentMap(px)))
         assert not cs.lights.env_constant
         np.testing.assert_allclose(cs.lights.flux[0], cs.lights.env_power * math.pi * cs.lights.bound_radius ** 2)
-        ids, e = TG.direct_texel_irradiance(cs, samples_per_texel=4096, seed=1)
+        ids, e = texel_gather.direct_texel_irradiance(cs, samples_per_texel=4096, seed=1)
         # L / pdf is constant here; what is left is the receiver cosine's variance
         np.testing.assert_allclose(e.mean(axis=0), expect, rtol=0.03)
         np.testing.assert_allclose(e, np.broadcast_to(expect, e.shape), rtol=0.15)
@@ -337,7 +338,7 @@ def test_map_photons_light_a_plane_like_the_gather():
     px = np.full((32, 64, 3), 0.05)
     px[24:27, 40:44] = 40.0
     cs = compile_scene(plane_scene(EnvironmentMap(px)))
-    ids, e = TG.direct_texel_irradiance(cs, samples_per_texel=256, seed=1)
+    ids, e = texel_gather.direct_texel_irradiance(cs, samples_per_texel=256, seed=1)
     st = trace_photons(cs, 1_000_000, seed=5, max_bounces=0, record_direct=True)
     assert st.audit_error() < 1e-12
     got = cs.lightmaps.irradiance[ids]
@@ -349,8 +350,8 @@ def test_map_photons_light_a_plane_like_the_gather():
 def _tints(ls, g, n):
     out = np.empty((n, ls.radiance.shape[1]))
     for i in range(n):
-        r = L.emit_photon(ls, g, stream_state(8, i))
-        L.photon_tint(ls, r[1], r[5], r[6], r[7], out[i])
+        r = lights.emit_photon(ls, g, stream_state(8, i))
+        lights.photon_tint(ls, r[1], r[5], r[6], r[7], out[i])
     return out
 
 

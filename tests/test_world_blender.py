@@ -12,12 +12,12 @@ import time
 import numpy as np
 import pytest
 
-bpy = pytest.importorskip("bpy")
+import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.txt)
 
-from photon_lightmaps import bake as B  # noqa: E402
-from photon_lightmaps.engine import environment as ENV  # noqa: E402
+from photon_lightmaps import bake  # noqa: E402
+from photon_lightmaps.engine.shading import environment  # noqa: E402
 from photon_lightmaps.engine import session  # noqa: E402
-from photon_lightmaps.engine.scene import EnvironmentMap  # noqa: E402
+from photon_lightmaps.engine.core.scene import EnvironmentMap  # noqa: E402
 from photon_lightmaps.export import export_scene  # noqa: E402
 from photon_lightmaps.export import world as W  # noqa: E402
 
@@ -80,7 +80,7 @@ def hdri_world(path, interpolation="Closest"):
 
 
 def pixel_directions(h, w):
-    """Centre directions of the map's pixels by engine/environment.py's convention."""
+    """Centre directions of the map's pixels by engine/shading/environment.py's convention."""
     v = (np.arange(h) + 0.5) / h
     u = (np.arange(w) + 0.5) / w
     el = (v - 0.5) * math.pi
@@ -127,11 +127,11 @@ def test_map_orientation_is_blenders_world_mapping():
     err = np.abs(got - want).max(axis=2)
     assert np.percentile(err, 99) < 0.02 and err.max() < 0.05, err.max()
     # the engine's lookup returns the pixel of a direction: +x, +y, up, down
-    ev = ENV.compile_environment(env, 3)
+    ev = environment.compile_environment(env, 3)
     out = np.empty(3)
     for d in ((1, 0, 0), (0, 1, 0), (0, -1, 0), (-1, 0, 0.3), (0.1, 0.2, 1), (0.3, -0.1, -1)):
         d = np.asarray(d, float) / np.linalg.norm(d)
-        ENV.radiance(ev, *d, out)
+        environment.radiance(ev, *d, out)
         assert np.abs(out * 2 - 1 - d).max() < 0.08, (d, out * 2 - 1)
 
 
@@ -287,7 +287,7 @@ def compare_with_cycles(label, max_block=0.10, mean_block=0.04, max_bias=0.02):
     ob = slab_with_block()
     bpy.context.scene.photon_lightmaps.max_bounces = 8
     t0 = time.perf_counter()
-    res = B.bake_objects(bpy.context, [ob], photons=PHOTONS, seed=3, resolution=RES)
+    res = bake.bake_objects(bpy.context, [ob], photons=PHOTONS, seed=3, resolution=RES)
     t_ours = time.perf_counter() - t0
     t0 = time.perf_counter()
     fine = cycles_diffuse_bake(ob, RES * SUPER, CYCLES_SPP)

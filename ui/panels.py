@@ -245,9 +245,9 @@ def _count(n):
 def lsystem_summary(ob):
     """(text, icon) lines the L-system panel shows below the settings: the grammar's status,
     the preview path, OL stubs, organs and the engine's statistics (export/lsystems.py)."""
-    from ..export import lsystems as L
+    from ..export import lsystems
     props = ob.photon_lightmaps.lsystem
-    meta = L.info(ob)
+    meta = lsystems.info(ob)
     lines = []
     if props.status:
         lines.append((props.status, 'ERROR'))
@@ -262,8 +262,8 @@ def lsystem_summary(ob):
         lines.append((meta.get("note", ""), 'DOT'))
     for a in meta.get("approximate", []):
         lines.append((f"Preview is approximate: {a}", 'INFO'))
-    lines.append((f"Blender shows at most {L.MAX_PREVIEW_DEPTH} nested instance levels: "
-                  f"the preview depth is capped at {L.MAX_PREVIEW_DEPTH}", 'INFO'))
+    lines.append((f"Blender shows at most {lsystems.MAX_PREVIEW_DEPTH} nested instance levels: "
+                  f"the preview depth is capped at {lsystems.MAX_PREVIEW_DEPTH}", 'INFO'))
     stubs = meta.get("ol_stubs", [])
     lines.append(("OL stubs: " + (", ".join(stubs) if stubs else "none (one OL over the object)"), 'SPHERE'))
     organs = meta.get("organs", [])
@@ -285,10 +285,10 @@ def lsystem_summary(ob):
         else:
             lines.append(("Context-sensitive: derived and instanced (no scene graph)", 'OUTLINER'))
         lines.append((f"Flattened instances would cost ~{_size(st['flat_bytes'])} in Cycles "
-                      f"(~{L.CYCLES_BYTES_PER_INSTANCE / 1000:.1f} KB per instance)", 'MEMORY'))
+                      f"(~{lsystems.CYCLES_BYTES_PER_INSTANCE / 1000:.1f} KB per instance)", 'MEMORY'))
         steps = int(st.get("steps", -1))
-        if steps > L.MAX_PREVIEW_DEPTH:
-            lines.append((f"Cycles shows at most {L.MAX_PREVIEW_DEPTH} nested instance levels: these "
+        if steps > lsystems.MAX_PREVIEW_DEPTH:
+            lines.append((f"Cycles shows at most {lsystems.MAX_PREVIEW_DEPTH} nested instance levels: these "
                           f"{steps} steps as nested instances would not show there", 'ERROR'))
     return lines
 
@@ -311,19 +311,19 @@ class PHOTON_LIGHTMAPS_PT_lsystem(_EnginePanel, bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        from ..export import lsystems as L
-        return super().poll(context) and L.is_lsystem(context.object)
+        from ..export import lsystems
+        return super().poll(context) and lsystems.is_lsystem(context.object)
 
     def draw(self, context):
-        from ..export import lsystems as L
+        from ..export import lsystems
         from ..operators import lsystem as lsystem_ops
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
         ob = context.object
         s = ob.photon_lightmaps.lsystem
-        text = L.grammar_text(ob)
-        layout.prop(ob, f'["{L.TEXT_PROP}"]', text="Grammar")
+        text = lsystems.grammar_text(ob)
+        layout.prop(ob, f'["{lsystems.TEXT_PROP}"]', text="Grammar")
         row = layout.row(align=True)
         if text is None:
             row.label(text="No grammar Text", icon='ERROR')

@@ -1,0 +1,997 @@
+"""Compiles a plain-data `Scene` into the flat arrays the kernels traverse.
+
+Every mesh triangle and every analytic primitive becomes a *shape* in
+prototype space. Each prototype gets its own BVH (BLAS) over its shapes; all
+BLAS nodes share one set of arrays with absolute indices. A second BVH (TLAS)
+sits over the instances, each of which places a prototype in the world.
+
+Within a prototype, shapes are renumbered into BVH leaf order, so the shapes
+(and their triangle/primitive rows) a leaf touches are contiguous in memory
+and `blas_items` is the identity, which the traversal relies on: a leaf's
+item positions are its shape ids.
+
+Besides the layout of docs/architecture.md the namedtuple carries `trace`,
+one 64-byte aligned byte buffer with everything the traversal reads (see
+`TRACE_*` below): the 4-wide records of both BVHs (engine/geometry/bvh.py
+`pack_bvh`), triangles as 4-lane packets, and the few per-shape, primitive
+and instance arrays it needs. The traversal core takes this one array
+instead of the whole namedtuple: passing ~40 arrays through a call costs
+about 100 ns per ray, the single buffer almost nothing.
+"""
+import mmap
+import time
+from collections import namedtuple
+
+import numpy as np
+from numba import njit
+
+from .bvh import REC_WORDS, STACK_BUDGET, aligned_empty, build_bvh, pack_bvh
+from . import dcsg as D
+from ..core import features
+from .csg import CSG, CSG_SCRATCH_WORDS, H_CSG, MESH, flatten_csg, pack_blob
+from .primitives import TRIANGLE, check_primitive, prim_local_bounds
+from ..core.scene import SceneError, as_affine
+
+Geometry = namedtuple("Geometry", [
+    # shapes (prototype space)
+    "shape_kind", "shape_index", "shape_material", "shape_surface",
+    "shape_proto",                   # owning prototype of each shape
+    "tri_p", "tri_uv",
+    "tri_tex_uv",                    # material (texture) UVs per corner, any range; 0 without
+    "prim_kind", "prim_params", "prim_xf", "prim_inv",
+    # bottom level: all prototypes' nodes in one array set
+    "blas_min", "blas_max", "blas_a", "blas_count", "blas_items",
+    "blas_pf", "blas_pi",            # packed 4-wide records (float32 / int32 views into trace)
+    "proto_root", "proto_slot",      # root node (blas_*) and root record (blas_pf) of prototype p
+    "proto_n_surfaces",
+    "proto_shape_start", "proto_shape_count",   # shapes of prototype p are contiguous
+    # instances and top level
+    "inst_proto", "inst_xf", "inst_inv", "inst_lm_base",
+    "tlas_min", "tlas_max", "tlas_a", "tlas_count", "tlas_items",
+    "tlas_pf", "tlas_pi",            # packed records (views into trace); the root is record 0
+    "trace",                         # uint8 buffer read by engine/geometry/raycast.py (layout: TRACE_*)
+    "trace_i64", "trace_f32", "trace_i32", "trace_f64",   # typed views of the same bytes
+    "trace_features",                # features.marker: which traversal cores the scene needs
+])
+
+# Count flag of a packed BLAS leaf made only of triangles: its ref is then the
+# first of `count - TRI_LEAF` consecutive packets, each holding up to four
+# triangles side by side, which the traversal tests as one vector. Other
+# leaves keep (first shape, count) and go through the per-shape references.
+TRI_LEAF = 1 << 24
+
+# Layout of the trace buffer: a header of int64 words, then four sections,
+# each 64-byte aligned: records (float32/int32, TLAS first), int32 data,
+# float64 data. The header holds byte offsets of the sections and element
+# offsets of the arrays inside them.
+TRACE_HEADER = 32
+H_REC, H_REC_END, H_I32, H_I32_END, H_F64, H_F64_END = 0, 1, 2, 3, 4, 5
+H_BLAS_REC = 6        # record index of the first BLAS record
+H_SHAPE_REF = 7       # int32[S]: packet code 4*pk+lane of a triangle, or -1 - primitive row
+H_LANE_SHAPE = 8      # int32[4P]: shape id of each packet lane (-1 unused)
+H_PROTO_SLOT = 9      # int32[NP]: root record of each prototype (absolute)
+H_INST_PROTO = 10     # int32[I]
+H_TLAS_ITEMS = 11     # int32[..]: instance ids in TLAS leaf order
+H_PRIM_KIND = 12      # int32[P]
+H_TRI4 = 13           # float64[P*36]: packet pk, vertex v, axis k, lane q at 36pk+12v+4k+q
+H_INST_INV = 14       # float64[I*12]: 3x4 row-major
+H_PRIM_INV = 15       # float64[P*12]
+H_PRIM_PARAMS = 16    # float64[P*4]
+H_INST_IDENT = 17     # int32[I]: 1 if the instance transform is the identity
+H_SINGLE = 18         # the only instance in the TLAS, or -1 (then the TLAS is walked)
+# word 19 is reserved for engine/geometry/csg.py (H_CSG: its blob's offset in the float64 section),
+# word 20 for engine/geometry/dcsg.py (H_DCSG: the L-system graphs' blob)
+
+# Stack words a two-level traversal may need: two int32 words per entry,
+# at most STACK_BUDGET entries per level (guaranteed by bvh.pack_bvh). The
+# ray-CSG kernel's interval lists follow (engine/geometry/csg.py), so no ray allocates.
+TRAV_WORDS = 2 * 2 * STACK_BUDGET
+STACK_WORDS = TRAV_WORDS + CSG_SCRATCH_WORDS + D.SCRATCH_WORDS   # then the DCSG ray stack
+# shape_ref of a CSG solid: CSG_REF - root node (far below any -1 - primitive row)
+CSG_REF = -(1 << 30)
+# shape kind of an L-system (after CSG); its shape_ref is dcsg.DCSG_REF - graph
+DCSG = CSG + 1
+
+
+@njit(cache=True)
+def _fill_packets(first, count, pk_first, shape_kind, shape_index, tri_p,
+                  tri4, lane_shape, shape_ref):
+    """Puts the triangles of each leaf (shapes first[i]..+count[i]) into its
+    packets and records where every shape went."""
+    for i in range(first.shape[0]):
+        q = 0
+        for s in range(first[i], first[i] + count[i]):
+            if shape_kind[s] != 0:
+                shape_ref[s] = -1 - shape_index[s]
+                continue
+            pk = pk_first[i] + q // 4
+            lane = q % 4
+            q += 1
+            code = 4 * pk + lane
+            shape_ref[s] = code
+            lane_shape[code] = s
+            j = shape_index[s]
+            for v in range(3):
+                for k in range(3):
+                    tri4[36 * pk + 12 * v + 4 * k + lane] = tri_p[j, v, k]
+
+
+def _huge_buffer(nbytes):
+    """Zeroed byte array, 2 MiB aligned and advised to use transparent huge
+    pages where the OS offers them (Linux 'madvise' mode): rays wander over
+    megabytes of records and triangles, and with 4 KiB pages they also miss
+    the TLB."""
+    huge = 1 << 21
+    if nbytes < huge:
+        buf = aligned_empty(nbytes, np.uint8)
+        buf[:] = 0
+        return buf
+    size = (nbytes + 2 * huge - 1) // huge * huge
+    m = mmap.mmap(-1, size)                      # anonymous, zero-filled
+    if hasattr(mmap, "MADV_HUGEPAGE"):
+        try:
+            m.madvise(mmap.MADV_HUGEPAGE)
+        except OSError:
+            pass
+    raw = np.frombuffer(m, dtype=np.uint8)
+    off = (-raw.ctypes.data) % huge
+    return raw[off:off + nbytes]
+
+
+def _build_trace(records, rec_tlas, i32_parts, f64_parts, extra=()):
+    """Assembles the trace buffer from record words and named array parts."""
+    def up64(n):
+        return (n + 63) // 64 * 64
+    hdr = np.zeros(TRACE_HEADER, np.int64)
+    rec0 = up64(TRACE_HEADER * 8)
+    i320 = up64(rec0 + records.nbytes)
+    off, i32 = {}, []
+    n = 0
+    for key, a in i32_parts:
+        off[key] = n
+        i32.append(np.asarray(a, np.int32).reshape(-1))
+        n += i32[-1].size
+    i32 = np.concatenate(i32) if i32 else np.zeros(0, np.int32)
+    f640 = up64(i320 + i32.nbytes)
+    f64 = []
+    n = 0
+    for key, a in f64_parts:
+        if key == D.H_DCSG and n % 8:     # 64-byte aligned: the blob's records need 16
+            f64.append(np.zeros(8 - n % 8))
+            n += f64[-1].size
+        off[key] = n
+        f64.append(np.asarray(a, np.float64).reshape(-1))
+        n += f64[-1].size
+    f64 = np.concatenate(f64) if f64 else np.zeros(0)
+    total = up64(f640 + f64.nbytes)
+    buf = _huge_buffer(total)
+    hdr[[H_REC, H_REC_END, H_I32, H_I32_END, H_F64, H_F64_END]] = (
+        rec0, rec0 + records.nbytes, i320, i320 + i32.nbytes, f640, f640 + f64.nbytes)
+    hdr[H_BLAS_REC] = rec_tlas
+    for key, value in extra:
+        hdr[key] = value
+    for key, o in off.items():
+        hdr[key] = o
+    buf[:TRACE_HEADER * 8] = hdr.view(np.uint8)
+    buf[rec0:rec0 + records.nbytes] = records.view(np.uint8)
+    buf[i320:i320 + i32.nbytes] = i32.view(np.uint8)
+    buf[f640:f640 + f64.nbytes] = f64.view(np.uint8)
+    return buf
+
+
+def trace_arrays_raw(buf):
+    """(tlas_pf, blas_pf, tlas_pi, blas_pi): record views into a trace buffer."""
+    hdr = buf[:TRACE_HEADER * 8].view(np.int64)
+    recf = buf[hdr[H_REC]:hdr[H_REC_END]].view(np.float32)
+    reci = recf.view(np.int32)
+    k = int(hdr[H_BLAS_REC]) * REC_WORDS
+    return recf[:k], recf[k:], reci[:k], reci[k:]
+
+
+def trace_arrays(g):
+    """Named views of the trace buffer (for tests and debugging)."""
+    buf = g.trace
+    hdr = buf[:TRACE_HEADER * 8].view(np.int64)
+    rec = buf[hdr[H_REC]:hdr[H_REC_END]].view(np.int32)
+    i32 = buf[hdr[H_I32]:hdr[H_I32_END]].view(np.int32)
+    f64 = buf[hdr[H_F64]:hdr[H_F64_END]].view(np.float64)
+    n_pk = (hdr[H_INST_INV] - hdr[H_TRI4]) // 36
+    return {
+        "records": rec.reshape(-1, REC_WORDS), "blas_record0": int(hdr[H_BLAS_REC]),
+        "shape_ref": i32[hdr[H_SHAPE_REF]:hdr[H_LANE_SHAPE]],
+        "lane_shape": i32[hdr[H_LANE_SHAPE]:hdr[H_PROTO_SLOT]],
+        "tri4": f64[hdr[H_TRI4]:hdr[H_INST_INV]].reshape(n_pk, 3, 3, 4),
+    }
+
+
+# World coordinates beyond this lose the float32 BVH bounds and the relative ray
+# offsets (1e-7 · |p|) their meaning; such input is refused by name.
+MAX_COORDINATE = 1e12
+
+
+def _fail(what, msg):
+    raise SceneError(f"{what}: {msg}")
+
+
+def _box_corners_through(lo, hi, xf):
+    """World bounds of the 8 corners of [lo, hi] under affine xf (3x4)."""
+    c = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                  for z in (lo[2], hi[2])], dtype=np.float64)
+    w = c @ xf[:, :3].T + xf[:, 3]
+    return w.min(axis=0), w.max(axis=0)
+
+
+def _pad(lo, hi):
+    """Widen boxes computed through transforms by a few ulps of their extent:
+    the traversal maps rays with the inverse transform, whose rounding
+    differs from the forward map used for these bounds."""
+    mag = np.maximum(np.abs(lo), np.abs(hi)).max(axis=-1, keepdims=True)
+    eps = 1e-12 * mag + 1e-300
+    return lo - eps, hi + eps
+
+
+def _instance_transforms(instances, n_protos, inst_proto, inst_xf, inst_inv):
+    """Validates and inverts all instance transforms at once (10^6 instances
+    must not cost a Python-level matrix inverse each); a bad one is re-checked
+    alone so the error names the instance."""
+    for i, inst in enumerate(instances):
+        p = inst.prototype
+        if isinstance(p, (bool, np.bool_)) or not isinstance(p, (int, np.integer)) or not 0 <= p < n_protos:
+            _fail(f"instance '{inst.name}'",
+                  f"refers to prototype {p!r}, which does not exist (scene has {n_protos})")
+        inst_proto[i] = p
+        m = np.asarray(inst.transform, dtype=np.float64)
+        inst_xf[i] = m[:3] if m.shape in ((4, 4), (3, 4)) else np.nan
+    if not len(instances):
+        return
+    lin = inst_xf[:, :, :3]
+    with np.errstate(all="ignore"):
+        det = np.linalg.det(lin)
+        scale = np.maximum(np.abs(lin).max(axis=(1, 2)), 1e-300)
+        ok = np.all(np.isfinite(inst_xf), axis=(1, 2)) & (np.abs(det) > 1e-12 * scale ** 3)
+    for i in np.nonzero(~ok)[0]:
+        as_affine(instances[i].transform, f"instance '{instances[i].name}'")  # raises with a reason
+    r = np.linalg.inv(lin)
+    inst_inv[:, :, :3] = r
+    inst_inv[:, :, 3] = -np.einsum("ijk,ik->ij", r, inst_xf[:, :, 3])
+    bad = ~np.all(np.isfinite(inst_inv), axis=(1, 2))
+    if bad.any():
+        _fail(f"instance '{instances[int(np.argmax(bad))].name}'", "transform cannot be inverted")
+
+
+def nondegenerate(p):
+    """bool[T]: triangles (T, 3, 3) with area, i.e. not collinear within float64
+    rounding (|e1 x e2| ~ eps·|e|² there). Degenerate ones are dropped from the
+    BVH and the lightmaps: they have no normal and no texel area."""
+    e1 = p[:, 1] - p[:, 0]
+    e2 = p[:, 2] - p[:, 0]
+    e3 = p[:, 2] - p[:, 1]
+    cr = np.linalg.norm(np.cross(e1, e2), axis=1)
+    longest2 = np.maximum(np.maximum((e1 * e1).sum(1), (e2 * e2).sum(1)), (e3 * e3).sum(1))
+    return cr > 1e-14 * longest2
+
+
+def check_mesh_arrays(mesh, what, n_materials):
+    """Validated (vertices float64[V,3], triangles int64[T,3], materials int64[T]) of a
+    TriangleMesh; raises SceneError naming `what` for NaNs, bad shapes or indices."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 3:
+        _fail(what, f"vertices must have shape (V, 3), got {v.shape}")
+    bad = ~np.isfinite(v).all(axis=1)
+    if bad.any():
+        n = int(bad.sum())
+        _fail(what, f"vertex {int(np.argmax(bad))} is NaN or infinite"
+                    + (f" ({n:,} such vertices)" if n > 1 else "")
+                    + "; move it to a finite position or delete it")
+    if v.size and np.abs(v).max() > MAX_COORDINATE:
+        _fail(what, f"a vertex lies {np.abs(v).max():.3g} m from the origin, beyond the tracer's "
+                    f"range of {MAX_COORDINATE:.0e} m; scale the object down")
+    tri = np.asarray(mesh.triangles)
+    if tri.size == 0:
+        tri = tri.reshape(0, 3)
+    if tri.ndim != 2 or tri.shape[1] != 3:
+        _fail(what, f"triangles must have shape (T, 3), got {tri.shape}")
+    if tri.dtype.kind not in "iu":
+        if tri.dtype.kind != "f" or not np.all(np.isfinite(tri)) or np.any(tri != np.round(tri)):
+            _fail(what, "triangle indices must be integers")
+    tri = tri.astype(np.int64)
+    if tri.size and (tri.min() < 0 or tri.max() >= v.shape[0]):
+        k = int(np.argmax(((tri < 0) | (tri >= v.shape[0])).any(axis=1)))
+        _fail(what, f"triangle {k} has vertex index out of range {tri[k].tolist()} "
+                    f"(mesh has {v.shape[0]} vertices)")
+    T = tri.shape[0]
+    if mesh.material_ids is not None:
+        mats = np.asarray(mesh.material_ids).reshape(-1)
+        if mats.shape[0] != T:
+            _fail(what, f"material_ids has {mats.shape[0]} entries for {T} triangles")
+        mats = mats.astype(np.int64)
+    else:
+        mats = np.full(T, int(mesh.material), np.int64)
+    if n_materials and T and (mats.min() < 0 or mats.max() >= n_materials):
+        _fail(what, f"material index out of range (scene has {n_materials} materials)")
+    return v, tri, mats
+
+
+def _check_mesh(mesh, what, n_materials, notes=None):
+    """(triangles (T',3,3), uvs (T',3,2), materials (T',), dropped, texture uvs
+    (T',3,2)) of a mesh's non-degenerate triangles (texture UVs unclamped, zeros
+    when the mesh has none). A mesh without UVs gets zero UVs here: compile.py
+    unwraps the meshes whose lightmaps are used before geometry is built.
+    notes[what] counts triangles whose given UVs left [0,1]² (clamped)."""
+    v, tri, mats = check_mesh_arrays(mesh, what, n_materials)
+    T = tri.shape[0]
+    if mesh.uvs is None:
+        uvs = np.zeros((T, 3, 2))
+    else:
+        uvs = np.asarray(mesh.uvs, dtype=np.float64)
+        if uvs.shape != (T, 3, 2):
+            _fail(what, f"uvs must have shape ({T}, 3, 2), got {uvs.shape}")
+        if not np.all(np.isfinite(uvs)):
+            _fail(what, "uvs contain NaN or infinity")
+        # A lightmap atlas is [0,1]²: outside it texel lookups would clamp to
+        # the border while the area went elsewhere; clamping keeps both together.
+        out = ((uvs < 0.0) | (uvs > 1.0)).any(axis=(1, 2))
+        if out.any():
+            uvs = np.clip(uvs, 0.0, 1.0)
+            if notes is not None:
+                notes[what] = int(out.sum())
+    tex_uvs = getattr(mesh, "tex_uvs", None)
+    if tex_uvs is None:
+        tex_uvs = np.zeros((T, 3, 2))
+    else:
+        tex_uvs = np.asarray(tex_uvs, dtype=np.float64)
+        if tex_uvs.shape != (T, 3, 2):
+            _fail(what, f"tex_uvs must have shape ({T}, 3, 2), got {tex_uvs.shape}")
+        if not np.all(np.isfinite(tex_uvs)):
+            _fail(what, "tex_uvs contain NaN or infinity")
+    p = v[tri]                                   # (T, 3, 3)
+    keep = nondegenerate(p)
+    return p[keep], uvs[keep], mats[keep], int(T - keep.sum()), tex_uvs[keep]
+
+
+def _pack_blas(proto_root, n_nodes, blas_min, blas_max, blas_a, blas_count, shape_kind,
+               shape_index, tri_p, n_shapes):
+    """4-wide traversal records of every prototype's BLAS (absolute record ids),
+    and the triangles of pure-triangle leaves as 4-lane packets."""
+    non_tri_before = np.concatenate([[0], np.cumsum(shape_kind != 0)])
+    leaf_first, leaf_count, leaf_pk = [], [], []
+    n_packets = 0
+    rec_parts = []
+    proto_slot = np.zeros(len(proto_root), np.int32)
+    n_rec = 0
+    blas_need = 0
+    for p in range(len(proto_root)):
+        r0 = proto_root[p]
+        r1 = proto_root[p + 1] if p + 1 < len(proto_root) else n_nodes
+        cnt = blas_count[r0:r1]
+        a_local = blas_a[r0:r1].copy()
+        a_local[cnt == 0] -= r0               # interior children: local node index
+        _, pi, m, need = pack_bvh(blas_min[r0:r1], blas_max[r0:r1], a_local, cnt)
+        pi = pi.reshape(m, REC_WORDS).copy()
+        refs = pi[:, 24:28]
+        cnts = pi[:, 28:32]
+        refs[cnts == 0] += n_rec              # child records become absolute
+        leaf = cnts > 0
+        first = refs[leaf].astype(np.int64)
+        c = cnts[leaf].astype(np.int64)
+        n_tri = c - (non_tri_before[first + c] - non_tri_before[first])
+        n_pk = (n_tri + 3) // 4
+        pk_first = n_packets + np.concatenate([[0], np.cumsum(n_pk)[:-1]]).astype(np.int64)
+        n_packets += int(n_pk.sum())
+        leaf_first.append(first)
+        leaf_count.append(c)
+        leaf_pk.append(pk_first)
+        pure = n_tri == c
+        refs[leaf] = np.where(pure, pk_first, first)
+        cnts[leaf] = np.where(pure, n_pk + TRI_LEAF, c)
+        rec_parts.append(pi)
+        proto_slot[p] = n_rec
+        n_rec += m
+        blas_need = max(blas_need, need)
+    tri4 = np.full(n_packets * 36, np.nan)    # unused lanes are NaN: they never hit
+    lane_shape = np.full(n_packets * 4, -1, np.int32)
+    shape_ref = np.zeros(n_shapes, np.int32)
+    if leaf_first:
+        _fill_packets(np.concatenate(leaf_first), np.concatenate(leaf_count),
+                      np.concatenate(leaf_pk), shape_kind, shape_index, tri_p,
+                      tri4, lane_shape, shape_ref)
+    is_csg = shape_kind[:n_shapes] == CSG
+    shape_ref[is_csg] = CSG_REF - shape_index[:n_shapes][is_csg]
+    is_dcsg = shape_kind[:n_shapes] == DCSG
+    shape_ref[is_dcsg] = D.DCSG_REF - shape_index[:n_shapes][is_dcsg]
+
+    return rec_parts, proto_slot, blas_need, tri4, lane_shape, shape_ref, n_packets
+
+
+def box_corners(lo, hi, xf):
+    """The 8 corners (I, 8, 3) of boxes lo..hi (I, 3) through affine maps xf (I, 3, 4)."""
+    sel = np.arange(8)
+    corners = np.stack([np.where(((sel >> k) & 1)[None, :], hi[:, None, k], lo[:, None, k])
+                        for k in range(3)], axis=-1)
+    return np.einsum("ijk,ilk->ilj", xf[:, :, :3], corners) + xf[:, None, :, 3]
+
+
+def prototype_surfaces(geom):
+    """For each prototype: list over surface slots of ('mesh', triangle rows) or ('prim', row)."""
+    # shapes by prototype, including CSG leaves (which sit outside the BVH ranges);
+    # grouped with stable sorts, as a Python loop over 100k shapes costs 0.15 s
+    n_p = len(geom.proto_shape_start)
+    slot = np.asarray(geom.shape_surface, np.int64)
+    keep = np.flatnonzero(slot >= 0)
+    proto = np.asarray(geom.shape_proto, np.int64)[keep]
+    order = keep[np.lexsort((slot[keep], proto))]       # by prototype, then slot, then shape
+    out = [[] for _ in range(n_p)]
+    if order.size == 0:
+        return out
+    proto, slot = np.asarray(geom.shape_proto, np.int64)[order], slot[order]
+    is_tri = np.asarray(geom.shape_kind)[order] == TRIANGLE
+    index = np.asarray(geom.shape_index, np.int64)[order]
+    starts = np.flatnonzero(np.r_[True, (proto[1:] != proto[:-1]) | (slot[1:] != slot[:-1])])
+    ends = np.r_[starts[1:], len(order)]
+    for a, b in zip(starts.tolist(), ends.tolist()):
+        if is_tri[a]:
+            out[proto[a]].append(("mesh", index[a:b]))
+        else:
+            out[proto[a]].append(("prim", int(index[b - 1])))
+    return out
+
+
+def instance_boxes(g):
+    """Each instance's world box (lo (I, 3), hi (I, 3)): its prototype's root box through its transform."""
+    roots = np.asarray(g.proto_root, np.int64)[np.asarray(g.inst_proto, np.int64)]
+    world = box_corners(np.asarray(g.blas_min, np.float64)[roots], np.asarray(g.blas_max, np.float64)[roots],
+                        np.asarray(g.inst_xf, np.float64))
+    return world.min(axis=1), world.max(axis=1)
+
+
+def _place_instances(scene, proto_root, proto_n_surfaces, blas_min, blas_max):
+    """Validated instance transforms, lightmap bases (running sum of surfaces)
+    and padded world boxes; refuses an instance beyond MAX_COORDINATE by name."""
+    n_inst = len(scene.instances)
+    inst_proto = np.zeros(n_inst, np.int32)
+    inst_xf = np.zeros((n_inst, 3, 4))
+    inst_inv = np.zeros((n_inst, 3, 4))
+    inst_lm_base = np.full(n_inst, -1, np.int32)
+    n_lightmaps = 0
+    t_lo = np.zeros((n_inst, 3))
+    t_hi = np.zeros((n_inst, 3))
+    n_protos = len(scene.prototypes)
+    _instance_transforms(scene.instances, n_protos, inst_proto, inst_xf, inst_inv)
+    for i, inst in enumerate(scene.instances):
+        if inst.lightmap:
+            inst_lm_base[i] = n_lightmaps
+            n_lightmaps += int(proto_n_surfaces[inst_proto[i]])
+    roots = np.asarray(proto_root, np.int64)[inst_proto] if n_inst else np.zeros(0, np.int64)
+    lo = blas_min[roots].astype(np.float64)
+    hi = blas_max[roots].astype(np.float64)
+    live = np.all(lo <= hi, axis=1)
+    world = box_corners(lo, hi, inst_xf)
+    if n_inst:
+        t_lo[live], t_hi[live] = _pad(world.min(axis=1)[live], world.max(axis=1)[live])
+        far = live & (np.maximum(np.abs(t_lo), np.abs(t_hi)).max(axis=1) > MAX_COORDINATE)
+        if far.any():
+            i = int(np.argmax(far))
+            _fail(f"instance '{scene.instances[i].name}'",
+                  f"its transform puts it {np.abs(world[i]).max():.3g} m from the origin, beyond "
+                  f"the tracer's range of {MAX_COORDINATE:.0e} m; scale or move it closer")
+    return inst_proto, inst_xf, inst_inv, inst_lm_base, n_lightmaps, t_lo, t_hi, live
+
+
+def _prototype_shapes(proto, pi_, csg, n_csg, n_materials, degenerate, uv_clamped, leaf_slot,
+                      leaf_proto, leaf_root, graphs=()):
+    """A prototype's shapes in input order: mesh triangles, primitives, then one
+    shape per CSG solid (its roots start at csg.roots[n_csg]), with their surface
+    slots; records dropped and clamped triangles, and each CSG leaf's slot.
+    -> (kinds, materials, slots, lo, hi, triangles, uvs, texture uvs, primitive rows, CSG
+    roots, surfaces)."""
+    pname = f"prototype '{proto.name}'"
+    # collect the prototype's shapes in input order
+    k_kind, k_mat, k_surf, k_lo, k_hi = [], [], [], [], []
+    k_tri, k_uv, k_tex, k_prim = [], [], [], []
+    surf = []
+    for mi, mesh in enumerate(proto.meshes):
+        what = f"mesh '{mesh.name}' in {pname}"
+        p, uv, mats, dropped, tex_uv = _check_mesh(mesh, what, n_materials, uv_clamped)
+        if dropped:
+            degenerate[what] = dropped
+        T = p.shape[0]
+        if T == 0:
+            # nothing left to hit: no surface slot either, or every lightmap id after
+            # it would point one past its lightmap (slots count surfaces with shapes)
+            continue
+        slot = len(surf)
+        surf.append(("mesh", mesh.name))
+        k_kind.append(np.zeros(T, np.int32))
+        k_mat.append(mats.astype(np.int32))
+        k_surf.append(np.full(T, slot, np.int32))
+        k_lo.append(p.min(axis=1))
+        k_hi.append(p.max(axis=1))
+        k_tri.append(p)
+        k_uv.append(uv)
+        k_tex.append(tex_uv)
+    for prim in proto.primitives:
+        what = f"primitive '{prim.name}' in {pname}"
+        kid, params, xf, inv, mat = check_primitive(prim, what, n_materials)
+        lb = prim_local_bounds(np.int32(kid), params)
+        lo, hi = _box_corners_through(np.array(lb[:3]), np.array(lb[3:]), xf)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            _fail(what, "bounds are not finite (check its parameters)")
+        lo, hi = _pad(lo, hi)
+        slot = len(surf)
+        surf.append((prim.kind, prim.name))
+        k_kind.append(np.array([kid], np.int32))
+        k_mat.append(np.array([mat], np.int32))
+        k_surf.append(np.array([slot], np.int32))
+        k_lo.append(lo[None])
+        k_hi.append(hi[None])
+        k_prim.append((kid, params, xf, inv))
+    # a CSG solid is one shape over its root box (after the primitives, so
+    # their rows are unchanged); its leaves get surface slots of their own
+    csg_roots = []
+    for j in range(len(proto.csg)):
+        root = int(csg.roots[n_csg + j])
+        leaves = csg.root_leaves[n_csg + j]
+        lo, hi = csg.node_box[root, :3], csg.node_box[root, 3:]
+        if np.any(lo > hi):                  # provably empty (disjoint intersection)
+            lo = hi = 0.5 * (lo + hi)
+        k_kind.append(np.array([CSG], np.int32))
+        k_mat.append(np.array([csg.leaf_material[leaves[0]]], np.int32))
+        k_surf.append(np.array([-1], np.int32))
+        k_lo.append(lo[None])
+        k_hi.append(hi[None])
+        csg_roots.append(root)
+        for k in leaves:
+            leaf_slot[k] = len(surf)
+            leaf_proto[k] = pi_
+            leaf_root[k] = root
+            surf.append(("mesh" if csg.leaf_kind[k] == MESH else "csg", csg.leaf_name[k]))
+
+    # an L-system is one shape over its graph's box (after the CSG solids); it has
+    # no surface slot: its photons go into orientation lightmaps (thesis 7.2)
+    for gi, graph, ls in graphs:
+        lo, hi = _pad(*graph.bounds())
+        k_kind.append(np.array([DCSG], np.int32))
+        k_mat.append(np.array([ls.materials[0]], np.int32))
+        k_surf.append(np.array([-1], np.int32))
+        k_lo.append(lo[None])
+        k_hi.append(hi[None])
+        csg_roots.append(gi)
+    kinds = np.concatenate(k_kind) if k_kind else np.zeros(0, np.int32)
+    mats = np.concatenate(k_mat) if k_mat else np.zeros(0, np.int32)
+    surfs = np.concatenate(k_surf) if k_surf else np.zeros(0, np.int32)
+    lo = np.concatenate(k_lo) if k_lo else np.zeros((0, 3))
+    hi = np.concatenate(k_hi) if k_hi else np.zeros((0, 3))
+    tris = np.concatenate(k_tri) if k_tri else np.zeros((0, 3, 3))
+    uvs = np.concatenate(k_uv) if k_uv else np.zeros((0, 3, 2))
+    tex = np.concatenate(k_tex) if k_tex else np.zeros((0, 3, 2))
+    return kinds, mats, surfs, lo, hi, tris, uvs, tex, k_prim, csg_roots, surf
+
+
+class _Parts:
+    """The shape, triangle, primitive and BLAS rows of compile_geometry, appended
+    phase by phase in their final order, with running counts (absolute ids)."""
+
+    def __init__(self, n_leaves):
+        self.sh_kind, self.sh_index, self.sh_mat, self.sh_surf, self.sh_proto = [], [], [], [], []
+        self.tri_p, self.tri_uv, self.tri_tex_uv = [], [], []
+        self.pr_kind, self.pr_params, self.pr_xf, self.pr_inv = [], [], [], []
+        self.b_min, self.b_max, self.b_a, self.b_cnt = [], [], [], []
+        self.proto_root, self.proto_n_surf, self.proto_depth = [], [], []
+        self.proto_start, self.proto_count = [], []
+        # n_shapes counts BVH shapes only: the CSG virtual shapes follow them
+        self.n_shapes = self.n_tris = self.n_prims = self.n_nodes = 0
+        self.n_csg = 0                        # CSG solids placed so far (index into csg.roots)
+        self.degenerate, self.uv_clamped, self.surfaces = {}, {}, []
+        # per CSG leaf: its surface slot, owning prototype and root node
+        self.leaf_slot = np.zeros(n_leaves, np.int64)
+        self.leaf_proto = np.zeros(n_leaves, np.int64)
+        self.leaf_root = np.zeros(n_leaves, np.int64)
+        self.vs0 = 0                          # first virtual shape
+        self.dcsg_vs0 = 0                     # first virtual shape of an L-system terminal
+        self.dcsg_prims = 0
+        self.prim_row_leaf = {}               # primitive row of a CSG primitive leaf -> leaf
+
+    def add_shapes(self, kind, index, material, surface, proto):
+        self.sh_kind.append(kind)
+        self.sh_index.append(index)
+        self.sh_mat.append(material)
+        self.sh_surf.append(surface)
+        self.sh_proto.append(proto)
+
+    def add_triangles(self, p, uv, tex_uv=None):
+        self.tri_p.append(p)
+        self.tri_uv.append(uv)
+        # CSG-generated triangles have no material UVs (textures read their mean there)
+        self.tri_tex_uv.append(np.zeros_like(uv) if tex_uv is None else tex_uv)
+        self.n_tris += p.shape[0]
+
+    def add_primitive(self, kid, params, xf, inv):
+        self.pr_kind.append(kid)
+        self.pr_params.append(params)
+        self.pr_xf.append(xf)
+        self.pr_inv.append(inv)
+        self.n_prims += 1
+
+
+# Phase results of compile_geometry (the tuples _pack_blas and _place_instances return)
+_ShapeArrays = namedtuple("_ShapeArrays", [
+    "shape_kind", "shape_index", "shape_material", "shape_surface", "shape_proto",
+    "tri_p", "tri_uv", "tri_tex_uv", "prim_kind", "prim_params", "prim_xf", "prim_inv",
+    "blas_min", "blas_max", "blas_a", "blas_count", "blas_items",
+    "proto_root", "proto_n_surfaces", "proto_shape_start", "proto_shape_count"])
+_BlasPack = namedtuple("_BlasPack", ["rec_parts", "proto_slot", "need", "tri4", "lane_shape",
+                                     "shape_ref", "n_packets"])
+_Instances = namedtuple("_Instances", ["proto", "xf", "inv", "lm_base", "n_lightmaps",
+                                       "lo", "hi", "live"])
+_Tlas = namedtuple("_Tlas", ["bvh", "items", "pi", "n_rec", "need"])
+
+
+def _flatten_scene_csg(scene, n_materials):
+    """All CSG solids at once: node ids are global, one blob for the trace."""
+    return flatten_csg([(r, f"prototype '{p.name}'") for p in scene.prototypes for r in p.csg],
+                       n_materials, mesh_uvs=lambda m, w: _check_mesh(m, w, n_materials)[:3])
+
+
+def _leaf_order_rows(kinds, order, csg_roots, n_tris, n_prims):
+    """Renumbers a prototype's shapes into BVH leaf order `order`: -> (shape index
+    in that order, its triangle rows, its primitive rows, both as input-order rows
+    of the prototype's tables). Triangles and primitives get consecutive absolute
+    rows from n_tris / n_prims."""
+    S = kinds.shape[0]
+    # input-order row of each shape inside its kind's table
+    is_tri = kinds == 0
+    row = np.where(is_tri, np.cumsum(is_tri) - 1, np.cumsum(~is_tri) - 1)
+    kinds_o = kinds[order]
+    is_csg = kinds_o >= CSG            # CSG solids and L-systems
+    tri_rows = row[order][kinds_o == 0]
+    prim_rows = row[order][(kinds_o != 0) & ~is_csg]
+    new_index = np.empty(S, np.int32)
+    new_index[kinds_o == 0] = n_tris + np.arange(tri_rows.size)
+    new_index[(kinds_o != 0) & ~is_csg] = n_prims + np.arange(prim_rows.size)
+    # CSG solids, then L-systems, are the last shapes of the input order; their
+    # index is the root node or the graph (csg_roots holds both, in that order)
+    csg_root_in = np.full(S, -1, np.int64)
+    if csg_roots:
+        csg_root_in[S - len(csg_roots):] = csg_roots
+    new_index[is_csg] = csg_root_in[order][is_csg]
+    return new_index, tri_rows, prim_rows
+
+
+def _add_blas(parts, bvh, n_shapes, n_surfaces):
+    """Appends a prototype's BVH to the shared BLAS arrays, with absolute node
+    and blas_items ids."""
+    a = bvh.node_a.copy()
+    interior = bvh.node_count == 0
+    if n_shapes > 0:
+        a[interior] += parts.n_nodes              # child node index
+        a[~interior] += parts.n_shapes            # position in blas_items
+    parts.b_min.append(bvh.node_min)
+    parts.b_max.append(bvh.node_max)
+    parts.b_a.append(a)
+    parts.b_cnt.append(bvh.node_count)
+    parts.proto_root.append(parts.n_nodes)
+    parts.proto_n_surf.append(n_surfaces)
+    parts.proto_depth.append(bvh.depth)
+    parts.proto_start.append(parts.n_shapes)
+    parts.proto_count.append(n_shapes)
+    parts.n_nodes += bvh.n_nodes
+    parts.n_shapes += n_shapes
+
+
+def _add_prototype(parts, pi_, proto, csg, n_materials, graphs=()):
+    """Prototype pi_'s shapes, triangles and primitives in BVH leaf order, and its BLAS."""
+    kinds, mats, surfs, lo, hi, tris, uvs, tex_uvs, k_prim, csg_roots, surf = _prototype_shapes(
+        proto, pi_, csg, parts.n_csg, n_materials, parts.degenerate, parts.uv_clamped,
+        parts.leaf_slot, parts.leaf_proto, parts.leaf_root, graphs)
+    parts.n_csg += len(proto.csg)
+    parts.surfaces.append(surf)
+    S = kinds.shape[0]
+    bvh = build_bvh(lo, hi)
+    order = bvh.items.astype(np.int64)           # BVH leaf order of the shapes
+    new_index, tri_rows, prim_rows = _leaf_order_rows(kinds, order, csg_roots,
+                                                      parts.n_tris, parts.n_prims)
+    parts.add_shapes(kinds[order], new_index, mats[order], surfs[order],
+                     np.full(S, pi_, np.int32))
+    parts.add_triangles(tris[tri_rows], uvs[tri_rows], tex_uvs[tri_rows])
+    for r in prim_rows:
+        parts.add_primitive(*k_prim[r])
+    _add_blas(parts, bvh, S, len(surf))
+
+
+def _add_csg_virtual_shapes(csg, parts):
+    """Virtual shapes: one per CSG primitive leaf, one per CSG mesh triangle,
+    after all BVH shapes (outside every BVH). A CSG hit reports one, so the
+    owning leaf's material and lightmap slot apply (thesis 5.2.1)."""
+    parts.vs0 = parts.n_shapes
+    for k in range(csg.leaf_kind.shape[0]):
+        kid = int(csg.leaf_kind[k])
+        if kid == MESH:
+            t0, nt = int(csg.leaf_tri0[k]), int(csg.leaf_ntri[k])
+            kind = np.zeros(nt, np.int32)
+            index = parts.n_tris + np.arange(nt, dtype=np.int32)
+            material = csg.mtri_material[t0:t0 + nt].astype(np.int32)
+            parts.add_triangles(csg.mtri[t0:t0 + nt].reshape(-1, 3, 3), csg.mtri_uv[t0:t0 + nt])
+        else:
+            nt = 1
+            kind = np.array([kid], np.int32)
+            index = np.array([parts.n_prims], np.int32)
+            material = csg.leaf_material[k:k + 1].astype(np.int32)
+            parts.prim_row_leaf[parts.n_prims] = k
+            parts.add_primitive(kid, csg.leaf_params[k], csg.leaf_xf[k], csg.leaf_inv[k])
+        parts.add_shapes(kind, index, material, np.full(nt, parts.leaf_slot[k], np.int32),
+                         np.full(nt, parts.leaf_proto[k], np.int32))
+
+
+def _lsystem_graphs(scene, n_materials, notes):
+    """Each prototype's L-systems as scene graphs [(global graph id, DCSG, LSystem)],
+    in prototype order; a grammar that cannot be one (context-sensitive, or choices
+    that move what follows) is derived and its primitives instanced instead,
+    with a note. -> (per prototype list, the scene with those primitives added)."""
+    from dataclasses import replace
+    from ..lsystem import grammar as LS
+    from ..lsystem import turtle as T
+    from ..core.scene import LSystem
+    per_proto, graphs, prototypes = [], [], list(scene.prototypes)
+    for pi_, proto in enumerate(scene.prototypes):
+        mine, extra = [], []
+        for ls in proto.lsystems:
+            what = f"L-system '{ls.name}' in prototype '{proto.name}'"
+            if not isinstance(ls, LSystem) or not isinstance(ls.grammar, str):
+                _fail(what, "needs a grammar text")
+            mats = tuple(int(m) for m in ls.materials) or (0,)
+            if any(not 0 <= m < max(n_materials, 1) for m in mats):
+                _fail(what, f"material slots {mats} are not all scene materials (0..{n_materials - 1})")
+            ls = replace(ls, materials=mats)
+            grammar = LS.parse(ls.grammar, name=ls.name)
+            if ls.seed is not None:
+                grammar = replace(grammar, seed=int(ls.seed))
+            organs = _check_organs(ls, what, n_materials)
+            try:
+                graph = D.DCSG(grammar, ls.steps, cache_mb=ls.cache_mb, organs=organs)
+            except D.DCSGUnsupported as exc:
+                der = LS.derive(grammar, ls.steps)
+                prims = T.to_primitives(T.interpret(der.modules, grammar.angle, grammar.width),
+                                        name=ls.name)
+                extra += [replace(p, material=mats[min(int(p.material), len(mats) - 1)]) for p in prims]
+                notes.append(f"{what}: {exc}; {len(prims):,} primitives instanced")
+                continue
+            _check_graph(graph, what)
+            mine.append((len(graphs), graph, ls))
+            graphs.append(graph)
+        if extra:
+            prototypes[pi_] = replace(proto, primitives=list(proto.primitives) + extra)
+        per_proto.append(mine)
+    if any(p is not q for p, q in zip(prototypes, scene.prototypes)):
+        scene = replace(scene, prototypes=prototypes)
+    return per_proto, graphs, scene
+
+
+def _check_organs(ls, what, n_materials):
+    """The L-system's organ meshes, validated: name -> mesh with finite vertices,
+    triangles in range and some area (a mesh without any is left out, with the
+    organ drawn as nothing, as for a name without a mesh)."""
+    from types import SimpleNamespace
+    out = {}
+    for name, mesh in dict(ls.organs or {}).items():
+        w = f"{what}, organ '{name}'"
+        v, tri, mats = check_mesh_arrays(mesh, w, n_materials)
+        if tri.shape[0] == 0:
+            continue
+        q = v[tri]
+        area = 0.5 * np.linalg.norm(np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]), axis=1)
+        keep = area > 0.0
+        if not keep.any():
+            _fail(w, "has no triangle with area; give the organ a surface")
+        out[str(name)] = SimpleNamespace(vertices=v, triangles=tri[keep], material=int(mats[0]))
+    return out
+
+
+def _check_graph(graph, what):
+    """A graph the kernels can trace: finite tables, and a box inside MAX_COORDINATE
+    (1.24a at 60 steps is 1e41 m tall: float32 boxes and ray offsets lose all meaning)."""
+    lo, hi = graph.bounds()
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        _fail(what, "has no finite extent (nothing drawn, or lengths overflow); check its parameters")
+    if max(np.abs(lo).max(), np.abs(hi).max()) > MAX_COORDINATE:
+        _fail(what, f"reaches {max(np.abs(lo).max(), np.abs(hi).max()):.3g} m from its origin (at most "
+                    f"{MAX_COORDINATE:g}); use fewer steps or shorter segments")
+    a = graph.arrays()
+    # (node boxes may be empty, +-inf, for nodes that draw nothing: the rays skip them)
+    for name in ("child_inv", "child_rot", "child_box", "prim_inv", "prim_params", "alt_cum",
+                 "item_inv"):
+        if not np.all(np.isfinite(getattr(a, name))):
+            _fail(what, f"its scene graph has non-finite {name.replace('_', ' ')}; check its parameters")
+
+
+def _add_dcsg_virtual_shapes(per_proto, graphs, parts):
+    """Virtual shapes: one per terminal primitive of every graph, after the CSG ones.
+    A DCSG hit reports one, so the material its `;(i)` selected applies."""
+    parts.dcsg_vs0 = int(sum(len(k) for k in parts.sh_kind))
+    for pi_, mine in enumerate(per_proto):
+        for gi, graph, ls in mine:
+            a = graph.arrays()
+            n = a.prim_kind.shape[0]
+            first = parts.dcsg_prims
+            # ;(i) slots, or (negative: -1 - organ) the organ's own material
+            slot = np.clip(a.prim_material, 0, len(ls.materials) - 1)
+            organ_mats = np.asarray(graph.organs.material + [0], np.int32)
+            organ = np.clip(-1 - a.prim_material, 0, organ_mats.shape[0] - 1)
+            mats = np.where(a.prim_material >= 0, np.asarray(ls.materials, np.int32)[slot],
+                            organ_mats[organ])
+            parts.add_shapes(np.full(n, DCSG, np.int32), first + np.arange(n, dtype=np.int32),
+                             mats, np.full(n, -1, np.int32), np.full(n, pi_, np.int32))
+            parts.dcsg_prims += n
+
+
+def _dcsg_layout(per_proto, graphs, stubs, vs0):
+    """What compile.py needs of the graphs (OL stubs, area estimation); not plain data."""
+    stub_first, n = [], 0
+    for recs in stubs:
+        stub_first.append(n)
+        n += len(recs)
+    roots, node_area, n0 = [], [], 0
+    for g in graphs:
+        roots.append(g.arrays().root + n0)
+        node_area.append(D.node_areas(g))
+        n0 += len(g.nodes)
+    return {"graphs": graphs, "proto_graphs": [[gi for gi, _, _ in mine] for mine in per_proto],
+            "stubs": stubs, "stub_first": stub_first, "roots": roots, "vs0": vs0,
+            "node_area": np.concatenate(node_area) if node_area else np.zeros(0)}
+
+
+def _cat(lst, shape, dt):
+    return np.ascontiguousarray(np.concatenate(lst).astype(dt)) if lst else np.zeros(shape, dt)
+
+
+def _shape_arrays(parts):
+    """The appended rows as the contiguous arrays of the Geometry."""
+    return _ShapeArrays(
+        shape_kind=_cat(parts.sh_kind, 0, np.int32),
+        shape_index=_cat(parts.sh_index, 0, np.int32),
+        shape_material=_cat(parts.sh_mat, 0, np.int32),
+        shape_surface=_cat(parts.sh_surf, 0, np.int32),
+        shape_proto=_cat(parts.sh_proto, 0, np.int32),
+        tri_p=_cat(parts.tri_p, (0, 3, 3), np.float64),
+        tri_uv=_cat(parts.tri_uv, (0, 3, 2), np.float64),
+        tri_tex_uv=_cat(parts.tri_tex_uv, (0, 3, 2), np.float64),
+        prim_kind=np.array(parts.pr_kind, np.int32).reshape(-1),
+        prim_params=np.array(parts.pr_params, np.float64).reshape(-1, 4),
+        prim_xf=np.array(parts.pr_xf, np.float64).reshape(-1, 3, 4),
+        prim_inv=np.array(parts.pr_inv, np.float64).reshape(-1, 3, 4),
+        blas_min=_cat(parts.b_min, (0, 3), np.float32),
+        blas_max=_cat(parts.b_max, (0, 3), np.float32),
+        blas_a=_cat(parts.b_a, 0, np.int32),
+        blas_count=_cat(parts.b_cnt, 0, np.int32),
+        blas_items=np.arange(parts.n_shapes, dtype=np.int32),
+        proto_root=np.array(parts.proto_root, np.int32).reshape(-1),
+        proto_n_surfaces=np.array(parts.proto_n_surf, np.int32).reshape(-1),
+        proto_shape_start=np.array(parts.proto_start, np.int32).reshape(-1),
+        proto_shape_count=np.array(parts.proto_count, np.int32).reshape(-1))
+
+
+def _build_tlas(inst):
+    """TLAS over the instances whose prototype has a box, packed into records."""
+    live_ids = np.nonzero(inst.live)[0].astype(np.int32)
+    tl = build_bvh(inst.lo[live_ids], inst.hi[live_ids])
+    items = live_ids[tl.items] if live_ids.size else np.zeros(0, np.int32)
+    _, pi, n_rec, need = pack_bvh(tl.node_min, tl.node_max, tl.node_a, tl.node_count)
+    return _Tlas(tl, items, pi, n_rec, need)
+
+
+def _pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob):
+    """The trace buffer: both BVHs' records, packets and the arrays the traversal reads."""
+    # TLAS records first, then the BLAS records (their child refs shift by that)
+    blas_rec = (np.concatenate(blas.rec_parts) if blas.rec_parts
+                else np.zeros((0, REC_WORDS), np.int32))
+    blas_rec = blas_rec.copy()
+    inner = blas_rec[:, 28:32] == 0
+    blas_rec[:, 24:28][inner] += tlas.n_rec
+    records = np.concatenate([tlas.pi.reshape(-1, REC_WORDS), blas_rec]).reshape(-1)
+    # identity instances let the traversal reuse the world ray's setup; a
+    # single instance needs no TLAS walk at all (its root box test repeats
+    # the BLAS one)
+    ident = np.all(inst.xf == np.eye(4)[:3], axis=(1, 2)).astype(np.int32).reshape(-1)
+    items = tlas.items
+    return _build_trace(
+        records, tlas.n_rec,
+        [(H_SHAPE_REF, blas.shape_ref), (H_LANE_SHAPE, blas.lane_shape),
+         (H_PROTO_SLOT, blas.proto_slot + tlas.n_rec), (H_INST_PROTO, inst.proto),
+         (H_TLAS_ITEMS, items), (H_PRIM_KIND, sa.prim_kind), (H_INST_IDENT, ident)],
+        [(H_TRI4, blas.tri4), (H_INST_INV, inst.inv), (H_PRIM_INV, sa.prim_inv),
+         (H_PRIM_PARAMS, sa.prim_params), (H_CSG, csg_blob), (D.H_DCSG, dcsg_blob)],
+        extra=[(H_SINGLE, int(items[0]) if len(items) == 1 else -1)])
+
+
+def _geometry_tuple(sa, blas, inst, tlas, trace, feature_mask):
+    """The Geometry: the phases' arrays and the record views into the trace."""
+    t_arr = trace_arrays_raw(trace)
+    tl = tlas.bvh
+    return Geometry(
+        **sa._asdict(), blas_pf=t_arr[1], blas_pi=t_arr[3], proto_slot=blas.proto_slot,
+        inst_proto=inst.proto, inst_xf=inst.xf, inst_inv=inst.inv, inst_lm_base=inst.lm_base,
+        tlas_min=tl.node_min, tlas_max=tl.node_max, tlas_a=tl.node_a, tlas_count=tl.node_count,
+        tlas_items=np.ascontiguousarray(tlas.items, dtype=np.int32),
+        tlas_pf=t_arr[0], tlas_pi=t_arr[2], trace=trace,
+        # views made here, once: numba repeats its size and alignment checks
+        # for a view made inside a kernel on every call
+        trace_i64=trace.view(np.int64), trace_f32=trace.view(np.float32),
+        trace_i32=trace.view(np.int32), trace_f64=trace.view(np.float64),
+        trace_features=features.marker(feature_mask),
+    )
+
+
+def _geometry_info(scene, parts, csg, blas, inst, tlas, g, t0, dcsg=None, notes=()):
+    """compile_geometry's info dict (counts, notes, layout for compile.py)."""
+    info = {
+        "n_shapes": parts.n_shapes,
+        "n_triangles": parts.n_tris,
+        "n_primitives": parts.n_prims,
+        "n_degenerate": int(sum(parts.degenerate.values())),
+        "degenerate": parts.degenerate,           # {"mesh 'x' in prototype 'y'": dropped}
+        "uv_clamped": parts.uv_clamped,           # {mesh: triangles whose UVs left [0,1]²}
+        "n_instances": len(scene.instances),
+        "n_lightmaps": inst.n_lightmaps,
+        "surfaces": parts.surfaces,               # per prototype: [(kind, name)] by slot
+        "blas_nodes": parts.n_nodes,
+        "tlas_nodes": tlas.bvh.n_nodes,
+        "blas_depth": max(parts.proto_depth) if parts.proto_depth else 0,
+        "tlas_depth": tlas.bvh.depth,
+        "stack_entries": tlas.need + blas.need,   # worst case of one traversal
+        "n_packets": blas.n_packets,
+        "trace_bytes": int(g.trace.nbytes),
+        "build_seconds": time.perf_counter() - t0,
+    }
+    info.update(csg.info)
+    if dcsg is not None and dcsg["graphs"]:
+        info["dcsg_layout"] = dcsg
+        info["lsystems"] = [dict(g.stats(), name=ls.name) for mine in parts.lsystems
+                            for _, g, ls in mine]
+    if notes:
+        info["lsystem_notes"] = list(notes)
+    if csg.leaf_kind.shape[0]:
+        # for compile.py (lightmaps of the leaves); not plain data, popped there
+        info["csg_layout"] = {"flat": csg, "prim_row_leaf": parts.prim_row_leaf,
+                              "leaf_root": parts.leaf_root, "vs0": parts.vs0,
+                              "trace": trace_buf(g)}
+    return info
+
+
+def compile_geometry(scene):
+    """Flattens scene.prototypes / scene.instances; returns (Geometry, info)."""
+    t0 = time.perf_counter()
+    n_materials = len(scene.materials)
+    notes = []
+    per_proto, graphs, scene = _lsystem_graphs(scene, n_materials, notes)
+    csg = _flatten_scene_csg(scene, n_materials)
+    parts = _Parts(csg.leaf_kind.shape[0])
+    parts.lsystems = per_proto
+    for pi_, proto in enumerate(scene.prototypes):
+        _add_prototype(parts, pi_, proto, csg, n_materials, per_proto[pi_])
+    _add_csg_virtual_shapes(csg, parts)
+    csg_blob = pack_blob(csg, parts.vs0)
+    _add_dcsg_virtual_shapes(per_proto, graphs, parts)
+    dcsg_blob, _, stubs = D.pack_blob(graphs, parts.dcsg_vs0 if graphs else D.NO_VSHAPE,
+                                      [ls.name for mine in per_proto for _, _, ls in mine])
+    dcsg = _dcsg_layout(per_proto, graphs, stubs, parts.dcsg_vs0)
+    sa = _shape_arrays(parts)
+    blas = _BlasPack(*_pack_blas(
+        parts.proto_root, parts.n_nodes, sa.blas_min, sa.blas_max, sa.blas_a, sa.blas_count,
+        sa.shape_kind, sa.shape_index, sa.tri_p, parts.n_shapes))
+    inst = _Instances(*_place_instances(scene, parts.proto_root, sa.proto_n_surfaces,
+                                        sa.blas_min, sa.blas_max))
+    tlas = _build_tlas(inst)
+    mask = (features.CSG if csg.leaf_kind.shape[0] else 0) | (features.DCSG if graphs else 0)
+    g = _geometry_tuple(sa, blas, inst, tlas, _pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob), mask)
+    if (g.trace.ctypes.data + int(g.trace_i64[H_F64]) + 8 * int(g.trace_i64[D.H_DCSG])) % 16:
+        raise SceneError("internal: the L-system blob is not 16-byte aligned")   # the vector loads
+    return g, _geometry_info(scene, parts, csg, blas, inst, tlas, g, t0, dcsg, notes)
+
+
+def trace_buf(g):
+    """What the traversal cores take of a Geometry: its four trace views and its features marker."""
+    return (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)
+
+
+def new_stack():
+    """Traversal stack for one thread: reuse it for every ray of that thread."""
+    return np.empty(STACK_WORDS, np.int32)

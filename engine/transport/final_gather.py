@@ -1,0 +1,158 @@
+"""Final gather over the photon lightmaps (Jensen 1996; what Lightmass and PhotonGI do).
+
+The thesis's renderer (8.2) reads a diffuse hit's indirect light from its own
+texel: the texel's photon noise and its size show directly in the image. The
+gather moves that reading one bounce away. From the camera's diffuse hit p,
+cosine-distributed rays sample the hemisphere; where one lands (q), the cached
+outgoing radiance of q is kd(q)·E(q)/π with E(q) the *total* irradiance the
+lightmap or OL stores there (the photon pass records direct hits too for this,
+photon_tracer record_direct). Then
+
+    E_ind(p) ≈ (1/N) Σ kd(q_i) · E(q_i)          (cosine pdf cancels π and cos)
+
+Rays that reach a light or the world add nothing: that light is p's direct
+light, which the renderer samples itself. Where a gather ray meets glossy,
+mirror or glass lobes it follows them (up to CHAIN vertices), so p still sees
+lit walls in a mirror; lights met along such a chain count only if some lobe on
+it was rough, because light focused onto p by sharp glass and mirrors alone
+(L S+ D) is what the caustic lightmaps hold, read at p as before (those photons
+are stored in both maps, so q still sees them). The gather is a consistent
+estimator of the integral the lookup estimates, so both agree in the mean
+(tests/test_final_gather.py).
+
+Approximations: glossy lobes met by gather rays see lights only by hitting them
+(no light sampling there), and the gather uses q's face normal (no normal map).
+"""
+import math
+
+from numba import njit
+
+from ..shading import bsdf
+from ..shading import environment
+from ..shading import light_hits
+from ..shading import materials
+from ..lightmaps import orientation_lightmap
+from .photon_tracer import CAUSTIC_ALPHA, ray_epsilon
+from ..core.jit import CORE, typed
+from ..geometry.raycast import intersect_closest
+from ..core.sampling import cosine_hemisphere, next_float, to_world
+
+GOLDEN = 0.6180339887498949
+CHAIN = 3          # vertices a gather ray follows through glossy lobes
+
+
+@njit(**CORE)
+def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, pz, fx, fy, fz, sx, sy, sz,
+                      n_rays, mode, state, kd, ks, kt, pc, ind, tp, f, rad, out, count, rings, cell_e, cell_t):
+    """Indirect irradiance at p from n_rays gather rays into out[bands] (added).
+
+    inst_side (one per instance, or empty: no test): the lit side of a closed
+    surface, +1 along its hit normal, 0 for open ones. A ray that first meets a
+    closed surface from inside reads nothing: p lies inside that solid (a bake
+    point where a box touches the floor), where no light comes, while its texels
+    hold the outside's.
+    f: the face normal on the viewer's side, s: the shading normal (rays are
+    cosine-distributed about s; those that leave below f count zero, as the
+    direct light's do). kd, ks, kt, pc, ind, tp, f, rad: scratch arrays; count[0]
+    gains the rays traced (glossy chains included). A
+    randomly shifted rank-1 lattice stratifies the rays; it stays unbiased.
+
+    rings > 0 (irradiance-cache records): the hemisphere about s is cut into
+    `rings` rings of equal cosine-weighted measure by n_rays // rings sectors
+    of azimuth, one jittered ray per cell (Ward & Heckbert's split), and each
+    ray's own estimate and the distance to what it met first (inf: nothing)
+    also go to cell_e[i] and cell_t[i], for the record's gradients. Otherwise
+    cell_e and cell_t are not touched (any arrays of their types do)."""
+    nb = out.shape[0]
+    eps = ray_epsilon(px, py, pz)
+    ox0, oy0, oz0 = px + eps * fx, py + eps * fy, pz + eps * fz
+    state, o1 = next_float(state)
+    state, o2 = next_float(state)
+    w = 1.0 / n_rays
+    # texture footprint at q: a gather ray stands for about 1/N of the hemisphere
+    spread = 2.0 / math.sqrt(n_rays)
+    env_li = light_hits.environment_light(ls)
+    sectors = n_rays // rings if rings > 0 else 0
+    for i in range(n_rays):
+        dst = out
+        if rings > 0:
+            state, u1 = next_float(state)
+            state, u2 = next_float(state)
+            s2 = ((i // sectors) + u1) / rings
+            st = math.sqrt(s2)
+            phi = 2.0 * math.pi * ((i % sectors) + u2) / sectors
+            lx, ly, lz = st * math.cos(phi), st * math.sin(phi), math.sqrt(max(1.0 - s2, 0.0))
+            dst = cell_e[i]
+            for b in range(nb):
+                dst[b] = 0.0
+            cell_t[i] = math.inf
+        else:
+            u1 = (i + o1) * w
+            u2 = (o2 + i * GOLDEN) % 1.0
+            lx, ly, lz = cosine_hemisphere(u1, u2)
+        dx, dy, dz = to_world(lx, ly, lz, sx, sy, sz)
+        if dx * fx + dy * fy + dz * fz <= 0.0:
+            continue
+        ox, oy, oz = ox0, oy0, oz0
+        for b in range(nb):
+            tp[b] = w if rings == 0 else 1.0
+        sharp = True         # every lobe followed so far was sharp: lights seen are caustics
+        for k in range(CHAIN):
+            count[0] += 1
+            hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
+                g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
+            if k > 0 and not sharp:
+                # the "irradiance" here is radiance weighted by cos/pdf (tp): lights met count
+                light_hits.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf, 0.0, typed(True), tp, dst)
+            if k == 0 and rings > 0 and hit:
+                cell_t[i] = t
+            if not hit:
+                if k > 0 and not sharp and env_li >= 0:
+                    environment.radiance(env, dx, dy, dz, rad)
+                    for b in range(nb):
+                        dst[b] += tp[b] * rad[b]
+                break
+            cos_dn = dx * nx + dy * ny + dz * nz
+            if k == 0 and inst_side.shape[0] > 0 and inst_side[inst] * cos_dn > 0.0:
+                break
+            m = g.shape_material[shape]
+            if k > 0 and not sharp:
+                for b in range(nb):
+                    dst[b] += tp[b] * ms.emission[m, b]
+            qx, qy, qz = ox + t * dx, oy + t * dy, oz + t * dz
+            rough, ior, _ = materials.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, spread * t, kd, ks, kt)
+            cos_o = min(abs(cos_dn), 1.0)
+            bsdf.closure_scalars(bt, m, rough, ior, cos_dn < 0.0, cos_o, pc)
+            pd, ps, pm, pg = bsdf.lobe_probabilities(pc, kd, ks, kt, cos_o)
+            ds = bsdf.diffuse_scale(pc)
+            if pd > 0.0 and ds > 0.0 and orientation_lightmap.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
+                                                               nx, ny, nz, mode, ind):
+                for b in range(nb):
+                    dst[b] += tp[b] * kd[b] * ds * ind[b]
+            if ps + pm + pg <= 0.0 or k == CHAIN - 1:
+                break
+            # on through the glossy lobes, in the frame of the face towards the ray
+            if cos_dn > 0.0:
+                gx, gy, gz = -nx, -ny, -nz
+            else:
+                gx, gy, gz = nx, ny, nz
+            lox, loy, loz = bsdf.to_local(-dx, -dy, -dz, gx, gy, gz)
+            state, r0 = next_float(state)
+            state, r1 = next_float(state)
+            state, r2 = next_float(state)
+            state, r3 = next_float(state)
+            ok, ix, iy, iz, _, _ = bsdf.sample_glossy(pc, ks, kt, ps, pm, pg, lox, loy, loz, r0, r1, r2, r3, f)
+            if not ok:
+                break
+            if pc[bsdf.P_ALPHA] > CAUSTIC_ALPHA:
+                sharp = False
+            dx, dy, dz = bsdf.from_local(ix, iy, iz, gx, gy, gz)
+            for b in range(nb):
+                tp[b] *= f[b]
+            e2 = ray_epsilon(qx, qy, qz)
+            side = e2 if (dx * nx + dy * ny + dz * nz) > 0.0 else -e2
+            ox, oy, oz = qx + side * nx, qy + side * ny, qz + side * nz
+        if rings > 0:
+            for b in range(nb):
+                out[b] += w * dst[b]
+    return state

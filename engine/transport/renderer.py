@@ -1,0 +1,475 @@
+"""Two-pass renderer (thesis 8.2): direct light by sampling the lights, indirect
+light from the photon lightmaps, glossy, specular and refractive paths traced on.
+
+At every hit the closure (bsdf.py, with textured inputs from materials.py) is split:
+its diffuse part takes direct light from shadow rays and everything else from the
+lightmap irradiance E, plus the caustic lightmaps' (radiance kd·E/π); its glossy
+lobes take direct light too, weighted by multiple importance sampling against the
+glossy sample that continues the path, which also sees lights and the world
+(light_hits.py). Rendering proceeds tile by tile so a host can show progress and cancel.
+
+With `gather` > 0 the diffuse part's indirect light comes from a final gather
+(final_gather.py) instead of the hit's own texel: the lightmaps then hold total
+irradiance (the photon pass recorded direct hits), and only the caustic
+lightmaps are still read at the hit. Each later diffuse hit along a glossy
+continuation gathers with a quarter of the rays of the one before.
+"""
+import math
+import time
+from collections import namedtuple
+
+import numpy as np
+from numba import njit
+
+from ..core.jit import CORE
+from ..lightmaps import lightmap
+from ..lightmaps import orientation_lightmap
+from ..shading import bsdf
+from ..shading import light_hits
+from ..shading import materials
+from ..shading import environment
+from . import final_gather
+from . import irradiance_cache
+from ..core import parallel
+from ..shading.lights import EMISSIVE, sample_light_radiance
+from ..core.errors import Cancelled
+from .photon_tracer import ray_epsilon
+from ..geometry.raycast import STACK_WORDS, intersect_closest, occluded
+from ..core.sampling import next_float, sample_discrete, stream_state
+from .texel_gather import grid_side, jitter, light_stratum, texel_shift
+
+CameraData = namedtuple("CameraData", "xf kind sx sy width height")
+
+
+def compile_camera(camera):
+    """Camera basis and image-plane half extents, Blender conventions (looks along -Z, sensor fit auto)."""
+    from ..core.scene import SceneError, as_affine
+    w, h = int(camera.width), int(camera.height)
+    if w <= 0 or h <= 0:
+        raise SceneError(f"camera resolution must be positive, got {w}x{h}")
+    xf = as_affine(camera.transform, "camera")
+    # Remove scale so rays stay unit length.
+    lin = xf[:, :3] / np.linalg.norm(xf[:, :3], axis=0)
+    xf = np.concatenate([lin, xf[:, 3:]], axis=1)
+    aspect = w / h
+    if camera.kind == "orthographic":
+        half = 0.5 * float(camera.ortho_scale)
+        if not (math.isfinite(half) and half > 0.0):
+            raise SceneError(f"camera: orthographic scale must be positive, got {camera.ortho_scale}")
+        kind = 1
+    elif camera.kind == "perspective":
+        if not 0 < camera.fov < math.pi:
+            raise SceneError(f"camera field of view must be in (0, pi), got {camera.fov}")
+        half = math.tan(0.5 * float(camera.fov))
+        kind = 0
+    else:
+        raise SceneError(f"unknown camera kind '{camera.kind}'")
+    sx, sy = (half, half / aspect) if w >= h else (half * aspect, half)
+    return CameraData(xf, kind, sx, sy, w, h)
+
+
+@njit(cache=True)
+def camera_ray(cam, fx, fy):
+    """Ray through film position (fx, fy) in pixels (y down)."""
+    ndc_x = 2.0 * fx / cam.width - 1.0
+    ndc_y = 1.0 - 2.0 * fy / cam.height
+    x = ndc_x * cam.sx
+    y = ndc_y * cam.sy
+    m = cam.xf
+    if cam.kind == 1:
+        ox = m[0, 3] + m[0, 0] * x + m[0, 1] * y
+        oy = m[1, 3] + m[1, 0] * x + m[1, 1] * y
+        oz = m[2, 3] + m[2, 0] * x + m[2, 1] * y
+        return ox, oy, oz, -m[0, 2], -m[1, 2], -m[2, 2]
+    dx = m[0, 0] * x + m[0, 1] * y - m[0, 2]
+    dy = m[1, 0] * x + m[1, 1] * y - m[1, 2]
+    dz = m[2, 0] * x + m[2, 1] * y - m[2, 2]
+    ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+    return m[0, 3], m[1, 3], m[2, 3], dx / ln, dy / ln, dz / ln
+
+
+@njit(cache=True, inline="always")
+def _pixel_sample(seed, pixel, spp, s, k):
+    """Sample s of a pixel -> (its stream, its jitter): the jitter is stratified on
+    the k x k grid (k = grid_side(spp)); one sample takes the pixel's centre."""
+    state = stream_state(seed, pixel * spp + s)
+    state, jx = next_float(state)
+    state, jy = next_float(state)
+    if spp == 1:
+        return state, 0.5, 0.5
+    jx, jy = jitter(s, k, jx, jy)
+    return state, jx, jy
+
+
+# Keys a pixel's light-stratum shift apart from its samples' streams.
+PIXEL_SHIFT_XOR = np.uint64(0x9E3779B97F4A7C15)
+
+
+@njit(cache=True)
+def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx, sy, sz,
+                 ox, oy, oz, state, e, lg, f, rad, count, stratum, k):
+    """Direct light at p, sampled as texel_gather.direct_irradiance samples it: the
+    diffuse irradiance into e[bands] and the glossy lobes' radiance towards wo
+    (local o, in the frame of s) into lg, weighted by the power heuristic against
+    glossy sampling (light_hits); count[0] gains the shadow rays. f is the face normal on the viewer's side, s the
+    (normal-mapped) shading normal: cosines are s's, and a light must lie on the
+    side of f that the lobe scatters to (no light through a normal map's tilt).
+    stratum >= 0: the cell of a k x k grid the light's two random numbers are
+    jittered in (texel_gather.light_stratum: a pixel's samples cover each light
+    evenly); -1: plain uniform."""
+    n_lights = ls.kind.shape[0]
+    if n_lights == 0:
+        return state
+    nb = e.shape[0]
+    glossy = ps + pm + pg > 0.0 and p[bsdf.P_ALPHA] > bsdf.DELTA_ALPHA
+    eps = ray_epsilon(px, py, pz)
+    all_lights = n_lights <= 8
+    n_samples = n_lights if all_lights else 4
+    total = ls.power_cdf[n_lights - 1]
+    for j in range(n_samples):
+        if all_lights:
+            li = j
+            w_sel = 1.0
+        else:
+            state, us = next_float(state)
+            li = sample_discrete(ls.power_cdf, us)
+            p_li = (ls.power_cdf[li] - (ls.power_cdf[li - 1] if li > 0 else 0.0)) / total
+            w_sel = 1.0 / (n_samples * p_li)
+        state, u1 = next_float(state)
+        state, u2 = next_float(state)
+        state, u3 = next_float(state)
+        if stratum >= 0:
+            u1, u2 = jitter(stratum, k, u1, u2)
+        wx, wy, wz, dist, scale, ok = sample_light_radiance(ls, g, li, px, py, pz, u1, u2, u3, rad)
+        if not ok or scale <= 0.0:
+            continue
+        cos_g = wx * fx + wy * fy + wz * fz
+        cos_r = wx * sx + wy * sy + wz * sz
+        if cos_g * cos_r <= 0.0:
+            continue
+        # a glass lobe also sees lights behind the surface
+        if cos_r <= 0.0 and not (glossy and pg > 0.0):
+            continue
+        gl = 0.0
+        if glossy and ls.kind[li] != EMISSIVE:
+            ix, iy, iz = bsdf.to_local(wx, wy, wz, sx, sy, sz)
+            pdf_b = bsdf.eval_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz, ix, iy, iz, f)
+            pdf_l = light_hits.light_pdf(ls, li, px, py, pz, wx, wy, wz, dist)
+            gl = 1.0 if pdf_l == math.inf else light_hits.power_heuristic(light_hits.selection_factor(ls, li) * pdf_l,
+                                                                 pdf_b)
+        if cos_r <= 0.0 and gl == 0.0:
+            continue
+        side = eps if cos_r > 0.0 else -eps
+        qx, qy, qz = px + side * fx, py + side * fy, pz + side * fz
+        tmax = dist * (1.0 - 1e-6) - eps if dist < math.inf else math.inf
+        if tmax <= 0.0:
+            continue
+        count[0] += 1
+        if occluded(g, stack, qx, qy, qz, wx, wy, wz, 0.0, tmax):
+            continue
+        c = scale * w_sel
+        for b in range(nb):
+            if cos_r > 0.0:
+                e[b] += rad[b] * cos_r * c
+            if gl > 0.0:
+                lg[b] += rad[b] * f[b] * c * gl
+    return state
+
+
+@njit(cache=True, nogil=True)
+def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed, mode,
+                 max_depth, indirect, gather, rec, out, rays, start, stop):
+    """Pixels start..stop-1 of the tile (parallel.run spreads them over threads):
+    the block's scratch, then the core. rays[y, x]: the rays a pixel traced.
+    rec: irradiance-cache records (irradiance_cache.Records; none: gather rays
+    everywhere) that a diffuse hit reads before it gathers."""
+    nb = out.shape[2]
+    sc = np.empty((16, nb))
+    _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed,
+                      mode, max_depth, indirect, gather, rec, out, rays, start, stop, np.empty(STACK_WORDS, np.int32),
+                      np.zeros(0, np.int64), sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7], sc[8],
+                      sc[9], sc[10], sc[11], sc[12], sc[13], sc[14], sc[15], np.empty(bsdf.P_SIZE),
+                      np.empty(bsdf.P_SIZE), np.zeros(1, np.int64))
+
+
+# The pixel loop compiles without NRT: with it, every read of a field of the
+# scene tuples is an atomic incref and decref that the threads contend for.
+@njit(**CORE)
+def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed,
+                      mode, max_depth, indirect, gather, rec, out, rays, start, stop, stack, no_sides, acc, tp, e,
+                      lg, ind, f, kd, ks, kt, rad, kd2, ks2, kt2, tp2, f2, rad2, pc, pc2, count):
+    # Samples s0 <= s < s1 of the pixel's spp, each weighted 1/spp: the passes of a
+    # progressive render add up to the one-pass image (the same streams).
+    nb = out.shape[2]
+    # a pixel's ray cone: its width grows by this per metre travelled (texture filtering)
+    spread = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 0 else 0.0
+    width0 = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 1 else 0.0
+    env_li = light_hits.environment_light(ls)
+    # no_sides: camera hits are on the outside already
+    for idx in range(start, stop):
+        for b in range(nb):
+            acc[b] = 0.0
+        count[0] = 0
+        px_i = x0 + idx % tw
+        py_i = y0 + idx // tw
+        pixel = py_i * cam.width + px_i
+        # A pixel's samples are stratified on a k x k grid, and so are their first
+        # hits' light samples (shifted per pixel, texel_gather.light_stratum).
+        k = grid_side(spp)
+        _, shift = texel_shift(stream_state(seed ^ PIXEL_SHIFT_XOR, pixel), k)
+        for s in range(s0, s1):
+            state, jx, jy = _pixel_sample(seed, pixel, spp, s, k)
+            ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
+            for b in range(nb):
+                tp[b] = 1.0 / spp
+            pdf_b = 0.0
+            delta = True
+            travelled = 0.0
+            n_gather = gather
+            for depth in range(max_depth + 1):
+                count[0] += 1
+                hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
+                    g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
+                if depth > 0:      # lights are invisible to the camera, as in Cycles
+                    light_hits.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf,
+                                       pdf_b, delta, tp, acc)
+                if not hit:
+                    w = 1.0
+                    if not delta and env_li >= 0:
+                        w = light_hits.power_heuristic(pdf_b, light_hits.selection_factor(ls, env_li) *
+                                               light_hits.light_pdf(ls, env_li, ox, oy, oz, dx, dy, dz, math.inf))
+                    environment.radiance(env, dx, dy, dz, rad)
+                    for b in range(nb):
+                        acc[b] += tp[b] * rad[b] * w
+                    break
+                px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+                m = g.shape_material[shape]
+                cos_dn = dx * nx + dy * ny + dz * nz
+                for b in range(nb):
+                    acc[b] += tp[b] * ms.emission[m, b]
+                travelled += t
+                foot = width0 + spread * travelled
+                rough, ior, _ = materials.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, foot, kd, ks, kt)
+                snx, sny, snz = materials.shading_normal(ms, ts, g, inst, m, shape, face, u, v, foot, nx, ny, nz)
+                # the frame faces the viewer; the outward normal tells entering from leaving
+                if cos_dn > 0.0:
+                    fx, fy, fz, sx, sy, sz = -nx, -ny, -nz, -snx, -sny, -snz
+                else:
+                    fx, fy, fz, sx, sy, sz = nx, ny, nz, snx, sny, snz
+                cos_o = -(dx * sx + dy * sy + dz * sz)
+                if cos_o <= 1e-6:      # a normal map tilted away from the viewer: use the face's
+                    sx, sy, sz = fx, fy, fz
+                    cos_o = abs(cos_dn)
+                bsdf.closure_scalars(bt, m, rough, ior, cos_dn < 0.0, cos_o, pc)
+                pd, ps, pm, pg = bsdf.lobe_probabilities(pc, kd, ks, kt, cos_o)
+                lox, loy, loz = bsdf.to_local(-dx, -dy, -dz, sx, sy, sz)
+                ds = bsdf.diffuse_scale(pc)
+                for b in range(nb):
+                    e[b] = 0.0
+                    lg[b] = 0.0
+                if pd > 0.0 or (ps + pm + pg > 0.0 and pc[bsdf.P_ALPHA] > bsdf.DELTA_ALPHA):
+                    state = direct_light(g, ls, stack, pc, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz,
+                                         sx, sy, sz, lox, loy, loz, state, e, lg, f, rad, count,
+                                         light_stratum(s, k, shift) if depth == 0 else -1, k)
+                if pd > 0.0 and indirect and n_gather > 0:
+                    reached = False
+                    if rec.pos.shape[0] > 0:
+                        wsum, _ = irradiance_cache.lookup(px, py, pz, fx, fy, fz, rec.pos, rec.nrm, rec.E, rec.se, rec.R,
+                                            rec.gt, rec.gr, rec.cell, rec.mask, rec.start, rec.entries, ind)
+                        if wsum > 0.0:
+                            reached = True
+                            for b in range(nb):
+                                e[b] += ind[b]
+                    if not reached:
+                        state = final_gather.gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, no_sides, stack, px, py, pz,
+                                                     fx, fy, fz, sx, sy, sz, n_gather, mode, state,
+                                                     kd2, ks2, kt2, pc2, ind, tp2, f2, rad2, e, count,
+                                                     0, rec.E, rec.R)
+                    n_gather = max(1, n_gather // 4)
+                elif pd > 0.0 and indirect and orientation_lightmap.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
+                                                                     nx, ny, nz, mode, ind):
+                    for b in range(nb):
+                        e[b] += ind[b]
+                if pd > 0.0 and indirect and caustics:
+                    lid, cf, cs_, ct = lightmap.lightmap_slot(g, lmc, inst, shape, face, u, v)
+                    if lid >= 0:
+                        lightmap.lookup(lmc, lid, cf, cs_, ct, mode, ind)
+                        for b in range(nb):
+                            e[b] += ind[b]
+                for b in range(nb):
+                    acc[b] += tp[b] * (kd[b] * ds * e[b] / math.pi + lg[b])
+                # Continue along the glossy lobes (the diffuse light came from the lightmaps).
+                q = ps + pm + pg
+                if depth == max_depth or q <= 0.0:
+                    break
+                state, u0 = next_float(state)
+                state, u1 = next_float(state)
+                state, u2 = next_float(state)
+                state, u3 = next_float(state)
+                ok, ix, iy, iz, pdf_b, delta = bsdf.sample_glossy(pc, ks, kt, ps, pm, pg, lox, loy, loz,
+                                                                u0, u1, u2, u3, f)
+                if not ok:
+                    break
+                dx, dy, dz = bsdf.from_local(ix, iy, iz, sx, sy, sz)
+                if (dx * fx + dy * fy + dz * fz) * iz <= 0.0:
+                    break           # the shading frame's side and the face's disagree
+                for b in range(nb):
+                    tp[b] *= f[b]
+                eps = ray_epsilon(px, py, pz)
+                side = eps if (dx * nx + dy * ny + dz * nz) > 0.0 else -eps
+                ox, oy, oz = px + side * nx, py + side * ny, pz + side * nz
+        for b in range(nb):
+            out[idx // tw, idx % tw, b] = acc[b]
+        rays[idx // tw, idx % tw] = count[0]
+
+
+def progressive_passes(samples):
+    """Samples per pass of a progressive render: 1, 1, 2, 4, ... (the first image comes
+    after one sample per pixel, then each pass doubles what is shown), the last pass what is left."""
+    samples, out, done = int(samples), [], 0
+    while done < samples:
+        n = min(max(done, 1), samples - done)
+        if samples - done - n < n / 2:
+            n = samples - done           # no tiny last pass
+        out.append(n)
+        done += n
+    return out
+
+
+def render(cs, samples=4, seed=0, mode=lightmap.MODE_BILINEAR, max_depth=8, tile=64,
+           indirect=True, gather=0, progress=None, passes=None, records=None):
+    """Renders cs.camera to a (height, width, n_bands) float array of radiance.
+
+    gather: final-gather rays per sample at the first diffuse hit (0: read the
+    hit's own lightmap, the thesis's way). It needs lightmaps that hold direct
+    light too (trace_photons(record_direct=True)); the lookup needs ones that do not.
+
+    passes: samples per pass (summing to `samples`; None: one pass), e.g.
+    progressive_passes(samples). Every pass covers the whole frame, and the image
+    after the last equals the one-pass image (up to rounding): pass k adds the
+    samples the one-pass render takes from the same random streams.
+
+    progress(x0, y0, tile_image, image) is called after each tile, with both
+    scaled to the samples done so far; returning False cancels (raises Cancelled).
+
+    records (irradiance_cache.scene_records; with gather > 0): a diffuse hit that
+    records reach reads their interpolated irradiance instead of gathering.
+    """
+    gather = int(gather)
+    samples = int(samples)
+    passes = [samples] if passes is None else [int(n) for n in passes]
+    if sum(passes) != samples or min(passes, default=0) < 1:
+        raise ValueError(f"passes {passes} must be positive and add up to {samples} samples")
+    holds_direct = getattr(cs, "lightmaps_hold_direct", False)
+    # (lightmaps nothing was traced into are right for either: zero)
+    if indirect and gather > 0 and not holds_direct and np.any(cs.lightmaps.flux):
+        raise ValueError("final gather needs a photon pass that recorded direct light (record_direct=True)")
+    cam = cs.camera
+    img = np.zeros((cam.height, cam.width, cs.n_bands))
+    t0 = time.perf_counter()
+    s0 = 0
+    rays = 0
+    shown = img if len(passes) == 1 else np.zeros_like(img)
+    for n in passes:
+        scale = samples / (s0 + n)      # sums of 1/spp-weighted samples -> the mean so far
+
+        def on_tile(x0, y0, th, tw):
+            if shown is not img:
+                shown[y0:y0 + th, x0:x0 + tw] = img[y0:y0 + th, x0:x0 + tw] * scale
+            if progress is not None and progress(x0, y0, shown[y0:y0 + th, x0:x0 + tw], shown) is False:
+                raise Cancelled("render cancelled")
+        rays += add_samples(cs, img, samples, s0, s0 + n, seed=seed, mode=mode, max_depth=max_depth,
+                            tile=tile, indirect=indirect, gather=gather, on_tile=on_tile, records=records)
+        s0 += n
+    cs.timings["render"] = time.perf_counter() - t0
+    cs.rays["render"] = rays
+    return img
+
+
+def add_samples(cs, img, samples, start, stop, seed=0, mode=lightmap.MODE_BILINEAR, max_depth=8, tile=64,
+                indirect=True, gather=0, on_tile=None, records=None):
+    """Adds samples start..stop-1 of a `samples`-sample render of cs.camera to `img`
+    ((height, width, n_bands), each sample weighted 1/samples): after every sample
+    has been added, img is render(cs, samples, seed, ...). A progressive host (the
+    Rendered viewport) adds one sample at a time. on_tile(x0, y0, th, tw) after each tile.
+    Returns the rays traced (camera, shadow, gather and glossy rays)."""
+    cam = cs.camera
+    env = cs.environment        # environment.EnvMap
+    ol = cs.orientation if cs.orientation is not None else orientation_lightmap.empty_maps(cs.geometry.inst_proto.shape[0])
+    # photons the caustic lightmaps hold are in no other lightmap (photon_tracer)
+    lmc = cs.caustics if getattr(cs, "caustics_traced", False) else cs.lightmaps
+    rec = records if records is not None else irradiance_cache.no_records(cs.n_bands)
+    traced = 0
+    for y0 in range(0, cam.height, tile):
+        for x0 in range(0, cam.width, tile):
+            tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
+            out = np.zeros((th, tw, cs.n_bands))
+            rays = np.zeros((th, tw), np.int64)
+            parallel.run(_render_tile, tw * th, cs.geometry, cs.materials, cs.bsdf, cs.textures,
+                         cs.lights, cs.lightmaps, lmc, lmc is not cs.lightmaps, ol, cam, env,
+                         x0, y0, tw, th, int(samples), int(start), int(stop), np.uint64(seed), int(mode),
+                         int(max_depth), bool(indirect), max(int(gather), 0), rec, out, rays)
+            img[y0:y0 + th, x0:x0 + tw] += out
+            traced += int(rays.sum())
+            if on_tile is not None:
+                on_tile(x0, y0, th, tw)
+    return traced
+
+
+@njit(cache=True, nogil=True)
+def _aux_tile(g, ms, ts, cam, x0, y0, tw, th, spp, seed, albedo, normal, start, stop):
+    """First-hit albedo and shading normal of pixels start..stop-1 of the tile,
+    averaged over the render's own anti-aliasing jitter (same stream as
+    _render_tile), for the denoiser."""
+    nb = ms.emission.shape[1]
+    spread = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 0 else 0.0
+    width0 = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 1 else 0.0
+    for idx in range(start, stop):
+        stack = np.empty(STACK_WORDS, np.int32)
+        kd = np.empty(nb)
+        ks = np.empty(nb)
+        kt = np.empty(nb)
+        px_i = x0 + idx % tw
+        py_i = y0 + idx // tw
+        pixel = py_i * cam.width + px_i
+        iy, ix = idx // tw, idx % tw
+        k = grid_side(spp)
+        for s in range(spp):
+            _, jx, jy = _pixel_sample(seed, pixel, spp, s, k)
+            ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
+            hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
+                g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
+            if not hit:
+                continue        # the world: albedo 0, normal 0 (OIDN's convention for "nothing")
+            m = g.shape_material[shape]
+            if m < 0:
+                continue
+            materials.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, width0 + spread * t, kd, ks, kt)
+            sx, sy, sz = materials.shading_normal(ms, ts, g, inst, m, shape, face, u, v, width0 + spread * t,
+                                           nx, ny, nz)
+            if dx * nx + dy * ny + dz * nz > 0.0:     # the side facing the camera, as the render shades it
+                sx, sy, sz = -sx, -sy, -sz
+            for c in range(3):
+                b = c if nb >= 3 else 0
+                # all lobes together: glass and mirrors are not black to the denoiser
+                albedo[iy, ix, c] += min(kd[b] + ks[b] + kt[b], 1.0) / spp
+            normal[iy, ix, 0] += sx / spp
+            normal[iy, ix, 1] += sy / spp
+            normal[iy, ix, 2] += sz / spp
+
+
+def render_aux(cs, samples=4, seed=0, tile=64):
+    """(albedo, normal), each (height, width, 3) float32, of cs.camera's first hits."""
+    cam = cs.camera
+    albedo = np.zeros((cam.height, cam.width, 3))
+    normal = np.zeros((cam.height, cam.width, 3))
+    for y0 in range(0, cam.height, tile):
+        for x0 in range(0, cam.width, tile):
+            tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
+            a = np.zeros((th, tw, 3))
+            n = np.zeros((th, tw, 3))
+            parallel.run(_aux_tile, tw * th, cs.geometry, cs.materials, cs.textures, cam, x0, y0, tw, th,
+                         int(samples), np.uint64(seed), a, n)
+            albedo[y0:y0 + th, x0:x0 + tw] = a
+            normal[y0:y0 + th, x0:x0 + tw] = n
+    return albedo.astype(np.float32), normal.astype(np.float32)

@@ -16,9 +16,10 @@ from .lsystem import turtle
 
 # Derive (for exact bounds and --string) up to this many modules.
 DERIVE_LIMIT = 2_000_000
-# Cycles builds one object per instance: about 1.4 KB each, measured with
-# bpy 5.0.1 (shared/reference/lsystems_in_geometry_nodes.md, section 5).
-CYCLES_BYTES_PER_INSTANCE = 1400
+# Cycles builds one object per instance: the memory a render adds per instance,
+# measured by benchmarks/bench_cycles_instances.py with bpy 5.0.1 (1 363 bytes;
+# tests/data/cycles_instances.json keeps that run).
+CYCLES_BYTES_PER_INSTANCE = 1360
 CYCLES_MAX_NESTING = 6
 
 

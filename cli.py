@@ -122,6 +122,7 @@ def build_parser():
     _add_common(d)
     d.add_argument("--samples", type=_count(1), default=None, help="pixel samples of the render")
     d.add_argument("--size", type=_size, default=(256, 256), metavar="WxH", help="render size")
+    d.add_argument("--denoise", action="store_true", help="denoise the render (OIDN, pyoidn)")
     d.set_defaults(func=demo_main)
 
     r = sub.add_parser("render", help="render a .blend with the Photon Lightmaps engine")
@@ -522,6 +523,7 @@ def demo_main(args):
     ol_json = os.path.join(out, "orientation_lightmaps.json")
     lightmaps = os.path.join(out, "lightmaps")
     samples = [f"--samples={args.samples}"] if args.samples is not None else []
+    samples += ["--denoise"] if args.denoise else []
     warmup.expect("bake")   # on a first run, the bake's kernels compile in a second process during the render
     # Each step goes through the same parser as on the command line, so it gets
     # every option's default; a failing step raises, and cli.main turns that

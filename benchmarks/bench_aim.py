@@ -17,12 +17,8 @@ over the cube's fully covered texels, and Cycles' time at equal error / ours.
 import json
 import math
 import pathlib
-import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-if __package__ in (None, ""):
-    sys.path.insert(0, str(ROOT.parent))
-    __package__ = "benchmarks"
 
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402

@@ -50,9 +50,6 @@ import tempfile
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-if __package__ in (None, ""):
-    sys.path.insert(0, str(ROOT))
-    __package__ = "benchmarks"
 os.environ.setdefault("PHOTON_LIGHTMAPS_NUMBA_CACHE", str(ROOT / ".numba_cache"))
 
 import photon_lightmaps.engine  # noqa: E402,F401  (sets the numba cache before numba loads)

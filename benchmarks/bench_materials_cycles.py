@@ -19,13 +19,8 @@ import argparse
 import json
 import math
 import pathlib
-import sys
 import time
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-if __package__ in (None, ""):
-    sys.path.insert(0, str(ROOT))
-    __package__ = "benchmarks"
 
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402

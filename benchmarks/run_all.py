@@ -22,14 +22,9 @@ import json
 import math
 import os
 import pathlib
-import sys
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-if __package__ in (None, ""):
-    # Run as a script: make `benchmarks` importable the same way -m does.
-    sys.path.insert(0, str(ROOT))
-    __package__ = "benchmarks"
 os.environ.setdefault("PHOTON_LIGHTMAPS_NUMBA_CACHE", str(ROOT / ".numba_cache"))
 
 import bpy  # noqa: E402

@@ -14,13 +14,14 @@ import pathlib
 import sys
 
 
-def _source_digest():
-    """Hash of the engine's sources. numba's cache only tracks the file a kernel is
-    defined in, not the kernels it inlines from other modules, so after an
-    upgrade a stale cache entry can run old traversal code: keying the cache
-    folder by all sources makes every version compile into its own folder."""
+def _source_digest(root=None):
+    """Hash of the engine's sources, sub-packages included. numba's cache only
+    tracks the file a kernel is defined in, not the kernels it inlines from other
+    modules, so after an upgrade a stale cache entry can run old traversal code:
+    keying the cache folder by all sources makes every version compile into its
+    own folder."""
     h = hashlib.sha1()
-    root = pathlib.Path(__file__).parent
+    root = pathlib.Path(root or pathlib.Path(__file__).parent)
     for p in sorted(root.rglob("*.py")):
         h.update(p.relative_to(root).as_posix().encode())
         h.update(p.read_bytes())

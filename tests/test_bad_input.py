@@ -139,7 +139,7 @@ def test_emptied_meshes_take_no_lightmap_slot():
     """A mesh whose triangles are all degenerate has no surface: lightmap ids of
     the surfaces and instances after it must not shift (they pointed one past
     their lightmap and the kernels wrote out of bounds: the fuzz cases that
-    segfaulted, the issue's "zero-area triangle crashes the render")."""
+    segfaulted: a zero-area triangle must not crash the render)."""
     s = small_scene()
     flat = TriangleMesh(np.array([[0, 0, 0.5], [0.2, 0, 0.5], [0.4, 0, 0.5]]), np.array([[0, 1, 2]]),
                         uvs=np.full((1, 3, 2), 0.5), name="all_degenerate")

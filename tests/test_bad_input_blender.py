@@ -308,7 +308,7 @@ def test_failed_or_cancelled_bake_leaves_user_data_identical(monkeypatch):
 
 
 # --------------------------------------------------------------------------------------
-# Native crashes and degenerate geometry (issue: xatlas segfaults, zero-area triangles)
+# Native crashes and degenerate geometry (xatlas segfaults, zero-area triangles)
 # --------------------------------------------------------------------------------------
 
 def test_dense_mesh_that_crashes_xatlas_still_renders_and_bakes(tmp_path):

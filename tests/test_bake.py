@@ -443,7 +443,28 @@ def test_blender_bake_api_matches_bake_objects():
             assert _api_bake(ob, w, h, pass_filter={"INDIRECT"}) == {"FINISHED"}
             ind = pixels(img)[..., :3][m]
             assert 0.05 < ind.mean() / got[..., :3][m].mean() < 0.9
+            floor_mask, floor_size = m, (w, h)
         ob.material_slots[0].material.node_tree.nodes.remove(node)
+    # Emit and Combined: the floor glows (its emission lights the room as well);
+    # Emit is the emission exactly, and Combined = Diffuse with Color + Emit.
+    bsdf = next(n for n in floor.material_slots[0].material.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    bsdf.inputs["Emission Color"].default_value = (1.0, 0.5, 0.25, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = 0.4
+    w, h = floor_size
+    img, node = add_bake_target(floor, w, h)
+    assert _api_bake(floor, w, h, type="EMIT", pass_filter=set()) == {"FINISHED"}
+    emit = pixels(img)[..., :3][floor_mask]
+    np.testing.assert_allclose(emit, np.broadcast_to([0.4, 0.2, 0.1], emit.shape), rtol=1e-6)
+    assert _api_bake(floor, w, h, pass_filter={"DIRECT", "INDIRECT", "COLOR"}) == {"FINISHED"}
+    diffuse = pixels(img)[..., :3][floor_mask]
+    assert _api_bake(floor, w, h, type="COMBINED",
+                     pass_filter={"DIRECT", "INDIRECT", "DIFFUSE", "EMIT"}) == {"FINISHED"}
+    combined = pixels(img)[..., :3][floor_mask]
+    np.testing.assert_allclose(combined, diffuse + emit, rtol=1e-5, atol=1e-7)
+    assert (combined - emit).mean() > 0.5 * diffuse.mean()        # the light is in there too
+    assert _api_bake(floor, w, h, type="COMBINED", pass_filter={"DIRECT", "INDIRECT", "DIFFUSE"}) \
+        == {"FINISHED"}
+    np.testing.assert_allclose(pixels(img)[..., :3][floor_mask], diffuse, rtol=1e-5, atol=1e-7)
 
 
 def test_blender_bake_api_cancel_and_errors_keep_the_image(monkeypatch):

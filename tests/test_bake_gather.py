@@ -216,6 +216,33 @@ def test_time_budget_shares_rays_by_relative_error():
     assert not bake_gather._share(rel, 4, 60, 0).any()
 
 
+def test_a_bake_time_budget_is_spent_and_kept():
+    """Bake Time (--time): after its first pass the gather spends the time left on
+    the noisiest texels and ends by the deadline (planned from the first pass's
+    speed, so allowed 25 % and 0.2 s over); a budget shorter than the first pass
+    adds no rays."""
+    import time
+    from photon_lightmaps.engine import session
+
+    def bake(budget):
+        settings = session.Settings(photons=50_000, bake_photons=50_000, seed=3, bake_gather_rays=64,
+                                    bake_irradiance_cache=False, bake_time=budget)
+        cs, _ = session.compile_and_trace_bake(
+            demo_scenes.cornell_box(n_bands=1, with_primitives=False), settings)
+        t0 = time.perf_counter()
+        deadline = t0 + budget if budget > 0 else None
+        session.bake_texels(cs, all_lightmaps(cs), [], settings, deadline=deadline)
+        return time.perf_counter() - t0, int(cs.bake_error[2].sum())
+
+    bake(0.0)                                  # the kernels, compiled or loaded
+    base_seconds, base_rays = bake(0.0)
+    budget = 4.0 * base_seconds + 0.5
+    seconds, rays = bake(budget)
+    assert seconds <= 1.25 * budget + 0.2, (seconds, budget)
+    assert seconds > 0.5 * budget and rays > 2 * base_rays, (seconds, budget, rays, base_rays)
+    assert bake(1e-3)[1] == base_rays
+
+
 @pytest.mark.parametrize("indirect", ["GATHER", "LOOKUP"])
 @pytest.mark.parametrize("bounces", [1, 2])
 def test_bake_keeps_the_bounce_limit(indirect, bounces):

@@ -88,3 +88,24 @@ def test_a_second_copy_of_the_module_does_not_lock_twice(tmp_path):
     worker.start()
     worker.join(10)
     assert not worker.is_alive() and index.load("key") == b"data"
+
+
+def test_the_cache_folder_key_covers_every_sub_package(tmp_path):
+    """The kernel cache folder is keyed by a digest of the engine's sources: an edit
+    in any sub-package (a kernel inlined from there) must change it, or a stale
+    kernel would load."""
+    import shutil
+    from photon_lightmaps import engine
+    src = os.path.dirname(engine.__file__)
+    copy = tmp_path / "engine"
+    shutil.copytree(src, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    assert engine._source_digest(copy) == engine._source_digest()
+    seen = {engine._source_digest(copy)}
+    for rel in ("geometry/raycast.py", "core/sampling.py", "transport/texel_gather.py", "session.py"):
+        with open(copy / rel, "a") as f:
+            f.write("\n# edited\n")
+        seen.add(engine._source_digest(copy))
+    assert len(seen) == 5
+    # a new module moved into a sub-package counts as well
+    (copy / "lightmaps" / "new_module.py").write_text("X = 1\n")
+    assert engine._source_digest(copy) not in seen

@@ -5,6 +5,8 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine.geometry import csg
+
+from photon_lightmaps.engine.geometry import csg_trace
 from photon_lightmaps.engine.demo_scenes import uv_sphere_mesh
 from photon_lightmaps.engine.core.scene import (
     CSGNode, Primitive, SceneError, TriangleMesh, compose, rotate, scale, translate)
@@ -46,7 +48,7 @@ def _check_rays(table, root, rng, n_rays, n_march=1500, tol=1e-6):
         target = rng.uniform(-0.8, 0.8, 3)
         d = target - o
         d *= rng.uniform(0.5, 2.0) / np.linalg.norm(d)      # not normalised on purpose
-        res = csg.csg_all_intervals(table, root, o, d)
+        res = csg_trace.csg_all_intervals(table, root, o, d)
         iv = res["intervals"]
         assert res["overflow"] == 0
         assert np.all(np.isfinite(iv))
@@ -55,7 +57,7 @@ def _check_rays(table, root, rng, n_rays, n_march=1500, tol=1e-6):
         ts = np.linspace(0.0, t_far, n_march)
         pts = o + ts[:, None] * d
         brute = np.zeros(n_march, bool)
-        csg.csg_inside_batch(table.trace, root, pts, brute)
+        csg_trace.csg_inside_batch(table.trace, root, pts, brute)
         got = _membership(ts, iv)
         near = np.zeros(n_march, bool)
         for t in iv.reshape(-1):
@@ -66,10 +68,10 @@ def _check_rays(table, root, rng, n_rays, n_march=1500, tol=1e-6):
         for t in iv.reshape(-1):
             e = 1e-7 / np.linalg.norm(d)
             a = np.zeros(2, bool)
-            csg.csg_inside_batch(table.trace, root, np.array([o + (t - e) * d, o + (t + e) * d]), a)
+            csg_trace.csg_inside_batch(table.trace, root, np.array([o + (t - e) * d, o + (t + e) * d]), a)
             assert a[0] != a[1], f"boundary at t={t} is not a change of membership"
         # the first hit from t=0 is the first boundary, with a consistent normal
-        hit, t, leaf, face, u, v, nx, ny, nz, entering = csg.csg_first_hit(
+        hit, t, leaf, face, u, v, nx, ny, nz, entering = csg_trace.csg_first_hit(
             table.g, root, *o, *d, 0.0, math.inf)
         b = iv.reshape(-1)
         if b.size:
@@ -80,7 +82,7 @@ def _check_rays(table, root, rng, n_rays, n_march=1500, tol=1e-6):
             assert leaf == res["leaves"].reshape(-1)[0]
             # from inside the first interval the hit is its exit
             tm = 0.5 * (b[0] + b[1])
-            hit2, t2, *_, n2x, n2y, n2z, ent2 = csg.csg_first_hit(table.g, root, *o, *d, tm,
+            hit2, t2, *_, n2x, n2y, n2z, ent2 = csg_trace.csg_first_hit(table.g, root, *o, *d, tm,
                                                                  math.inf)
             assert hit2 and t2 == pytest.approx(b[1], abs=1e-12) and not ent2
             assert n2x * d[0] + n2y * d[1] + n2z * d[2] > 0.0
@@ -123,8 +125,8 @@ def test_mesh_operand():
     inward = uv_sphere_mesh(0.9, 16, 32, inward=True)
     t2 = csg.csg_table([CSGNode("difference", Primitive("box", transform=scale(0.8)), inward)])
     o, d = (-3.0, 0.05, 0.1), (1.0, 0.0, 0.0)
-    a = csg.csg_all_intervals(table, int(table.roots[0]), o, d)["intervals"]
-    b = csg.csg_all_intervals(t2, int(t2.roots[0]), o, d)["intervals"]
+    a = csg_trace.csg_all_intervals(table, int(table.roots[0]), o, d)["intervals"]
+    b = csg_trace.csg_all_intervals(t2, int(t2.roots[0]), o, d)["intervals"]
     np.testing.assert_allclose(a, b)
 
 
@@ -134,22 +136,22 @@ def test_coplanar_faces_are_resolved_and_counted():
     b = Primitive("box", transform=compose(translate(0, 0, 0.5), scale(0.5, 0.5, 0.5)), name="b")
     table = csg.csg_table([CSGNode("difference", a, b)])
     r = int(table.roots[0])
-    res = csg.csg_all_intervals(table, r, (0.1, 0.2, 5.0), (0.0, 0.0, -1.0))
+    res = csg_trace.csg_all_intervals(table, r, (0.1, 0.2, 5.0), (0.0, 0.0, -1.0))
     assert res["ties"] > 0
     assert np.all(np.isfinite(res["intervals"]))
     # the shared face belongs to the cut: the ray enters at the pocket's floor z = 0
     np.testing.assert_allclose(res["intervals"], [[5.0, 6.0]])
-    hit, t, leaf, face, u, v, nx, ny, nz, ent = csg.csg_first_hit(table.g, r, 0.1, 0.2, 5.0,
+    hit, t, leaf, face, u, v, nx, ny, nz, ent = csg_trace.csg_first_hit(table.g, r, 0.1, 0.2, 5.0,
                                                                0.0, 0.0, -1.0, 0.0, math.inf)
     assert hit and t == pytest.approx(5.0) and leaf == 1 and nz == pytest.approx(1.0)
     # union of two boxes touching face to face: one merged interval
     u2 = csg.csg_table([CSGNode("union", Primitive("box", transform=translate(-1, 0, 0)),
                               Primitive("box", transform=translate(1, 0, 0)))])
-    res = csg.csg_all_intervals(u2, int(u2.roots[0]), (-5.0, 0.1, 0.2), (1.0, 0.0, 0.0))
+    res = csg_trace.csg_all_intervals(u2, int(u2.roots[0]), (-5.0, 0.1, 0.2), (1.0, 0.0, 0.0))
     np.testing.assert_allclose(res["intervals"], [[3.0, 7.0]])
     assert res["ties"] > 0
     # grazing along a shared face: finite, no crash
-    res = csg.csg_all_intervals(table, r, (-5.0, 0.1, 1.0), (1.0, 0.0, 0.0))
+    res = csg_trace.csg_all_intervals(table, r, (-5.0, 0.1, 1.0), (1.0, 0.0, 0.0))
     assert np.all(np.isfinite(res["intervals"]))
 
 
@@ -172,7 +174,7 @@ def test_missing_operand_and_empty():
     # an empty intersection: no hit, no NaN
     e = csg.csg_table([CSGNode("intersection", Primitive("sphere", transform=translate(-3, 0, 0)),
                              Primitive("sphere", transform=translate(3, 0, 0)))])
-    hit, t_, *rest = csg.csg_first_hit(e.g, int(e.roots[0]), -10.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0,
+    hit, t_, *rest = csg_trace.csg_first_hit(e.g, int(e.roots[0]), -10.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0,
                                      math.inf)
     assert not hit and t_ == math.inf
 
@@ -184,7 +186,7 @@ def test_overflow_is_reported_not_corrupting():
         tree = CSGNode("union", tree, Primitive("sphere", transform=compose(
             translate(i, 0, 0), scale(0.3))))
     table = csg.csg_table([tree])
-    res = csg.csg_all_intervals(table, int(table.roots[0]), (-2.0, 0.0, 0.0), (1.0, 0.0, 0.0))
+    res = csg_trace.csg_all_intervals(table, int(table.roots[0]), (-2.0, 0.0, 0.0), (1.0, 0.0, 0.0))
     assert res["overflow"] > 0
     assert res["intervals"].shape[0] == csg.MAX_INTERVALS
     np.testing.assert_allclose(res["intervals"][:3, 0], [1.7, 2.7, 3.7])

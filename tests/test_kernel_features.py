@@ -108,5 +108,5 @@ def test_csg_scene_compiles_the_csg_core(tmp_path):
     assert got["t"][2] == pytest.approx(4.0, abs=1e-9)
     assert got["t"][3] is None
     assert got["occluded"] == [True, False, True, False]
-    assert "csg.csg_closest_core" in got["names"]
+    assert "csg_trace.csg_closest_core" in got["names"]
     assert "dcsg.dcsg_closest_core" not in got["names"]

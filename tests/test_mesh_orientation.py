@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine.geometry import csg
+
+from photon_lightmaps.engine.geometry import csg_trace
 from photon_lightmaps.engine.transport import texel_gather
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.demo_scenes import uv_sphere_mesh
@@ -64,7 +66,7 @@ def _intervals(mesh_v, mesh_t):
     tree = CSGNode("difference", cube, TriangleMesh(mesh_v, mesh_t, name="hole"))
     table = csg.csg_table([tree])
     o, d = FAR + (-3.0, 0.011, 0.017), (1.0, 0.0, 0.0)     # t = x + 3 about the centre
-    return csg.csg_all_intervals(table, int(table.roots[0]), o, d)["intervals"].reshape(-1, 2)
+    return csg_trace.csg_all_intervals(table, int(table.roots[0]), o, d)["intervals"].reshape(-1, 2)
 
 
 @pytest.mark.parametrize("shape", sorted(SHAPES))

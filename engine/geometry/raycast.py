@@ -43,7 +43,7 @@ from ..core.jit import CORE, INLINE, typed
 from .assembly import STACK_WORDS, TRI_LEAF, new_stack  # noqa: F401  (re-exported)
 from ..core import features
 from .csg import CSG_SCRATCH_WORDS
-from .csg import csg_closest_core, csg_surface_core, csg_vs0
+from .csg_trace import csg_closest_core, csg_surface_core, csg_vs0
 from .dcsg import DCSG_REF, dcsg_closest_core, dcsg_hit_surface, dcsg_vs0
 from .primitives import prim_hits, prim_surface
 from .triangle import pick, triangle_normal, woop_setup, woop_test
@@ -166,11 +166,11 @@ def _prim_first(i32, f64, ib, fb, i64, j, ox, oy, oz, dx, dy, dz, tmin, tmax):
 # and the core is never compiled.
 
 def _csg_closest(buf, sc, s0, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """csg.csg_closest_core, or a miss for a scene without CSG solids."""
+    """csg_trace.csg_closest_core, or a miss for a scene without CSG solids."""
 
 
 def _csg_surface(buf, vshape, ox, oy, oz, dx, dy, dz, t):
-    """csg.csg_surface_core (a scene without CSG solids never calls it)."""
+    """csg_trace.csg_surface_core (a scene without CSG solids never calls it)."""
 
 
 def _is_csg_shape(buf, shape):

@@ -34,6 +34,7 @@ from numba import njit
 
 from ..core.affine import apply_point, apply_transposed, cross
 from ..geometry import csg
+from ..geometry import csg_trace
 from ..geometry.primitives import octa_encode, prim_area, prim_nfaces, prim_point
 from ..geometry.raycast import STACK_WORDS, intersect_closest
 from ..core.sampling import cosine_hemisphere, first_above, next_float, stream_state, to_world
@@ -66,8 +67,8 @@ def _csg_side(buf, cb, roots, leaf, px, py, pz, bits):
     """+1 / -1: p on leaf `leaf` bounds a solid of `roots` with the leaf's
     outward normal / flipped (a subtracted operand); 0: p is not on a boundary."""
     for r in roots:
-        a = csg.point_inside(buf, cb, r, px, py, pz, bits, leaf, True)
-        b = csg.point_inside(buf, cb, r, px, py, pz, bits, leaf, False)
+        a = csg_trace.point_inside(buf, cb, r, px, py, pz, bits, leaf, True)
+        b = csg_trace.point_inside(buf, cb, r, px, py, pz, bits, leaf, False)
         if a != b:
             return 1 if a else -1
     return 0
@@ -79,7 +80,7 @@ def _sample_kernel(g, insts, inst_cum, part_start, parts, part_acc, csg_roots_st
     total = inst_cum[inst_cum.shape[0] - 1]
     buf = (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)
     has_csg = csg_roots.shape[0] > 0
-    cb = csg.csg_base(buf) if has_csg else 0
+    cb = csg_trace.csg_base(buf) if has_csg else 0
     state0 = stream_state(seed, np.uint64(0xA5EA))
     state0, off = next_float(state0)
     for k in range(start, stop):
@@ -145,7 +146,7 @@ def _sample_kernel(g, insts, inst_cum, part_start, parts, part_acc, csg_roots_st
             area_local = float(nf)
         side = 1
         if has_csg and shape >= vs0:
-            leaf, _sub = csg.csg_vshape_leaf(buf, cb, shape)
+            leaf, _sub = csg_trace.csg_vshape_leaf(buf, cb, shape)
             roots = csg_roots[csg_roots_start[proto]:csg_roots_start[proto + 1]]
             side = _csg_side(buf, cb, roots, leaf, lx, ly, lz, bits)
         nx, ny, nz = apply_transposed(inv, cx, cy, cz)
@@ -264,7 +265,7 @@ def estimate_areas(g, instances, resolution, samples, seed=0, member=None, tmax=
         nbin = R * R
         return AreaEstimate(np.zeros(nbin), np.full(nbin, np.inf), 0.0, math.inf, s, m, 1.0,
                             time.perf_counter() - t0)
-    vs0 = csg.csg_vs0((g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)) if roots.size else 0
+    vs0 = csg_trace.csg_vs0((g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)) if roots.size else 0
     out_bin = np.empty(s, np.int64)
     out_val = np.empty(s)
     out_pn = np.zeros((s, 6))

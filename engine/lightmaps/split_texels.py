@@ -3,7 +3,7 @@
 A CSG boundary can cut a primitive leaf's texel. Each texel is sampled on an
 SPLIT_SUB × SPLIT_SUB grid of cells (one uint64 mask): a cell counts where
 its surface point lies on the solid's boundary as part of this leaf
-(csg.point_inside, with the leaf itself forced). The visible area is the
+(csg_trace.point_inside, with the leaf itself forced). The visible area is the
 quadrature of the covered cells; a texel whose visible cells fall apart into
 several 8-connected regions gets one sub-texel per region, so light never
 leaks across a wall that the solid puts inside one texel. The photon pass
@@ -17,7 +17,8 @@ import numpy as np
 from numba import njit, prange
 
 from ..core.affine import apply_linear, apply_point, apply_transposed, cross
-from ..geometry.csg import CSG_SCRATCH_WORDS, MAX_WORK, SC_TIES, evaluate_ray, point_inside, csg_base
+from ..geometry.csg import CSG_SCRATCH_WORDS, MAX_WORK, SC_TIES
+from ..geometry.csg_trace import csg_base, evaluate_ray, point_inside
 from .lightmap import SPLIT_SUB
 from .texel_areas import cofactor
 from ..geometry.primitives import N_FACES, prim_point, prim_surface

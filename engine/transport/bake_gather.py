@@ -28,6 +28,7 @@ from numba import njit
 
 from ..shading import bsdf
 from ..geometry import csg
+from ..geometry import csg_trace
 from ..lightmaps import lightmap
 from ..lightmaps import orientation_lightmap
 from . import texel_gather
@@ -214,7 +215,7 @@ def _indirect_csg(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, buf,
     """acc[row] += J·E_indirect, wsum[row] += J, q[row] += the error sums, like
     csg_bake._gather_csg (outside only). An item's rows are its own (its texel and
     that texel's split regions), so parallel items never write the same row."""
-    cb = csg.csg_base(buf)
+    cb = csg_trace.csg_base(buf)
     nb = acc.shape[1]
     k = texel_gather.grid_side(n_points)
     count = np.zeros(1, np.int64)

@@ -27,6 +27,7 @@ from numba import njit, prange
 
 from ..core.affine import apply_linear, apply_point, apply_transposed, cross
 from ..geometry import csg
+from ..geometry import csg_trace
 from ..lightmaps import lightmap
 from ..lightmaps import texel_areas
 from ..geometry import primitives
@@ -139,7 +140,7 @@ def full_primitive_areas(cs, inst, row, R):
 
 @njit(cache=True)
 def _leaf_of_shape(buf, vshape):
-    leaf, _sub = csg.csg_vshape_leaf(buf, csg.csg_base(buf), vshape)
+    leaf, _sub = csg_trace.csg_vshape_leaf(buf, csg_trace.csg_base(buf), vshape)
     return leaf
 
 
@@ -147,7 +148,7 @@ def _leaf_of_shape(buf, vshape):
 def _root_eps(buf, root):
     """The membership probe's step off the surface (as csg.leaf_visibility takes it)."""
     i64, _f32, _i32, f64 = buf[:4]
-    cb = csg.csg_base(buf)
+    cb = csg_trace.csg_base(buf)
     h = cb >> 3
     b = h + i64[h + csg.B_NODE_BOX] + 6 * root
     m = 0.0
@@ -211,9 +212,9 @@ def csg_texel_point(buf, cb, bits, split, split_first, split_cell, kind, params,
     if not ln > 0.0:
         return False, row0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s, t   # crease or apex
     d = eps / ln
-    a = csg.point_inside(buf, cb, root, qx + d * nx, qy + d * ny, qz + d * nz, bits)
-    b = csg.point_inside(buf, cb, root, qx - d * nx, qy - d * ny, qz - d * nz, bits)
-    if a == b or b == csg.point_inside(buf, cb, root, qx - d * nx, qy - d * ny, qz - d * nz,
+    a = csg_trace.point_inside(buf, cb, root, qx + d * nx, qy + d * ny, qz + d * nz, bits)
+    b = csg_trace.point_inside(buf, cb, root, qx - d * nx, qy - d * ny, qz - d * nz, bits)
+    if a == b or b == csg_trace.point_inside(buf, cb, root, qx - d * nx, qy - d * ny, qz - d * nz,
                                   bits, leaf, False):
         return False, row0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s, t
     row = row0
@@ -238,7 +239,7 @@ def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, 
     """acc[row] += J·E_direct and wsum[row] += J over the samples of each item's
     texel that lie on the solid's boundary as part of the item's leaf (rows of
     a split texel by the region label of the sample's cell)."""
-    cb = csg.csg_base(buf)
+    cb = csg_trace.csg_base(buf)
     nb = acc.shape[1]
     k = grid_side(n_samples)
     for it in range(start, stop):
@@ -352,7 +353,7 @@ def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
 @njit(cache=True)
 def _leaf_flips_kernel(buf, out):
     i64, _f32, i32, _f64 = buf[:4]
-    cb = csg.csg_base(buf)
+    cb = csg_trace.csg_base(buf)
     h = cb >> 3
     c32 = cb >> 2
     for k in range(out.shape[0]):
@@ -370,7 +371,7 @@ def _leaf_flips(buf):
 @njit(cache=True)
 def _n_leaves(buf):
     i64 = buf[0]
-    return i64[(csg.csg_base(buf) >> 3) + csg.B_NLEAF]
+    return i64[(csg_trace.csg_base(buf) >> 3) + csg.B_NLEAF]
 
 
 # --------------------------------------------------------------------------------------

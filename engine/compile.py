@@ -20,8 +20,9 @@ from .geometry import primitives
 from .lightmaps import split_texels
 from .lightmaps.area_estimation import estimate_areas
 from .shading.bsdf import compile_bsdf
-from .geometry.assembly import DCSG as DCSG_KIND
-from .geometry.assembly import check_mesh_arrays, compile_geometry, nondegenerate, prototype_surfaces
+from .geometry.trace_layout import DCSG as DCSG_KIND
+from .geometry.assembly import compile_geometry, prototype_surfaces
+from .geometry.validation import check_mesh_arrays, nondegenerate
 from .shading.lights import compile_lights, environment_map
 from .shading.materials import compile_materials
 from .shading.texture import compile_textures, texture_bytes

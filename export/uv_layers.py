@@ -217,7 +217,7 @@ def _fast_layout(v, tri_v, poly, resolution, xatlas_error):
     """The fast layout of a mesh's triangles, polygons kept whole -> (per-triangle
     UVs (T, 3, 2), the lightmap side it is made for, >= resolution)."""
     from ..engine.lightmaps import fast_layout
-    from ..engine.geometry.assembly import nondegenerate
+    from ..engine.geometry.validation import nondegenerate
     keep = nondegenerate(v[tri_v])
     uv = np.zeros((tri_v.shape[0], 3, 2))
     try:

@@ -10,7 +10,8 @@ import pytest
 from photon_lightmaps.engine import demo_scenes
 from photon_lightmaps.engine.lightmaps import lightmap
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.core.errors import Cancelled, trace_photons
+from photon_lightmaps.engine.core.errors import Cancelled
+from photon_lightmaps.engine.transport.photon_tracer import trace_photons
 from photon_lightmaps.engine.transport.renderer import render
 from photon_lightmaps.engine.core.scene import Light, Material, Primitive, compose, scale, translate
 

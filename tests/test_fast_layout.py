@@ -8,7 +8,7 @@ import pytest
 
 from photon_lightmaps.engine import demo_scenes
 from photon_lightmaps.engine.lightmaps import fast_layout
-from photon_lightmaps.engine.geometry.assembly import nondegenerate
+from photon_lightmaps.engine.geometry.validation import nondegenerate
 
 
 def _sphere(n_theta, n_phi):

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine.core import features
-from photon_lightmaps.engine.geometry.assembly import compile_geometry, trace_buf
+from photon_lightmaps.engine.geometry.assembly import compile_geometry
+from photon_lightmaps.engine.geometry.trace_layout import trace_buf
 from photon_lightmaps.engine.core.scene import (
     CSGNode, Instance, LSystem, Primitive, Prototype, Scene, scale, translate)
 

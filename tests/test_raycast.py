@@ -7,7 +7,8 @@ import pytest
 from numba import njit
 
 from photon_lightmaps.engine.geometry import raycast
-from photon_lightmaps.engine.geometry.assembly import STACK_WORDS, compile_geometry, new_stack, trace_arrays
+from photon_lightmaps.engine.geometry.assembly import compile_geometry
+from photon_lightmaps.engine.geometry.trace_layout import STACK_WORDS, new_stack, trace_arrays
 from photon_lightmaps.engine.geometry.primitives import KIND_IDS, prim_hits, prim_surface
 from photon_lightmaps.engine.core.scene import (Instance, Primitive, Prototype, Scene, SceneError, TriangleMesh,
                           compose, rotate, scale, translate)

@@ -11,26 +11,25 @@ and `blas_items` is the identity, which the traversal relies on: a leaf's
 item positions are its shape ids.
 
 Besides the layout of docs/architecture.md the namedtuple carries `trace`,
-one 64-byte aligned byte buffer with everything the traversal reads (see
-`TRACE_*` below): the 4-wide records of both BVHs (engine/geometry/bvh.py
-`pack_bvh`), triangles as 4-lane packets, and the few per-shape, primitive
-and instance arrays it needs. The traversal core takes this one array
+one 64-byte aligned byte buffer with everything the traversal reads
+(engine/geometry/trace_layout.py). The traversal core takes this one array
 instead of the whole namedtuple: passing ~40 arrays through a call costs
-about 100 ns per ray, the single buffer almost nothing.
+about 100 ns per ray, the single buffer almost nothing. Input is checked
+first (engine/geometry/validation.py).
 """
-import mmap
 import time
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
 
-from .bvh import REC_WORDS, STACK_BUDGET, aligned_empty, build_bvh, pack_bvh
+from .bvh import build_bvh, pack_bvh
 from . import dcsg as D
 from ..core import features
-from .csg import CSG, CSG_SCRATCH_WORDS, H_CSG, MESH, flatten_csg, pack_blob
+from .csg import CSG, MESH, flatten_csg, pack_blob
 from .primitives import TRIANGLE, check_primitive, prim_local_bounds
 from ..core.scene import SceneError, as_affine
+from .trace_layout import DCSG, H_F64, pack_blas, pack_trace, trace_arrays_raw, trace_buf
+from .validation import MAX_COORDINATE, check_graph, check_mesh, check_organs, fail
 
 Geometry = namedtuple("Geometry", [
     # shapes (prototype space)
@@ -53,164 +52,6 @@ Geometry = namedtuple("Geometry", [
     "trace_i64", "trace_f32", "trace_i32", "trace_f64",   # typed views of the same bytes
     "trace_features",                # features.marker: which traversal cores the scene needs
 ])
-
-# Count flag of a packed BLAS leaf made only of triangles: its ref is then the
-# first of `count - TRI_LEAF` consecutive packets, each holding up to four
-# triangles side by side, which the traversal tests as one vector. Other
-# leaves keep (first shape, count) and go through the per-shape references.
-TRI_LEAF = 1 << 24
-
-# Layout of the trace buffer: a header of int64 words, then four sections,
-# each 64-byte aligned: records (float32/int32, TLAS first), int32 data,
-# float64 data. The header holds byte offsets of the sections and element
-# offsets of the arrays inside them.
-TRACE_HEADER = 32
-H_REC, H_REC_END, H_I32, H_I32_END, H_F64, H_F64_END = 0, 1, 2, 3, 4, 5
-H_BLAS_REC = 6        # record index of the first BLAS record
-H_SHAPE_REF = 7       # int32[S]: packet code 4*pk+lane of a triangle, or -1 - primitive row
-H_LANE_SHAPE = 8      # int32[4P]: shape id of each packet lane (-1 unused)
-H_PROTO_SLOT = 9      # int32[NP]: root record of each prototype (absolute)
-H_INST_PROTO = 10     # int32[I]
-H_TLAS_ITEMS = 11     # int32[..]: instance ids in TLAS leaf order
-H_PRIM_KIND = 12      # int32[P]
-H_TRI4 = 13           # float64[P*36]: packet pk, vertex v, axis k, lane q at 36pk+12v+4k+q
-H_INST_INV = 14       # float64[I*12]: 3x4 row-major
-H_PRIM_INV = 15       # float64[P*12]
-H_PRIM_PARAMS = 16    # float64[P*4]
-H_INST_IDENT = 17     # int32[I]: 1 if the instance transform is the identity
-H_SINGLE = 18         # the only instance in the TLAS, or -1 (then the TLAS is walked)
-# word 19 is reserved for engine/geometry/csg.py (H_CSG: its blob's offset in the float64 section),
-# word 20 for engine/geometry/dcsg.py (H_DCSG: the L-system graphs' blob)
-
-# Stack words a two-level traversal may need: two int32 words per entry,
-# at most STACK_BUDGET entries per level (guaranteed by bvh.pack_bvh). The
-# ray-CSG kernel's interval lists follow (engine/geometry/csg.py), so no ray allocates.
-TRAV_WORDS = 2 * 2 * STACK_BUDGET
-STACK_WORDS = TRAV_WORDS + CSG_SCRATCH_WORDS + D.SCRATCH_WORDS   # then the DCSG ray stack
-# shape_ref of a CSG solid: CSG_REF - root node (far below any -1 - primitive row)
-CSG_REF = -(1 << 30)
-# shape kind of an L-system (after CSG); its shape_ref is dcsg.DCSG_REF - graph
-DCSG = CSG + 1
-
-
-@njit(cache=True)
-def _fill_packets(first, count, pk_first, shape_kind, shape_index, tri_p,
-                  tri4, lane_shape, shape_ref):
-    """Puts the triangles of each leaf (shapes first[i]..+count[i]) into its
-    packets and records where every shape went."""
-    for i in range(first.shape[0]):
-        q = 0
-        for s in range(first[i], first[i] + count[i]):
-            if shape_kind[s] != 0:
-                shape_ref[s] = -1 - shape_index[s]
-                continue
-            pk = pk_first[i] + q // 4
-            lane = q % 4
-            q += 1
-            code = 4 * pk + lane
-            shape_ref[s] = code
-            lane_shape[code] = s
-            j = shape_index[s]
-            for v in range(3):
-                for k in range(3):
-                    tri4[36 * pk + 12 * v + 4 * k + lane] = tri_p[j, v, k]
-
-
-def _huge_buffer(nbytes):
-    """Zeroed byte array, 2 MiB aligned and advised to use transparent huge
-    pages where the OS offers them (Linux 'madvise' mode): rays wander over
-    megabytes of records and triangles, and with 4 KiB pages they also miss
-    the TLB."""
-    huge = 1 << 21
-    if nbytes < huge:
-        buf = aligned_empty(nbytes, np.uint8)
-        buf[:] = 0
-        return buf
-    size = (nbytes + 2 * huge - 1) // huge * huge
-    m = mmap.mmap(-1, size)                      # anonymous, zero-filled
-    if hasattr(mmap, "MADV_HUGEPAGE"):
-        try:
-            m.madvise(mmap.MADV_HUGEPAGE)
-        except OSError:
-            pass
-    raw = np.frombuffer(m, dtype=np.uint8)
-    off = (-raw.ctypes.data) % huge
-    return raw[off:off + nbytes]
-
-
-def _build_trace(records, rec_tlas, i32_parts, f64_parts, extra=()):
-    """Assembles the trace buffer from record words and named array parts."""
-    def up64(n):
-        return (n + 63) // 64 * 64
-    hdr = np.zeros(TRACE_HEADER, np.int64)
-    rec0 = up64(TRACE_HEADER * 8)
-    i320 = up64(rec0 + records.nbytes)
-    off, i32 = {}, []
-    n = 0
-    for key, a in i32_parts:
-        off[key] = n
-        i32.append(np.asarray(a, np.int32).reshape(-1))
-        n += i32[-1].size
-    i32 = np.concatenate(i32) if i32 else np.zeros(0, np.int32)
-    f640 = up64(i320 + i32.nbytes)
-    f64 = []
-    n = 0
-    for key, a in f64_parts:
-        if key == D.H_DCSG and n % 8:     # 64-byte aligned: the blob's records need 16
-            f64.append(np.zeros(8 - n % 8))
-            n += f64[-1].size
-        off[key] = n
-        f64.append(np.asarray(a, np.float64).reshape(-1))
-        n += f64[-1].size
-    f64 = np.concatenate(f64) if f64 else np.zeros(0)
-    total = up64(f640 + f64.nbytes)
-    buf = _huge_buffer(total)
-    hdr[[H_REC, H_REC_END, H_I32, H_I32_END, H_F64, H_F64_END]] = (
-        rec0, rec0 + records.nbytes, i320, i320 + i32.nbytes, f640, f640 + f64.nbytes)
-    hdr[H_BLAS_REC] = rec_tlas
-    for key, value in extra:
-        hdr[key] = value
-    for key, o in off.items():
-        hdr[key] = o
-    buf[:TRACE_HEADER * 8] = hdr.view(np.uint8)
-    buf[rec0:rec0 + records.nbytes] = records.view(np.uint8)
-    buf[i320:i320 + i32.nbytes] = i32.view(np.uint8)
-    buf[f640:f640 + f64.nbytes] = f64.view(np.uint8)
-    return buf
-
-
-def trace_arrays_raw(buf):
-    """(tlas_pf, blas_pf, tlas_pi, blas_pi): record views into a trace buffer."""
-    hdr = buf[:TRACE_HEADER * 8].view(np.int64)
-    recf = buf[hdr[H_REC]:hdr[H_REC_END]].view(np.float32)
-    reci = recf.view(np.int32)
-    k = int(hdr[H_BLAS_REC]) * REC_WORDS
-    return recf[:k], recf[k:], reci[:k], reci[k:]
-
-
-def trace_arrays(g):
-    """Named views of the trace buffer (for tests and debugging)."""
-    buf = g.trace
-    hdr = buf[:TRACE_HEADER * 8].view(np.int64)
-    rec = buf[hdr[H_REC]:hdr[H_REC_END]].view(np.int32)
-    i32 = buf[hdr[H_I32]:hdr[H_I32_END]].view(np.int32)
-    f64 = buf[hdr[H_F64]:hdr[H_F64_END]].view(np.float64)
-    n_pk = (hdr[H_INST_INV] - hdr[H_TRI4]) // 36
-    return {
-        "records": rec.reshape(-1, REC_WORDS), "blas_record0": int(hdr[H_BLAS_REC]),
-        "shape_ref": i32[hdr[H_SHAPE_REF]:hdr[H_LANE_SHAPE]],
-        "lane_shape": i32[hdr[H_LANE_SHAPE]:hdr[H_PROTO_SLOT]],
-        "tri4": f64[hdr[H_TRI4]:hdr[H_INST_INV]].reshape(n_pk, 3, 3, 4),
-    }
-
-
-# World coordinates beyond this lose the float32 BVH bounds and the relative ray
-# offsets (1e-7 · |p|) their meaning; such input is refused by name.
-MAX_COORDINATE = 1e12
-
-
-def _fail(what, msg):
-    raise SceneError(f"{what}: {msg}")
 
 
 def _box_corners_through(lo, hi, xf):
@@ -237,7 +78,7 @@ def _instance_transforms(instances, n_protos, inst_proto, inst_xf, inst_inv):
     for i, inst in enumerate(instances):
         p = inst.prototype
         if isinstance(p, (bool, np.bool_)) or not isinstance(p, (int, np.integer)) or not 0 <= p < n_protos:
-            _fail(f"instance '{inst.name}'",
+            fail(f"instance '{inst.name}'",
                   f"refers to prototype {p!r}, which does not exist (scene has {n_protos})")
         inst_proto[i] = p
         m = np.asarray(inst.transform, dtype=np.float64)
@@ -256,151 +97,7 @@ def _instance_transforms(instances, n_protos, inst_proto, inst_xf, inst_inv):
     inst_inv[:, :, 3] = -np.einsum("ijk,ik->ij", r, inst_xf[:, :, 3])
     bad = ~np.all(np.isfinite(inst_inv), axis=(1, 2))
     if bad.any():
-        _fail(f"instance '{instances[int(np.argmax(bad))].name}'", "transform cannot be inverted")
-
-
-def nondegenerate(p):
-    """bool[T]: triangles (T, 3, 3) with area, i.e. not collinear within float64
-    rounding (|e1 x e2| ~ eps·|e|² there). Degenerate ones are dropped from the
-    BVH and the lightmaps: they have no normal and no texel area."""
-    e1 = p[:, 1] - p[:, 0]
-    e2 = p[:, 2] - p[:, 0]
-    e3 = p[:, 2] - p[:, 1]
-    cr = np.linalg.norm(np.cross(e1, e2), axis=1)
-    longest2 = np.maximum(np.maximum((e1 * e1).sum(1), (e2 * e2).sum(1)), (e3 * e3).sum(1))
-    return cr > 1e-14 * longest2
-
-
-def check_mesh_arrays(mesh, what, n_materials):
-    """Validated (vertices float64[V,3], triangles int64[T,3], materials int64[T]) of a
-    TriangleMesh; raises SceneError naming `what` for NaNs, bad shapes or indices."""
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    if v.ndim != 2 or v.shape[1] != 3:
-        _fail(what, f"vertices must have shape (V, 3), got {v.shape}")
-    bad = ~np.isfinite(v).all(axis=1)
-    if bad.any():
-        n = int(bad.sum())
-        _fail(what, f"vertex {int(np.argmax(bad))} is NaN or infinite"
-                    + (f" ({n:,} such vertices)" if n > 1 else "")
-                    + "; move it to a finite position or delete it")
-    if v.size and np.abs(v).max() > MAX_COORDINATE:
-        _fail(what, f"a vertex lies {np.abs(v).max():.3g} m from the origin, beyond the tracer's "
-                    f"range of {MAX_COORDINATE:.0e} m; scale the object down")
-    tri = np.asarray(mesh.triangles)
-    if tri.size == 0:
-        tri = tri.reshape(0, 3)
-    if tri.ndim != 2 or tri.shape[1] != 3:
-        _fail(what, f"triangles must have shape (T, 3), got {tri.shape}")
-    if tri.dtype.kind not in "iu":
-        if tri.dtype.kind != "f" or not np.all(np.isfinite(tri)) or np.any(tri != np.round(tri)):
-            _fail(what, "triangle indices must be integers")
-    tri = tri.astype(np.int64)
-    if tri.size and (tri.min() < 0 or tri.max() >= v.shape[0]):
-        k = int(np.argmax(((tri < 0) | (tri >= v.shape[0])).any(axis=1)))
-        _fail(what, f"triangle {k} has vertex index out of range {tri[k].tolist()} "
-                    f"(mesh has {v.shape[0]} vertices)")
-    T = tri.shape[0]
-    if mesh.material_ids is not None:
-        mats = np.asarray(mesh.material_ids).reshape(-1)
-        if mats.shape[0] != T:
-            _fail(what, f"material_ids has {mats.shape[0]} entries for {T} triangles")
-        mats = mats.astype(np.int64)
-    else:
-        mats = np.full(T, int(mesh.material), np.int64)
-    if n_materials and T and (mats.min() < 0 or mats.max() >= n_materials):
-        _fail(what, f"material index out of range (scene has {n_materials} materials)")
-    return v, tri, mats
-
-
-def _check_mesh(mesh, what, n_materials, notes=None):
-    """(triangles (T',3,3), uvs (T',3,2), materials (T',), dropped, texture uvs
-    (T',3,2)) of a mesh's non-degenerate triangles (texture UVs unclamped, zeros
-    when the mesh has none). A mesh without UVs gets zero UVs here: compile.py
-    unwraps the meshes whose lightmaps are used before geometry is built.
-    notes[what] counts triangles whose given UVs left [0,1]² (clamped)."""
-    v, tri, mats = check_mesh_arrays(mesh, what, n_materials)
-    T = tri.shape[0]
-    if mesh.uvs is None:
-        uvs = np.zeros((T, 3, 2))
-    else:
-        uvs = np.asarray(mesh.uvs, dtype=np.float64)
-        if uvs.shape != (T, 3, 2):
-            _fail(what, f"uvs must have shape ({T}, 3, 2), got {uvs.shape}")
-        if not np.all(np.isfinite(uvs)):
-            _fail(what, "uvs contain NaN or infinity")
-        # A lightmap atlas is [0,1]²: outside it texel lookups would clamp to
-        # the border while the area went elsewhere; clamping keeps both together.
-        out = ((uvs < 0.0) | (uvs > 1.0)).any(axis=(1, 2))
-        if out.any():
-            uvs = np.clip(uvs, 0.0, 1.0)
-            if notes is not None:
-                notes[what] = int(out.sum())
-    tex_uvs = getattr(mesh, "tex_uvs", None)
-    if tex_uvs is None:
-        tex_uvs = np.zeros((T, 3, 2))
-    else:
-        tex_uvs = np.asarray(tex_uvs, dtype=np.float64)
-        if tex_uvs.shape != (T, 3, 2):
-            _fail(what, f"tex_uvs must have shape ({T}, 3, 2), got {tex_uvs.shape}")
-        if not np.all(np.isfinite(tex_uvs)):
-            _fail(what, "tex_uvs contain NaN or infinity")
-    p = v[tri]                                   # (T, 3, 3)
-    keep = nondegenerate(p)
-    return p[keep], uvs[keep], mats[keep], int(T - keep.sum()), tex_uvs[keep]
-
-
-def _pack_blas(proto_root, n_nodes, blas_min, blas_max, blas_a, blas_count, shape_kind,
-               shape_index, tri_p, n_shapes):
-    """4-wide traversal records of every prototype's BLAS (absolute record ids),
-    and the triangles of pure-triangle leaves as 4-lane packets."""
-    non_tri_before = np.concatenate([[0], np.cumsum(shape_kind != 0)])
-    leaf_first, leaf_count, leaf_pk = [], [], []
-    n_packets = 0
-    rec_parts = []
-    proto_slot = np.zeros(len(proto_root), np.int32)
-    n_rec = 0
-    blas_need = 0
-    for p in range(len(proto_root)):
-        r0 = proto_root[p]
-        r1 = proto_root[p + 1] if p + 1 < len(proto_root) else n_nodes
-        cnt = blas_count[r0:r1]
-        a_local = blas_a[r0:r1].copy()
-        a_local[cnt == 0] -= r0               # interior children: local node index
-        _, pi, m, need = pack_bvh(blas_min[r0:r1], blas_max[r0:r1], a_local, cnt)
-        pi = pi.reshape(m, REC_WORDS).copy()
-        refs = pi[:, 24:28]
-        cnts = pi[:, 28:32]
-        refs[cnts == 0] += n_rec              # child records become absolute
-        leaf = cnts > 0
-        first = refs[leaf].astype(np.int64)
-        c = cnts[leaf].astype(np.int64)
-        n_tri = c - (non_tri_before[first + c] - non_tri_before[first])
-        n_pk = (n_tri + 3) // 4
-        pk_first = n_packets + np.concatenate([[0], np.cumsum(n_pk)[:-1]]).astype(np.int64)
-        n_packets += int(n_pk.sum())
-        leaf_first.append(first)
-        leaf_count.append(c)
-        leaf_pk.append(pk_first)
-        pure = n_tri == c
-        refs[leaf] = np.where(pure, pk_first, first)
-        cnts[leaf] = np.where(pure, n_pk + TRI_LEAF, c)
-        rec_parts.append(pi)
-        proto_slot[p] = n_rec
-        n_rec += m
-        blas_need = max(blas_need, need)
-    tri4 = np.full(n_packets * 36, np.nan)    # unused lanes are NaN: they never hit
-    lane_shape = np.full(n_packets * 4, -1, np.int32)
-    shape_ref = np.zeros(n_shapes, np.int32)
-    if leaf_first:
-        _fill_packets(np.concatenate(leaf_first), np.concatenate(leaf_count),
-                      np.concatenate(leaf_pk), shape_kind, shape_index, tri_p,
-                      tri4, lane_shape, shape_ref)
-    is_csg = shape_kind[:n_shapes] == CSG
-    shape_ref[is_csg] = CSG_REF - shape_index[:n_shapes][is_csg]
-    is_dcsg = shape_kind[:n_shapes] == DCSG
-    shape_ref[is_dcsg] = D.DCSG_REF - shape_index[:n_shapes][is_dcsg]
-
-    return rec_parts, proto_slot, blas_need, tri4, lane_shape, shape_ref, n_packets
+        fail(f"instance '{instances[int(np.argmax(bad))].name}'", "transform cannot be inverted")
 
 
 def box_corners(lo, hi, xf):
@@ -471,7 +168,7 @@ def _place_instances(scene, proto_root, proto_n_surfaces, blas_min, blas_max):
         far = live & (np.maximum(np.abs(t_lo), np.abs(t_hi)).max(axis=1) > MAX_COORDINATE)
         if far.any():
             i = int(np.argmax(far))
-            _fail(f"instance '{scene.instances[i].name}'",
+            fail(f"instance '{scene.instances[i].name}'",
                   f"its transform puts it {np.abs(world[i]).max():.3g} m from the origin, beyond "
                   f"the tracer's range of {MAX_COORDINATE:.0e} m; scale or move it closer")
     return inst_proto, inst_xf, inst_inv, inst_lm_base, n_lightmaps, t_lo, t_hi, live
@@ -491,7 +188,7 @@ def _prototype_shapes(proto, pi_, csg, n_csg, n_materials, degenerate, uv_clampe
     surf = []
     for mi, mesh in enumerate(proto.meshes):
         what = f"mesh '{mesh.name}' in {pname}"
-        p, uv, mats, dropped, tex_uv = _check_mesh(mesh, what, n_materials, uv_clamped)
+        p, uv, mats, dropped, tex_uv = check_mesh(mesh, what, n_materials, uv_clamped)
         if dropped:
             degenerate[what] = dropped
         T = p.shape[0]
@@ -515,7 +212,7 @@ def _prototype_shapes(proto, pi_, csg, n_csg, n_materials, degenerate, uv_clampe
         lb = prim_local_bounds(np.int32(kid), params)
         lo, hi = _box_corners_through(np.array(lb[:3]), np.array(lb[3:]), xf)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-            _fail(what, "bounds are not finite (check its parameters)")
+            fail(what, "bounds are not finite (check its parameters)")
         lo, hi = _pad(lo, hi)
         slot = len(surf)
         surf.append((prim.kind, prim.name))
@@ -613,7 +310,7 @@ class _Parts:
         self.n_prims += 1
 
 
-# Phase results of compile_geometry (the tuples _pack_blas and _place_instances return)
+# Phase results of compile_geometry (the tuples pack_blas and _place_instances return)
 _ShapeArrays = namedtuple("_ShapeArrays", [
     "shape_kind", "shape_index", "shape_material", "shape_surface", "shape_proto",
     "tri_p", "tri_uv", "tri_tex_uv", "prim_kind", "prim_params", "prim_xf", "prim_inv",
@@ -629,7 +326,7 @@ _Tlas = namedtuple("_Tlas", ["bvh", "items", "pi", "n_rec", "need"])
 def _flatten_scene_csg(scene, n_materials):
     """All CSG solids at once: node ids are global, one blob for the trace."""
     return flatten_csg([(r, f"prototype '{p.name}'") for p in scene.prototypes for r in p.csg],
-                       n_materials, mesh_uvs=lambda m, w: _check_mesh(m, w, n_materials)[:3])
+                       n_materials, mesh_uvs=lambda m, w: check_mesh(m, w, n_materials)[:3])
 
 
 def _leaf_order_rows(kinds, order, csg_roots, n_tris, n_prims):
@@ -737,15 +434,15 @@ def _lsystem_graphs(scene, n_materials, notes):
         for ls in proto.lsystems:
             what = f"L-system '{ls.name}' in prototype '{proto.name}'"
             if not isinstance(ls, LSystem) or not isinstance(ls.grammar, str):
-                _fail(what, "needs a grammar text")
+                fail(what, "needs a grammar text")
             mats = tuple(int(m) for m in ls.materials) or (0,)
             if any(not 0 <= m < max(n_materials, 1) for m in mats):
-                _fail(what, f"material slots {mats} are not all scene materials (0..{n_materials - 1})")
+                fail(what, f"material slots {mats} are not all scene materials (0..{n_materials - 1})")
             ls = replace(ls, materials=mats)
             grammar = LS.parse(ls.grammar, name=ls.name)
             if ls.seed is not None:
                 grammar = replace(grammar, seed=int(ls.seed))
-            organs = _check_organs(ls, what, n_materials)
+            organs = check_organs(ls, what, n_materials)
             try:
                 graph = D.DCSG(grammar, ls.steps, cache_mb=ls.cache_mb, organs=organs)
             except D.DCSGUnsupported as exc:
@@ -755,7 +452,7 @@ def _lsystem_graphs(scene, n_materials, notes):
                 extra += [replace(p, material=mats[min(int(p.material), len(mats) - 1)]) for p in prims]
                 notes.append(f"{what}: {exc}; {len(prims):,} primitives instanced")
                 continue
-            _check_graph(graph, what)
+            check_graph(graph, what)
             mine.append((len(graphs), graph, ls))
             graphs.append(graph)
         if extra:
@@ -764,43 +461,6 @@ def _lsystem_graphs(scene, n_materials, notes):
     if any(p is not q for p, q in zip(prototypes, scene.prototypes)):
         scene = replace(scene, prototypes=prototypes)
     return per_proto, graphs, scene
-
-
-def _check_organs(ls, what, n_materials):
-    """The L-system's organ meshes, validated: name -> mesh with finite vertices,
-    triangles in range and some area (a mesh without any is left out, with the
-    organ drawn as nothing, as for a name without a mesh)."""
-    from types import SimpleNamespace
-    out = {}
-    for name, mesh in dict(ls.organs or {}).items():
-        w = f"{what}, organ '{name}'"
-        v, tri, mats = check_mesh_arrays(mesh, w, n_materials)
-        if tri.shape[0] == 0:
-            continue
-        q = v[tri]
-        area = 0.5 * np.linalg.norm(np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]), axis=1)
-        keep = area > 0.0
-        if not keep.any():
-            _fail(w, "has no triangle with area; give the organ a surface")
-        out[str(name)] = SimpleNamespace(vertices=v, triangles=tri[keep], material=int(mats[0]))
-    return out
-
-
-def _check_graph(graph, what):
-    """A graph the kernels can trace: finite tables, and a box inside MAX_COORDINATE
-    (1.24a at 60 steps is 1e41 m tall: float32 boxes and ray offsets lose all meaning)."""
-    lo, hi = graph.bounds()
-    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-        _fail(what, "has no finite extent (nothing drawn, or lengths overflow); check its parameters")
-    if max(np.abs(lo).max(), np.abs(hi).max()) > MAX_COORDINATE:
-        _fail(what, f"reaches {max(np.abs(lo).max(), np.abs(hi).max()):.3g} m from its origin (at most "
-                    f"{MAX_COORDINATE:g}); use fewer steps or shorter segments")
-    a = graph.arrays()
-    # (node boxes may be empty, +-inf, for nodes that draw nothing: the rays skip them)
-    for name in ("child_inv", "child_rot", "child_box", "prim_inv", "prim_params", "alt_cum",
-                 "item_inv"):
-        if not np.all(np.isfinite(getattr(a, name))):
-            _fail(what, f"its scene graph has non-finite {name.replace('_', ' ')}; check its parameters")
 
 
 def _add_dcsg_virtual_shapes(per_proto, graphs, parts):
@@ -878,30 +538,6 @@ def _build_tlas(inst):
     return _Tlas(tl, items, pi, n_rec, need)
 
 
-def _pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob):
-    """The trace buffer: both BVHs' records, packets and the arrays the traversal reads."""
-    # TLAS records first, then the BLAS records (their child refs shift by that)
-    blas_rec = (np.concatenate(blas.rec_parts) if blas.rec_parts
-                else np.zeros((0, REC_WORDS), np.int32))
-    blas_rec = blas_rec.copy()
-    inner = blas_rec[:, 28:32] == 0
-    blas_rec[:, 24:28][inner] += tlas.n_rec
-    records = np.concatenate([tlas.pi.reshape(-1, REC_WORDS), blas_rec]).reshape(-1)
-    # identity instances let the traversal reuse the world ray's setup; a
-    # single instance needs no TLAS walk at all (its root box test repeats
-    # the BLAS one)
-    ident = np.all(inst.xf == np.eye(4)[:3], axis=(1, 2)).astype(np.int32).reshape(-1)
-    items = tlas.items
-    return _build_trace(
-        records, tlas.n_rec,
-        [(H_SHAPE_REF, blas.shape_ref), (H_LANE_SHAPE, blas.lane_shape),
-         (H_PROTO_SLOT, blas.proto_slot + tlas.n_rec), (H_INST_PROTO, inst.proto),
-         (H_TLAS_ITEMS, items), (H_PRIM_KIND, sa.prim_kind), (H_INST_IDENT, ident)],
-        [(H_TRI4, blas.tri4), (H_INST_INV, inst.inv), (H_PRIM_INV, sa.prim_inv),
-         (H_PRIM_PARAMS, sa.prim_params), (H_CSG, csg_blob), (D.H_DCSG, dcsg_blob)],
-        extra=[(H_SINGLE, int(items[0]) if len(items) == 1 else -1)])
-
-
 def _geometry_tuple(sa, blas, inst, tlas, trace, feature_mask):
     """The Geometry: the phases' arrays and the record views into the trace."""
     t_arr = trace_arrays_raw(trace)
@@ -974,24 +610,16 @@ def compile_geometry(scene):
                                       [ls.name for mine in per_proto for _, _, ls in mine])
     dcsg = _dcsg_layout(per_proto, graphs, stubs, parts.dcsg_vs0)
     sa = _shape_arrays(parts)
-    blas = _BlasPack(*_pack_blas(
+    blas = _BlasPack(*pack_blas(
         parts.proto_root, parts.n_nodes, sa.blas_min, sa.blas_max, sa.blas_a, sa.blas_count,
         sa.shape_kind, sa.shape_index, sa.tri_p, parts.n_shapes))
     inst = _Instances(*_place_instances(scene, parts.proto_root, sa.proto_n_surfaces,
                                         sa.blas_min, sa.blas_max))
     tlas = _build_tlas(inst)
     mask = (features.CSG if csg.leaf_kind.shape[0] else 0) | (features.DCSG if graphs else 0)
-    g = _geometry_tuple(sa, blas, inst, tlas, _pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob), mask)
+    g = _geometry_tuple(sa, blas, inst, tlas, pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob), mask)
     if (g.trace.ctypes.data + int(g.trace_i64[H_F64]) + 8 * int(g.trace_i64[D.H_DCSG])) % 16:
         raise SceneError("internal: the L-system blob is not 16-byte aligned")   # the vector loads
     return g, _geometry_info(scene, parts, csg, blas, inst, tlas, g, t0, dcsg, notes)
 
 
-def trace_buf(g):
-    """What the traversal cores take of a Geometry: its four trace views and its features marker."""
-    return (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)
-
-
-def new_stack():
-    """Traversal stack for one thread: reuse it for every ray of that thread."""
-    return np.empty(STACK_WORDS, np.int32)

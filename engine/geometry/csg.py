@@ -64,7 +64,7 @@ MAX_WORK = 128                # pending nodes (tree depth)
 MESH_STACK = 64               # mesh BVH traversal stack
 TIE_REL = 1e-9
 
-# trace-buffer header words (engine/geometry/assembly.py layout): the float64 section's
+# trace-buffer header words (engine/geometry/trace_layout.py): the float64 section's
 # byte offset, and the CSG blob's element offset inside it
 H_F64 = 4
 H_CSG = 19

@@ -56,7 +56,7 @@ from ..core.jit import CORE, INLINE, as_float32, as_float64, as_uint64, typed
 from .primitives import KIND_IDS, octa_encode, prim_hits, prim_nfaces, prim_point, prim_surface
 from ..core.sampling import next_float, stream_state
 from ..core.scene import SceneError
-# the trace buffer's header words for the float64 section (engine/geometry/assembly.py)
+# the trace buffer's header words for the float64 section (engine/geometry/trace_layout.py)
 H_F64 = 4
 from ..lsystem.turtle import TurtleState, to_primitives
 from .wide_bvh import ctz, descend, drop_far, pop_node, ray_slabs, slab4
@@ -617,7 +617,7 @@ def _box_through(lo, hi, m):
 
 # ---------------------------------------------------------------- the trace blob
 # All graphs of a scene in one float64 array (raw bits) inside the trace buffer
-# (engine/geometry/assembly.py, header word H_DCSG), read through the buffer's typed
+# (engine/geometry/trace_layout.py, header word H_DCSG), read through the buffer's typed
 # views: an int64 header, an int32 section, a float64 section. Node, edge and
 # primitive ids are global; a graph is its root node, root hash and stub table.
 
@@ -629,7 +629,7 @@ BLOB_HEADER = 40
  B_NODE_CACHE, B_CACHE_ROOT, B_CACHE_REC, B_ITEM_PRIM, B_ITEM_C0, B_ITEM_NC, B_CHAIN_J,
  B_ITEM_INV, B_ORG_T0, B_ORG_NT, B_ORG_TRI, B_ORG_CDF, B_ITEM_STUB) = range(37)
 
-# Ray scratch, in the caller's int32 stack from (even) word s0 (engine/geometry/assembly.py
+# Ray scratch, in the caller's int32 stack from (even) word s0 (engine/geometry/trace_layout.py
 # STACK_WORDS): per entry 7 float64 (the ray in the entry's frame, entry t), 2
 # uint64 (hash, stub) and 3 int32 (node, edge it came by, depth); then the edge
 # path to the current node and to the closest hit (MAX_DEPTH int32 each, for the

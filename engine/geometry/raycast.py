@@ -37,10 +37,10 @@ from llvmlite import ir
 from numba import njit, prange, types
 from numba.extending import intrinsic, overload
 
-from . import assembly
+from . import trace_layout
 from ..core.affine import normal_through, unit, xform_ray
 from ..core.jit import CORE, INLINE, typed
-from .assembly import STACK_WORDS, TRI_LEAF, new_stack  # noqa: F401  (re-exported)
+from .trace_layout import STACK_WORDS, TRI_LEAF, new_stack  # noqa: F401  (re-exported)
 from ..core import features
 from .csg import CSG_SCRATCH_WORDS
 from .csg_trace import csg_closest_core, csg_surface_core, csg_vs0
@@ -137,16 +137,16 @@ def _layout(buf):
     """The trace views (see geometry.trace_views) and the element offsets of
     the records, int32 and float64 sections."""
     i64, f32, i32, f64 = buf[:4]
-    return (i64, f32, i32, f64, i64[assembly.H_REC] >> 2, i64[assembly.H_I32] >> 2, i64[assembly.H_F64] >> 3)
+    return (i64, f32, i32, f64, i64[trace_layout.H_REC] >> 2, i64[trace_layout.H_I32] >> 2, i64[trace_layout.H_F64] >> 3)
 
 
 @njit(**INLINE)
 def _prim_first(i32, f64, ib, fb, i64, j, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Nearest crossing of primitive row j in (tmin, tmax), prototype-space ray; inf if none."""
-    m = fb + i64[assembly.H_PRIM_INV] + 12 * j
+    m = fb + i64[trace_layout.H_PRIM_INV] + 12 * j
     lox, loy, loz, ldx, ldy, ldz = xform_ray(f64, m, ox, oy, oz, dx, dy, dz)
-    pp = fb + i64[assembly.H_PRIM_PARAMS] + 4 * j
-    n, t0, t1, t2, t3 = prim_hits(i32[ib + i64[assembly.H_PRIM_KIND] + j],
+    pp = fb + i64[trace_layout.H_PRIM_PARAMS] + 4 * j
+    n, t0, t1, t2, t3 = prim_hits(i32[ib + i64[trace_layout.H_PRIM_KIND] + j],
                                   (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3]),
                                   lox, loy, loz, ldx, ldy, ldz)
     if n > 0 and t0 > tmin and t0 < tmax:
@@ -250,8 +250,8 @@ def _blas_start(buf, p, dx, dy, dz):
     shape-reference bases, its root record and the ray's slab setup."""
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
     ix, iy, iz, nxo, nyo, nzo = ray_slabs(dx, dy, dz)
-    return (i64, f32, i32, f64, rb, ib, fb, fb + i64[assembly.H_TRI4], ib + i64[assembly.H_SHAPE_REF],
-            i32[ib + i64[assembly.H_PROTO_SLOT] + p], ix, iy, iz, nxo, nyo, nzo)
+    return (i64, f32, i32, f64, rb, ib, fb, fb + i64[trace_layout.H_TRI4], ib + i64[trace_layout.H_SHAPE_REF],
+            i32[ib + i64[trace_layout.H_PROTO_SLOT] + p], ix, iy, iz, nxo, nyo, nzo)
 
 
 @njit(**INLINE)
@@ -304,16 +304,16 @@ def _blas_closest(buf, stack, fstack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tbes
                                 code = r
                         elif r <= DCSG_REF:
                             # an L-system: the hit is reported on its terminal's virtual shape
-                            t, vs = _dcsg_closest(buf, stack, assembly.TRAV_WORDS + CSG_SCRATCH_WORDS,
+                            t, vs = _dcsg_closest(buf, stack, trace_layout.TRAV_WORDS + CSG_SCRATCH_WORDS,
                                                       DCSG_REF - r, ox, oy, oz, dx, dy, dz, tmin,
                                                       tbest, typed(False))
                             if t < tbest:
                                 tbest = t
                                 code = -1 - vs
-                        elif r <= assembly.CSG_REF:
+                        elif r <= trace_layout.CSG_REF:
                             # a CSG solid: the hit is reported on the owning
                             # leaf's virtual shape
-                            t, vs = _csg_closest(buf, stack, assembly.TRAV_WORDS, assembly.CSG_REF - r,
+                            t, vs = _csg_closest(buf, stack, trace_layout.TRAV_WORDS, trace_layout.CSG_REF - r,
                                                      ox, oy, oz, dx, dy, dz, tmin, tbest)
                             if t < tbest:
                                 tbest = t
@@ -350,9 +350,9 @@ def _instance_closest(buf, stack, sp, i, ox, oy, oz, dx, dy, dz, tmin, tbest,
     one copy of the BLAS traversal in the binary for a few dozen words of
     arguments per instance visited."""
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
-    p = i32[ib + i64[assembly.H_INST_PROTO] + i]
-    if i32[ib + i64[assembly.H_INST_IDENT] + i] == 0:
-        ox, oy, oz, dx, dy, dz = xform_ray(f64, fb + i64[assembly.H_INST_INV] + 12 * i,
+    p = i32[ib + i64[trace_layout.H_INST_PROTO] + i]
+    if i32[ib + i64[trace_layout.H_INST_IDENT] + i] == 0:
+        ox, oy, oz, dx, dy, dz = xform_ray(f64, fb + i64[trace_layout.H_INST_INV] + 12 * i,
                                         ox, oy, oz, dx, dy, dz)
     t0 = tbest
     tbest, code, b1, b2 = _blas_closest(buf, stack, stack.view(np.float32), sp, p,
@@ -365,9 +365,9 @@ def _instance_closest(buf, stack, sp, i, ox, oy, oz, dx, dy, dz, tmin, tbest,
 @njit(**CORE)
 def _instance_any(buf, stack, sp, i, ox, oy, oz, dx, dy, dz, tmin, tmax):
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
-    p = i32[ib + i64[assembly.H_INST_PROTO] + i]
-    if i32[ib + i64[assembly.H_INST_IDENT] + i] == 0:
-        ox, oy, oz, dx, dy, dz = xform_ray(f64, fb + i64[assembly.H_INST_INV] + 12 * i,
+    p = i32[ib + i64[trace_layout.H_INST_PROTO] + i]
+    if i32[ib + i64[trace_layout.H_INST_IDENT] + i] == 0:
+        ox, oy, oz, dx, dy, dz = xform_ray(f64, fb + i64[trace_layout.H_INST_INV] + 12 * i,
                                         ox, oy, oz, dx, dy, dz)
     return _blas_any(buf, stack, sp, p, ox, oy, oz, dx, dy, dz, tmin, tmax)
 
@@ -378,7 +378,7 @@ def _resolve(i64, i32, ib, tbest, inst, code, b1, b2):
     if inst < 0:
         return tbest, -1, -1, 0.0, 0.0
     if code >= 0:
-        shape = i32[ib + i64[assembly.H_LANE_SHAPE] + code]
+        shape = i32[ib + i64[trace_layout.H_LANE_SHAPE] + code]
     else:
         shape = -1 - code
     return tbest, inst, shape, b1, b2
@@ -392,13 +392,13 @@ def closest_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
         return tmax, -1, -1, 0.0, 0.0
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
     fstack = stack.view(np.float32)
-    items = ib + i64[assembly.H_TLAS_ITEMS]
+    items = ib + i64[trace_layout.H_TLAS_ITEMS]
     tbest = tmax
     inst = typed(-1)        # not literals: one signature per core (jit.typed)
     code = typed(-1)
     b1 = 0.0
     b2 = 0.0
-    single = i64[assembly.H_SINGLE]
+    single = i64[trace_layout.H_SINGLE]
     if single >= 0:
         tbest, inst, code, b1, b2 = _instance_closest(buf, stack, typed(0), single, ox, oy, oz,
                                                       dx, dy, dz, tmin, tbest, inst, code,
@@ -487,12 +487,12 @@ def _blas_any(buf, stack, sp0, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
                         if h:
                             return True
                     elif r <= DCSG_REF:
-                        if _dcsg_closest(buf, stack, assembly.TRAV_WORDS + CSG_SCRATCH_WORDS,
+                        if _dcsg_closest(buf, stack, trace_layout.TRAV_WORDS + CSG_SCRATCH_WORDS,
                                              DCSG_REF - r, ox, oy, oz, dx, dy, dz, tmin, tmax,
                                              typed(True))[0] < tmax:
                             return True
-                    elif r <= assembly.CSG_REF:
-                        if _csg_closest(buf, stack, assembly.TRAV_WORDS, assembly.CSG_REF - r, ox, oy, oz,
+                    elif r <= trace_layout.CSG_REF:
+                        if _csg_closest(buf, stack, trace_layout.TRAV_WORDS, trace_layout.CSG_REF - r, ox, oy, oz,
                                             dx, dy, dz, tmin, tmax)[0] < tmax:
                             return True
                     elif _prim_first(i32, f64, ib, fb, i64, -1 - r, ox, oy, oz,
@@ -509,8 +509,8 @@ def occluded_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
     if not _valid_ray(ox, oy, oz, dx, dy, dz):
         return False
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
-    items = ib + i64[assembly.H_TLAS_ITEMS]
-    single = i64[assembly.H_SINGLE]
+    items = ib + i64[trace_layout.H_TLAS_ITEMS]
+    single = i64[trace_layout.H_SINGLE]
     if single >= 0:
         return _instance_any(buf, stack, typed(0), single, ox, oy, oz, dx, dy, dz, tmin, tmax)
     ix, iy, iz, nxo, nyo, nzo = ray_slabs(dx, dy, dz)
@@ -538,15 +538,15 @@ def occluded_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
 def surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
     """(face, u, v, nx, ny, nz) of a hit from `closest_core`, world unit normal."""
     i64, f32, i32, f64, rb, ib, fb = _layout(buf)
-    m_inst = fb + i64[assembly.H_INST_INV] + 12 * inst
+    m_inst = fb + i64[trace_layout.H_INST_INV] + 12 * inst
     is_csg = _is_csg_shape(buf, shape)
-    r = 0 if is_csg else i32[ib + i64[assembly.H_SHAPE_REF] + shape]
+    r = 0 if is_csg else i32[ib + i64[trace_layout.H_SHAPE_REF] + shape]
     if is_csg:
         # CSG leaf hit: the owning primitive's chart, the solid's normal
         ux, uy, uz, vx, vy, vz = xform_ray(f64, m_inst, ox, oy, oz, dx, dy, dz)
         face, u, v, px, py, pz = _csg_surface(buf, shape, ux, uy, uz, vx, vy, vz, t)
     elif r >= 0:
-        base = fb + i64[assembly.H_TRI4] + 36 * (r >> 2) + (r & 3)
+        base = fb + i64[trace_layout.H_TRI4] + 36 * (r >> 2) + (r & 3)
         px, py, pz = triangle_normal(f64[base], f64[base + 4], f64[base + 8],
                                      f64[base + 12], f64[base + 16], f64[base + 20],
                                      f64[base + 24], f64[base + 28], f64[base + 32])
@@ -557,11 +557,11 @@ def surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz):
         j = -1 - r
         # the same local ray as in the traversal, so the point is the hit point
         ux, uy, uz, vx, vy, vz = xform_ray(f64, m_inst, ox, oy, oz, dx, dy, dz)
-        m_prim = fb + i64[assembly.H_PRIM_INV] + 12 * j
+        m_prim = fb + i64[trace_layout.H_PRIM_INV] + 12 * j
         lox, loy, loz, ldx, ldy, ldz = xform_ray(f64, m_prim, ux, uy, uz, vx, vy, vz)
-        pp = fb + i64[assembly.H_PRIM_PARAMS] + 4 * j
+        pp = fb + i64[trace_layout.H_PRIM_PARAMS] + 4 * j
         face, u, v, lnx, lny, lnz = prim_surface(
-            i32[ib + i64[assembly.H_PRIM_KIND] + j], (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3]),
+            i32[ib + i64[trace_layout.H_PRIM_KIND] + j], (f64[pp], f64[pp + 1], f64[pp + 2], f64[pp + 3]),
             lox + t * ldx, loy + t * ldy, loz + t * ldz)
         px, py, pz = normal_through(f64, m_prim, lnx, lny, lnz)
     nx, ny, nz = normal_through(f64, m_inst, px, py, pz)
@@ -576,9 +576,9 @@ def intersect_core(buf, stack, ox, oy, oz, dx, dy, dz, tmin, tmax):
         return False, math.inf, -1, -1, -1, 0.0, 0.0, 0.0, 0.0, 0.0
     if _is_dcsg_shape(buf, shape):
         # an L-system hit: the traversal left its normal and OL stub (face) in the stack
-        face, px, py, pz, _address = _dcsg_surface(buf, stack, assembly.TRAV_WORDS + CSG_SCRATCH_WORDS)
+        face, px, py, pz, _address = _dcsg_surface(buf, stack, trace_layout.TRAV_WORDS + CSG_SCRATCH_WORDS)
         i64, f32, i32, f64, rb, ib, fb = _layout(buf)
-        nx, ny, nz = normal_through(f64, fb + i64[assembly.H_INST_INV] + 12 * inst, px, py, pz)
+        nx, ny, nz = normal_through(f64, fb + i64[trace_layout.H_INST_INV] + 12 * inst, px, py, pz)
         nx, ny, nz = unit(nx, ny, nz)
         return True, t, inst, shape, face, 0.0, 0.0, nx, ny, nz
     face, u, v, nx, ny, nz = surface_core(buf, t, inst, shape, b1, b2, ox, oy, oz, dx, dy, dz)

@@ -36,7 +36,7 @@ import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
 from photon_lightmaps import demo_blend, registration  # noqa: E402
-from photon_lightmaps.bake import lsystem_preview  # noqa: E402
+from photon_lightmaps.bake import lsystem_plan, lsystem_preview  # noqa: E402
 from photon_lightmaps.bake import render as render_engine  # noqa: E402
 from photon_lightmaps.engine.geometry.dcsg import DCSG  # noqa: E402
 from photon_lightmaps.engine.lsystem.presets import load_preset  # noqa: E402
@@ -66,7 +66,7 @@ def build_scene():
     s = 2.0 * max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
     demo_blend.mesh_object("ground", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)],
                            demo_blend.principled("ground", (0.5, 0.5, 0.5)), uvs=demo_blend.quad_uvs())
-    lsystem_preview.SEGMENTS = 48            # the preview's 12-sided cylinders lose 1.1 % of the silhouette
+    lsystem_plan.SEGMENTS = 48               # the preview's 12-sided cylinders lose 1.1 % of the silhouette
     ob = lsystem_preview.new_lsystem_object("tree", preset=PRESET)
     props = ob.photon_lightmaps.lsystem
     props.use_render_iterations, props.render_iterations = True, STEPS

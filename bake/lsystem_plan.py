@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..engine.lsystem import grammar as LS
+from ..engine.lsystem import derivation
 from ..engine.core.scene import SceneError
 from ..engine.lsystem.turtle import TurtleState, to_primitives
 from ..export import lsystems
@@ -301,7 +302,7 @@ def flat_preview(grammar, depth, limit=MAX_PREVIEW_PRIMITIVES):
             return FlatPreview([names[int(k)] for k in f.kind], f.params[:, 0].copy(), f.transform.copy(),
                                f.material.copy(), d, "dcsg")
         try:
-            der = LS.derive(grammar, d, cap=max(limit, 1) * 20)
+            der = derivation.derive(grammar, d, cap=max(limit, 1) * 20)
         except LS.LSystemGrowthError:
             if d > 0:
                 continue

@@ -12,6 +12,7 @@ import time
 
 from .geometry import dcsg
 from .lsystem import grammar as LS
+from .lsystem import derivation
 from .lsystem import turtle
 
 # Derive (for exact bounds and --string) up to this many modules.
@@ -27,7 +28,7 @@ def summary(grammar, steps=None, with_string=False):
     """A JSON-ready dict: length, counts, segments, bounds, primitives, dcsg_nodes,
     memory (graph bytes and what flattening would cost), timings (s)."""
     t0 = time.perf_counter()
-    counts = LS.count(grammar, steps)
+    counts = derivation.count(grammar, steps)
     t_count = time.perf_counter() - t0
     out = {"grammar": grammar.source_name,
            "steps": grammar.derivation_length if steps is None else int(steps),
@@ -44,7 +45,7 @@ def summary(grammar, steps=None, with_string=False):
     small = counts.length <= DERIVE_LIMIT
     if small or graph is None:
         t0 = time.perf_counter()
-        der = LS.derive(grammar, steps, cap=max(DERIVE_LIMIT, LS.DEFAULT_CAP))
+        der = derivation.derive(grammar, steps, cap=max(DERIVE_LIMIT, derivation.DEFAULT_CAP))
         timings["derive"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         geom = turtle.interpret(der.modules, grammar.angle, grammar.width)

@@ -32,6 +32,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from ..engine.lsystem import grammar as LS
+from ..engine.lsystem import derivation
 from ..engine.core.scene import LSystem, Prototype, SceneError
 from .context import PrototypeRecord
 from .materials import material
@@ -243,7 +244,7 @@ def render_steps(grammar, settings):
     if grammar.derivation_length is not None:
         return grammar.derivation_length
     try:
-        return LS.check_termination(grammar)
+        return derivation.check_termination(grammar)
     except LS.LSystemError:
         return None
 
@@ -295,7 +296,7 @@ def statistics(grammar, steps, cache_mb=LSystemSettings.cache_mb):
                 "flat_bytes": prims * lsystem_stats.CYCLES_BYTES_PER_INSTANCE, "graph": True,
                 "cache_subgraphs": int(s["cache_subgraphs"]), "cache_bytes": float(s["cache_bytes"]),
                 "cache_hit_rate": float(s["cache_hit_rate"])}
-    LS.count(grammar, steps, cap=STATS_MODULE_CAP)      # the panel's cap, before summary derives
+    derivation.count(grammar, steps, cap=STATS_MODULE_CAP)      # the panel's cap, before summary derives
     s = lsystem_stats.summary(grammar, steps)
     return {"primitives": float(s["primitives"]), "exact": True, "dcsg_nodes": 0, "graph_bytes": 0.0,
             "depth": 0, "steps": -1 if s["steps"] is None else int(s["steps"]),

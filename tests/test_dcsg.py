@@ -12,6 +12,7 @@ import pytest
 
 from photon_lightmaps.engine.geometry import dcsg
 from photon_lightmaps.engine.lsystem import grammar as LS
+from photon_lightmaps.engine.lsystem import derivation
 from photon_lightmaps.engine.lsystem import turtle
 from photon_lightmaps.engine.geometry.primitives import KIND_IDS, hits_batch
 from lsystem_grammars import ABOP_124A, TAPERED, quadrature_area
@@ -30,7 +31,7 @@ F --> F[&F][^F]F : 0.34
 
 def _reference(grammar):
     """(kinds, transforms, addresses) of derive -> turtle -> primitives."""
-    der = LS.derive(grammar)
+    der = derivation.derive(grammar)
     geom = turtle.interpret(der.modules, grammar.angle, grammar.width)
     prims = turtle.to_primitives(geom)
     assert prims.skipped == 0
@@ -180,7 +181,7 @@ def test_stochastic_count_is_the_expectation():
     assert graph.implicit_primitives == pytest.approx((0.33 * 3 + 0.33 * 3 + 0.34 * 4) ** 4)
     # one seed's instantiation has its own count, the derived string's
     assert len(graph.flatten().kind) == \
-        sum(m.symbol == "F" for m in LS.derive(g).modules)
+        sum(m.symbol == "F" for m in derivation.derive(g).modules)
 
 
 @pytest.mark.parametrize("cache_mb", [dcsg.CACHE_MB, 0.0], ids=["cached", "lazy"])
@@ -198,7 +199,7 @@ A --> F [ + A ] [ - A ] A
     assert graph.stats()["cache_subgraphs"] == (1 if cache_mb else 0)
     flat = graph.flatten()
     # 3^2 modules A at level 2 -> 9 stubs, each owning the primitives below it
-    der2 = LS.derive(g, steps=2)
+    der2 = derivation.derive(g, steps=2)
     level2 = {h for m, h in zip(der2.modules, der2.hashes) if m.symbol == "A"}
     assert set(np.unique(flat.stub[flat.stub != 0]).tolist()) == level2
     assert np.sum(flat.stub == 0) == 1 + 3                         # the F drawn by the A of levels 0, 1

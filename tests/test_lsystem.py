@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine.lsystem import grammar as L
+from photon_lightmaps.engine.lsystem import derivation
 from photon_lightmaps.engine.lsystem.grammar import Module
 from photon_lightmaps.engine.core.scene import SceneError
 
@@ -33,18 +34,18 @@ def test_abop_1_24a_counts():
     # F = 5^n and the others 6 (5^n - 1) / 4: n = 5 gives 3125 + 4686 = 7811 modules
     # (every bracket and turn is a module; no other convention needed).
     g = grammar("F", "F --> F[+F]F[-F]F", n=5, angle=25.7)
-    d = L.derive(g)
+    d = derivation.derive(g)
     assert len(d.modules) == 7811 and symbols(d)["F"] == 3125
     assert d.lengths == [1, 11, 61, 311, 1561, 7811]
     assert g.angle == 25.7
-    c = L.count(g)
+    c = derivation.count(g)
     assert c.exact and c.length == 7811 and c.per_symbol == dict(symbols(d))
 
 
 def test_koch_snowflake():
     g = grammar("F++F++F", "F --> F-F++F-F", n=4, angle=60)
-    assert symbols(L.derive(g))["F"] == 768
-    assert L.count(g).per_symbol["F"] == 768
+    assert symbols(derivation.derive(g))["F"] == 768
+    assert derivation.count(g).per_symbol["F"] == 768
 
 
 def fib(n):
@@ -56,9 +57,9 @@ def fib(n):
 
 def test_algae_lengths_are_fibonacci():
     g = grammar("A", "A --> AB", "B --> A", n=15)
-    d = L.derive(g)
+    d = derivation.derive(g)
     assert d.lengths == [fib(n + 1) for n in range(16)]
-    assert text(L.derive(g, 4)) == "ABAABABA"
+    assert text(derivation.derive(g, 4)) == "ABAABABA"
 
 
 def test_count_matches_derive_and_scales():
@@ -66,12 +67,12 @@ def test_count_matches_derive_and_scales():
               grammar("F-F-F-F", "F --> FF-F-F-F-F-F+F", n=3),
               grammar("X", "X --> F[+X][-X]FX", "F --> FF", n=5),
               grammar("A(0)", "A(x) : x < 3 --> A(x+1) [B(x)] A(x+2)", "B(y) --> C", n=6)):
-        d = L.derive(g)
-        c = L.count(g)
+        d = derivation.derive(g)
+        c = derivation.count(g)
         assert c.exact and c.length == len(d.modules) and c.per_symbol == dict(symbols(d))
     g = grammar("A", "A --> AB", "B --> A", n=200)
     t = time.perf_counter()
-    c = L.count(g)
+    c = derivation.count(g)
     assert time.perf_counter() - t < 1.0
     assert c.length == fib(201) and isinstance(c.length, int) and c.length > 10 ** 41
     assert c.per_symbol == {"A": fib(200), "B": fib(199)}
@@ -83,8 +84,8 @@ def test_signal_propagation():
     g = grammar("baaaaaaaa", "b < a --> b", "b --> a")
     assert not g.is_context_free
     for n in range(9):
-        assert text(L.derive(g, n)) == "a" * n + "b" + "a" * (8 - n)
-    d = L.derive(g)                     # fixpoint: the b has left
+        assert text(derivation.derive(g, n)) == "a" * n + "b" + "a" * (8 - n)
+    d = derivation.derive(g)                     # fixpoint: the b has left
     assert text(d) == "a" * 9 and d.steps == 9
 
 
@@ -92,37 +93,37 @@ def test_left_context_skips_branches_and_leaves_them():
     g = grammar("B[C]A[A]C[A]", "B < A --> X", "C < A --> Y")
     # first A: the branch [C] to its left is skipped, B is its context; second A sits in a
     # branch whose parent is that A; third A steps out of its branch to C
-    assert text(L.derive(g, 1)) == "B[C]X[A]C[Y]"
+    assert text(derivation.derive(g, 1)) == "B[C]X[A]C[Y]"
 
 
 def test_right_context_brackets():
     g = grammar("A[C]B", "A > B --> X", "C > B --> Z")
-    assert text(L.derive(g, 1)) == "X[C]B"    # A skips the branch; C meets the branch's end
+    assert text(derivation.derive(g, 1)) == "X[C]B"    # A skips the branch; C meets the branch's end
     g = grammar("A[C]B", "A > [C]B --> X")
-    assert text(L.derive(g, 1)) == "X[C]B"
+    assert text(derivation.derive(g, 1)) == "X[C]B"
     g = grammar("A[D]B", "A > [C]B --> X")
-    assert text(L.derive(g, 1)) == "A[D]B"
+    assert text(derivation.derive(g, 1)) == "A[D]B"
 
 
 def test_ignore_matters():
     prods = ("A > B --> X", "A < B --> Y")
-    assert text(L.derive(grammar("A+-B", *prods), 1)) == "A+-B"
+    assert text(derivation.derive(grammar("A+-B", *prods), 1)) == "A+-B"
     g = grammar("A+-B", *prods, ignore="+ -")
     assert g.ignore == frozenset("+-")
-    assert text(L.derive(g, 1)) == "X+-Y"
+    assert text(derivation.derive(g, 1)) == "X+-Y"
     assert grammar("A", "A --> A", ignore="+-F").ignore == frozenset("+-F")
 
 
 def test_context_parameters_bind():
     g = grammar("A(2)B(3)C(5)", "A(x) < B(y) > C(z) --> B(x*y+z)")
-    assert L.derive(g, 1).modules[1] == Module("B", (11.0,))
+    assert derivation.derive(g, 1).modules[1] == Module("B", (11.0,))
 
 
 # ---------------------------------------------------------------- parameters
 
 def test_parametric_condition_stops_growth():
     g = grammar("A(1)", "A(x) : x < 6 --> A(x+1) B(x)", n=8)
-    d = L.derive(g)
+    d = derivation.derive(g)
     assert d.modules[0] == Module("A", (6.0,))
     assert [m.params[0] for m in d.modules[1:]] == [5.0, 4.0, 3.0, 2.0, 1.0]
     assert d.lengths == [1, 2, 3, 4, 5, 6, 6, 6, 6]
@@ -131,26 +132,26 @@ def test_parametric_condition_stops_growth():
 def test_omitted_length_reaches_fixpoint():
     g = grammar("A(1) B", "A(x) : x < 6 --> A(x+1) B(x)")
     assert g.derivation_length is None
-    assert L.check_termination(g) == 5
-    d = L.derive(g)
+    assert derivation.check_termination(g) == 5
+    d = derivation.derive(g)
     assert d.steps == 5 and d.modules[0] == Module("A", (6.0,)) and len(d.modules) == 7
-    assert L.count(g).length == 7
+    assert derivation.count(g).length == 7
 
 
 def test_expressions():
     g = grammar("A(2, 3)", "A(x, y) : x < y and not x == 3 --> B(x**2 + -y, sqrt(16), min(x, y, 1), "
                 "sin(90), floor(2.7), (x + y) * 2 / 4, x > 1)")
-    assert L.derive(g, 1).modules == [Module("B", (1.0, 4.0, 1.0, 1.0, 2.0, 2.5, 1.0))]
+    assert derivation.derive(g, 1).modules == [Module("B", (1.0, 4.0, 1.0, 1.0, 2.0, 2.5, 1.0))]
     g = grammar("A(3)", "A(x) : x < 3 --> B")
-    assert L.derive(g, 1).modules == [Module("A", (3.0,))]
+    assert derivation.derive(g, 1).modules == [Module("A", (3.0,))]
     # arity mismatch: A(x) does not match A(1, 2), which is copied
-    assert L.derive(grammar("A(1, 2) A(3)", "A(x) --> B(x)"), 1).modules == [
+    assert derivation.derive(grammar("A(1, 2) A(3)", "A(x) --> B(x)"), 1).modules == [
         Module("A", (1.0, 2.0)), Module("B", (3.0,))]
 
 
 def test_division_by_zero_names_the_line():
     with pytest.raises(L.LSystemError, match=r"test.lsys: line 3: .*division by zero while rewriting A\(0\)"):
-        L.derive(grammar("A(0)", "A(x) --> A(1 / x)"), 1)
+        derivation.derive(grammar("A(0)", "A(x) --> A(1 / x)"), 1)
 
 
 def test_organs_and_at_modules():
@@ -158,7 +159,7 @@ def test_organs_and_at_modules():
     assert g.axiom == (Module("~", ("leaf", 0.5)), Module("@O", (2.0,)), Module("~", ("big leaf",)),
                        Module("!", (0.1,)), Module("F"))
     g = grammar("A ~(leaf)", "A --> ~(petal, 2 * 3)", "~(leaf) --> ~(leaf, 1)")
-    assert L.derive(g, 1).modules == [Module("~", ("petal", 6.0)), Module("~", ("leaf", 1.0))]
+    assert derivation.derive(g, 1).modules == [Module("~", ("petal", 6.0)), Module("~", ("leaf", 1.0))]
 
 
 def test_header():
@@ -208,9 +209,9 @@ STOCHASTIC = ("F --> F[+F]F : 0.6", "F --> F[-F]F : 0.4")
 
 
 def test_stochastic_is_reproducible():
-    a, b = (L.derive(grammar("F", *STOCHASTIC, n=6, seed=7)) for _ in range(2))
+    a, b = (derivation.derive(grammar("F", *STOCHASTIC, n=6, seed=7)) for _ in range(2))
     assert text(a) == text(b) and np.array_equal(a.hashes, b.hashes)
-    c = L.derive(grammar("F", *STOCHASTIC, n=6, seed=8))
+    c = derivation.derive(grammar("F", *STOCHASTIC, n=6, seed=8))
     assert text(a) != text(c)
     g = grammar("F", *STOCHASTIC, n=6, seed=7)
     assert g.is_stochastic and g.is_context_free
@@ -218,7 +219,7 @@ def test_stochastic_is_reproducible():
 
 def test_stochastic_frequency_within_3_sigma():
     n = 10_000
-    d = L.derive(grammar("F" * n, *STOCHASTIC, n=1, seed=3))
+    d = derivation.derive(grammar("F" * n, *STOCHASTIC, n=1, seed=3))
     s = symbols(d)
     assert s["+"] + s["-"] == n
     assert abs(s["+"] / n - 0.6) < 3 * math.sqrt(0.6 * 0.4 / n)
@@ -228,7 +229,7 @@ def test_choices_follow_the_hash_contract():
     # what the DCSG recomputes: the successor of axiom module i is rewrite(m, root_hash),
     # successor module j gets child_hash(h, j), and the pick is draw(h) against 0.6
     g = grammar("FFFF", *STOCHASTIC, n=2, seed=11)
-    one = L.derive(g, 1)
+    one = derivation.derive(g, 1)
     k = 0
     for i, m in enumerate(g.axiom):
         h = L.root_hash(11, i)
@@ -240,21 +241,21 @@ def test_choices_follow_the_hash_contract():
     expect = []                         # step 2 from step 1's modules and hashes alone
     for m, h in zip(one.modules, one.hashes.tolist()):
         expect += g.rewrite(m, h) or [m]
-    assert L.derive(g).modules == expect
+    assert derivation.derive(g).modules == expect
     assert [(p.text, w) for p, w in g.alternatives(Module("F"))] == [(STOCHASTIC[0], 0.6), (STOCHASTIC[1], 0.4)]
     assert g.alternatives(Module("+")) == [] and g.rewrite(Module("+"), 1) is None
 
 
 def test_stochastic_expected_counts():
-    c = L.count(grammar("F", *STOCHASTIC, n=3))
+    c = derivation.count(grammar("F", *STOCHASTIC, n=3))
     assert not c.exact and c.per_symbol["F"] == 27.0
-    c1 = L.count(grammar("F", *STOCHASTIC, n=1))
+    c1 = derivation.count(grammar("F", *STOCHASTIC, n=1))
     assert c1.per_symbol["+"] == pytest.approx(0.6) and c1.per_symbol["-"] == pytest.approx(0.4)
 
 
 def test_deterministic_first_match_wins():
     g = grammar("A(1)", "A(x) : x > 0 --> B", "A(x) --> C")
-    assert L.derive(g, 1).modules == [Module("B")]
+    assert derivation.derive(g, 1).modules == [Module("B")]
     assert [p.line for p, _ in g.alternatives(Module("A", (1.0,)))] == [3]
     assert g.rewrite(Module("A", (-1.0,)), 0) == [Module("C")]
 
@@ -292,13 +293,13 @@ def test_syntax_errors_point_at_the_token():
 def test_runaway_growth_is_refused_before_allocating():
     g = grammar("F", "F --> F[+F]F[-F]F", n=9)
     with pytest.raises(L.LSystemGrowthError) as e:
-        L.derive(g, cap=1000)
+        derivation.derive(g, cap=1000)
     msg = str(e.value)
     assert "step 4 would derive 1,561 modules (cap 1,000)" in msg and "DCSG" in msg
-    assert L.count(g).length == 5 ** 9 + 6 * (5 ** 9 - 1) // 4     # counted lazily instead
+    assert derivation.count(g).length == 5 ** 9 + 6 * (5 ** 9 - 1) // 4     # counted lazily instead
     cs = grammar("A", "A > B --> A", "A --> AAA", n=20)
     with pytest.raises(L.LSystemGrowthError) as e:
-        L.derive(cs, cap=100)
+        derivation.derive(cs, cap=100)
     assert "step 5 would derive 243 modules (cap 100)" in str(e.value) and "DCSG" not in str(e.value)
 
 
@@ -306,25 +307,25 @@ def test_runaway_growth_is_refused_before_allocating():
                                           (("A --> A B",), "A -> A")])
 def test_recursion_without_length_names_the_symbol(prods, chain):
     g = grammar("A", *prods)
-    for f in (L.check_termination, L.derive, L.count):
+    for f in (derivation.check_termination, derivation.derive, derivation.count):
         with pytest.raises(L.LSystemRecursionError, match=f"symbol A rewrites forever \\({chain}\\)"):
             f(g)
-    assert len(L.derive(g, 3).modules) > 0      # a derivation length is fine
+    assert len(derivation.derive(g, 3).modules) > 0      # a derivation length is fine
 
 
 def test_too_long_and_context_sensitive_recursion():
     with pytest.raises(L.LSystemRecursionError, match="symbol A needs more than 1000 steps"):
-        L.check_termination(grammar("A(0)", "A(x) : x < 5000 --> A(x + 1)"))
-    assert L.check_termination(grammar("A(0)", "A(x) : x < 1000 --> A(x + 1)")) == 1000
+        derivation.check_termination(grammar("A(0)", "A(x) : x < 5000 --> A(x + 1)"))
+    assert derivation.check_termination(grammar("A(0)", "A(x) : x < 1000 --> A(x + 1)")) == 1000
     with pytest.raises(L.LSystemRecursionError, match="no fixpoint after 1000 steps"):
-        L.derive(grammar("ba", "b < a --> c", "c --> a"))     # b a, b c, b a, ...
+        derivation.derive(grammar("ba", "b < a --> c", "c --> a"))     # b a, b c, b a, ...
 
 
 def test_termination_budget_and_load(tmp_path):
     g = grammar("A(0, 0)", "A(x, y) : x < 12 --> A(x + 1, y) A(x + 1, y + 1)")
-    assert L.check_termination(g, budget=10) is None      # undecided: derive still bounds it
-    assert L.check_termination(g) == 12
-    assert L.count(g).length == len(L.derive(g).modules) == 2 ** 12
+    assert derivation.check_termination(g, budget=10) is None      # undecided: derive still bounds it
+    assert derivation.check_termination(g) == 12
+    assert derivation.count(g).length == len(derivation.derive(g).modules) == 2 ** 12
     p = tmp_path / "tree.lsys"
     p.write_text("axiom: A\nproduction:\nA --> B(q)\n")
     with pytest.raises(L.LSystemSyntaxError, match=r"^tree.lsys: line 3, column 9: undefined parameter 'q'"):

@@ -13,6 +13,7 @@ import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.
 
 from photon_lightmaps import export  # noqa: E402
 from photon_lightmaps.engine.lsystem import grammar  # noqa: E402
+from photon_lightmaps.engine.lsystem import derivation
 from photon_lightmaps.engine.geometry.dcsg import DCSG, DCSGUnsupported  # noqa: E402
 from photon_lightmaps.engine.lsystem.turtle import interpret, to_primitives  # noqa: E402
 from photon_lightmaps.bake import lsystem_preview  # noqa: E402
@@ -122,7 +123,7 @@ def engine_primitives(text, depth):
     try:
         d = DCSG(g, steps=depth)
     except DCSGUnsupported:
-        prims = to_primitives(interpret(grammar.derive(g, depth).modules, g.angle, g.width))
+        prims = to_primitives(interpret(derivation.derive(g, depth).modules, g.angle, g.width))
         return len(prims), None
     f = d.flatten()
     if not g.is_stochastic:

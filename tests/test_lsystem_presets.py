@@ -17,6 +17,7 @@ import pytest
 
 from photon_lightmaps.engine.geometry import dcsg
 from photon_lightmaps.engine.lsystem import grammar as LS
+from photon_lightmaps.engine.lsystem import derivation
 from photon_lightmaps.engine.lsystem import presets
 from photon_lightmaps.engine.lsystem import turtle
 from photon_lightmaps.engine.geometry.primitives import KIND_IDS
@@ -28,7 +29,7 @@ SPHERE, BOX = KIND_IDS["sphere"], KIND_IDS["box"]
 
 
 def drawn_count(grammar, steps=None):
-    c = LS.count(grammar, steps)
+    c = derivation.count(grammar, steps)
     assert c.exact
     return sum(c.per_symbol.get(s, 0) for s in DRAWN)
 
@@ -36,7 +37,7 @@ def drawn_count(grammar, steps=None):
 def derived_primitives(grammar, steps=None):
     """(derivation, primitives, addresses) of derive -> turtle -> to_primitives; the
     primitives come as segments, spheres, boxes, each in string order."""
-    der = LS.derive(grammar, steps)
+    der = derivation.derive(grammar, steps)
     prims = turtle.to_primitives(turtle.interpret(der.modules, grammar.angle, grammar.width))
     order = [i for s in DRAWN for i, m in enumerate(der.modules) if m.symbol == s]
     return der, prims, der.hashes[order]
@@ -98,7 +99,7 @@ def test_preset_builds_a_scene_graph_standing_for_its_string(name):
     graph = dcsg.DCSG(g)                           # no DCSGUnsupported
     n = graph.implicit_primitives
     assert n == drawn_count(g) > 0
-    if LS.count(g).length > 400_000:
+    if derivation.count(g).length > 400_000:
         return
     der, prims, addresses = derived_primitives(g)
     assert prims.skipped == 0
@@ -115,7 +116,7 @@ def test_preset_builds_a_scene_graph_standing_for_its_string(name):
 
 def test_known_counts():
     assert drawn_count(presets.load_preset("abop_1_24a")) == 3125
-    der = LS.derive(presets.load_preset("abop_1_24a"))
+    der = derivation.derive(presets.load_preset("abop_1_24a"))
     assert sum(m.symbol == "F" for m in der.modules) == 3125
     assert dcsg.DCSG(presets.load_preset("menger_sponge")).implicit_primitives == 20 ** 3 == 8000
     assert dcsg.DCSG(presets.load_preset("ternary_tree")).implicit_primitives == 1 + 4 * (3 ** 6 - 1) // 2
@@ -155,7 +156,7 @@ def test_abop_1_24_axioms_and_counts(name, axiom):
 
 @pytest.mark.parametrize("n", [2, 3])
 def test_hilbert_curve_visits_every_lattice_point_once(n):
-    der = LS.derive(presets.load_preset("hilbert_3d"), n)
+    der = derivation.derive(presets.load_preset("hilbert_3d"), n)
     geom = turtle.interpret(der.modules, 90)
     assert geom.n_segments == 8 ** n - 1
     pts = np.vstack([geom.seg_start[:1], geom.seg_end])
@@ -252,7 +253,7 @@ def _flake_parents(der, geom):
 
 def test_sphereflake_children_touch_their_parent():
     g = presets.load_preset("sphereflake")
-    der = LS.derive(g, 3)
+    der = derivation.derive(g, 3)
     geom = turtle.interpret(der.modules, g.angle, g.width)
     c, r = geom.spheres.center, geom.spheres.radius
     assert len(r) == 1 + 9 + 81 + 729
@@ -299,7 +300,7 @@ def test_sympodial_tree_size_and_ol_stubs():
     assert sorted(owned)[0] == 16                                # the stem's own internodes
     # the branches taper (frustums), and leaves are organs at the twigs' ends
     assert (flat.kind == KIND_IDS["frustum"]).sum() > n // 2
-    assert LS.count(g).per_symbol["~"] == (n - 16 + 17) // 2
+    assert derivation.count(g).per_symbol["~"] == (n - 16 + 17) // 2
     lo, hi = graph.bounds()
     assert lo[2] == pytest.approx(-0.0, abs=0.2) and 8 < hi[2] < 20  # grows up +Z
 

@@ -426,6 +426,7 @@ def _lsystem_graphs(scene, n_materials, notes):
     with a note. -> (per prototype list, the scene with those primitives added)."""
     from dataclasses import replace
     from ..lsystem import grammar as LS
+    from ..lsystem import derivation
     from ..lsystem import turtle as T
     from ..core.scene import LSystem
     per_proto, graphs, prototypes = [], [], list(scene.prototypes)
@@ -446,7 +447,7 @@ def _lsystem_graphs(scene, n_materials, notes):
             try:
                 graph = D.DCSG(grammar, ls.steps, cache_mb=ls.cache_mb, organs=organs)
             except D.DCSGUnsupported as exc:
-                der = LS.derive(grammar, ls.steps)
+                der = derivation.derive(grammar, ls.steps)
                 prims = T.to_primitives(T.interpret(der.modules, grammar.angle, grammar.width),
                                         name=ls.name)
                 extra += [replace(p, material=mats[min(int(p.material), len(mats) - 1)]) for p in prims]

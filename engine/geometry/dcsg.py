@@ -51,6 +51,7 @@ from numba import njit, prange
 
 from ..core import features
 from ..lsystem import grammar as LS
+from ..lsystem import derivation
 from ..core.affine import apply_transposed, cross, normal_through, unit, xform_ray
 from ..core.jit import CORE, INLINE, as_float32, as_float64, as_uint64, typed
 from .primitives import KIND_IDS, octa_encode, prim_hits, prim_nfaces, prim_point, prim_surface
@@ -168,7 +169,7 @@ class DCSG:
         self.grammar = grammar
         self.steps = grammar.derivation_length if steps is None else int(steps)
         if self.steps is None:
-            self.steps = LS.check_termination(grammar)
+            self.steps = derivation.check_termination(grammar)
             if self.steps is None:
                 raise DCSGUnsupported(f"{grammar.source_name}: give a derivation length")
         self.angle = grammar.angle if angle is None else float(angle)

@@ -74,12 +74,8 @@ Rewriting a module of hash h gives successor module j (every module counted,
 brackets included) the hash child_hash(h, j); a module left unchanged keeps its
 hash. A choice depends only on the module's path in the derivation tree.
 
-Omitted derivation length: rewrite until a step changes nothing. For a
-context-free grammar `check_termination` first explores the module states
-reachable from the axiom (all stochastic alternatives) and refuses a state that
-reaches itself or a chain longer than 1000 steps; a context-sensitive grammar
-is only stopped after 1000 steps. A derived string may not exceed `cap`
-modules; each step's length is known before its string is built.
+Rewriting (`derive`), the termination proof (`check_termination`) and counting
+without deriving (`count`) are engine/lsystem/derivation.py.
 """
 from __future__ import annotations
 
@@ -95,11 +91,6 @@ import numpy as np
 
 from ..core.scene import SceneError
 
-DEFAULT_CAP = 10_000_000
-MAX_FIXPOINT_STEPS = 1000
-# States check_termination explores before it stops trying to prove termination
-# (derive then still stops after MAX_FIXPOINT_STEPS).
-TERMINATION_STATES = 100_000
 
 
 class LSystemError(SceneError):
@@ -554,7 +545,7 @@ class Production:
         vals = [p.bind(m) for p, m in zip(pats, mods)] if len(pats) == len(mods) else [None]
         if any(v is None for v in vals):
             raise LSystemError(f"{self.source}: line {self.line}: {module} does not fit {self.text!r}")
-        return list(self._successor(sum(vals, ()), module))
+        return list(self.successor_modules(sum(vals, ()), module))
 
     def _error(self, module, e):
         return LSystemError(f"{self.source}: line {self.line}: {e} while rewriting {module}")
@@ -591,7 +582,7 @@ class Production:
             raise self._error(module, f"probability {p} is not a finite number >= 0")
         return p
 
-    def _successor(self, vals, module):
+    def successor_modules(self, vals, module):
         if self._const is not None:
             return self._const
         try:
@@ -654,7 +645,7 @@ def _right_context(cur, pairs, i, pats, ignore):
     return sum(vals, ())
 
 
-def _bracket_pairs(cur):
+def bracket_pairs(cur):
     pairs, stack = [-1] * len(cur), []
     for i, m in enumerate(cur):
         if m.symbol == "[":
@@ -737,14 +728,14 @@ class Grammar:
     width: float = 0.1
     ol_stubs: tuple = ()
     source_name: str = "<grammar>"
-    _table: dict = field(init=False, repr=False)
-    _weighted: frozenset = field(init=False, repr=False)
+    table: dict = field(init=False, repr=False)
+    weighted: frozenset = field(init=False, repr=False)
 
     def __post_init__(self):
-        self._table = {}
+        self.table = {}
         for p in self.productions:
-            self._table.setdefault(p.pred.symbol, []).append(p)
-        self._weighted = frozenset(p.pred.symbol for p in self.productions if p.probability is not None)
+            self.table.setdefault(p.pred.symbol, []).append(p)
+        self.weighted = frozenset(p.pred.symbol for p in self.productions if p.probability is not None)
 
     @property
     def is_context_free(self):
@@ -760,13 +751,13 @@ class Grammar:
         grammars; conditions evaluated). Deterministic: the first match with 1.0. Empty:
         the module stays unchanged."""
         self._require_context_free("alternatives")
-        return [(prod, p) for prod, _, p in self._candidates(module, None)]
+        return [(prod, p) for prod, _, p in self.candidates(module, None)]
 
     def rewrite(self, module, h):
         """The successor chosen for `module` with hash h (list of Modules), or None when no
         production matches. The same choice derive() makes (context-free grammars)."""
         self._require_context_free("rewrite")
-        out = self._choose(module, draw(h) if module.symbol in self._weighted else 0.0, None)
+        out = self.choose(module, draw(h) if module.symbol in self.weighted else 0.0, None)
         return None if out is None else list(out)
 
     def _require_context_free(self, what):
@@ -774,10 +765,10 @@ class Grammar:
             raise LSystemError(f"{self.source_name}: {what}() needs a context-free grammar; "
                                "this one has context: derive() it")
 
-    def _candidates(self, module, where):
+    def candidates(self, module, where):
         """[(production, values, normalised probability)] by the rules of the module docstring."""
-        prods = self._table.get(module.symbol, ())
-        if module.symbol not in self._weighted:
+        prods = self.table.get(module.symbol, ())
+        if module.symbol not in self.weighted:
             for prod in prods:
                 vals = prod._match(module, where)
                 if vals is not None:
@@ -793,8 +784,8 @@ class Grammar:
         total = sum(p for _, _, p in cands)
         return [(prod, vals, p / total) for prod, vals, p in cands]
 
-    def _choose(self, module, u, where):
-        cands = self._candidates(module, where) if module.symbol in self._table else None
+    def choose(self, module, u, where):
+        cands = self.candidates(module, where) if module.symbol in self.table else None
         if not cands:
             return None
         cum = 0.0
@@ -802,7 +793,7 @@ class Grammar:
             cum += p
             if cum > u:
                 break                   # else (rounding) the last one
-        return prod._successor(vals, module)
+        return prod.successor_modules(vals, module)
 
 
 _HEADER_KEYS = ("axiom", "derivation length", "angle", "ignore", "seed", "width", "ol stub")
@@ -909,213 +900,3 @@ def load(path):
     except OSError as e:
         raise LSystemError(f"{path}: cannot read the grammar ({e.strerror or e})") from None
     return parse(text, name=os.path.basename(path))
-
-
-# ---------------------------------------------------------------- derivation
-
-@dataclass
-class Derivation:
-    modules: list
-    hashes: np.ndarray              # uint64, one per module: its derivation-tree path
-    lengths: list                   # string length after each step, axiom first
-    steps: int                      # steps applied (the fixpoint's when the length was omitted)
-    grammar: Grammar
-
-    def __str__(self):
-        return format_string(self.modules)
-
-
-def _growth_error(grammar, step, n, cap):
-    msg = f"{grammar.source_name}: step {step} would derive {n:,} modules (cap {cap:,}); "
-    if grammar.is_context_free:
-        msg += ("a context-free grammar renders through the DCSG without deriving the string "
-                "(the cyclic scene graph counts and traces it lazily), or lower the derivation length")
-    else:
-        msg += "lower the derivation length"
-    return LSystemGrowthError(msg)
-
-
-def _step(grammar, cur, hashes, step, cap):
-    """One parallel rewrite: (new string, new hashes), or None when no module was rewritten."""
-    table, choose = grammar._table, grammar._choose
-    u = draw_array(hashes).tolist() if grammar._weighted else None
-    context = None if grammar.is_context_free else (_bracket_pairs(cur), grammar.ignore)
-    succ = []
-    for i, m in enumerate(cur):
-        if m.symbol not in table:
-            succ.append(None)
-        else:
-            where = None if context is None else (cur, context[0], i, context[1])
-            succ.append(choose(m, u[i] if u is not None else 0.0, where))
-    rewritten = np.fromiter((r is not None for r in succ), bool, len(cur))
-    if not rewritten.any():
-        return None
-    lens = np.fromiter((1 if r is None else len(r) for r in succ), np.int64, len(cur))
-    total = int(lens.sum())
-    if total > cap:                     # refused before the string is built
-        raise _growth_error(grammar, step, total, cap)
-    new = []
-    for m, r in zip(cur, succ):
-        if r is None:
-            new.append(m)
-        else:
-            new.extend(r)
-    parent = np.repeat(np.arange(len(cur)), lens)
-    j = np.arange(total) - np.repeat(np.cumsum(lens) - lens, lens)
-    newh = hashes[parent]
-    mask = np.repeat(rewritten, lens)
-    newh[mask] = child_hash_array(newh[mask], j[mask])
-    return new, newh
-
-
-def derive(grammar, steps=None, cap=DEFAULT_CAP):
-    """Rewrite the axiom `steps` times (default: the grammar's derivation length; when
-    that is omitted too, to a fixpoint, after check_termination)."""
-    if steps is None:
-        steps = grammar.derivation_length
-    fixpoint = steps is None
-    if fixpoint:
-        check_termination(grammar)
-    elif steps < 0:
-        raise LSystemError(f"{grammar.source_name}: derivation length must be >= 0, got {steps}")
-    cur = list(grammar.axiom)
-    if len(cur) > cap:
-        raise _growth_error(grammar, 0, len(cur), cap)
-    hashes = child_hash_array(np.full(len(cur), splitmix64(grammar.seed & MASK), np.uint64), np.arange(len(cur)))
-    lengths, done = [len(cur)], 0
-    while fixpoint or done < steps:
-        out = _step(grammar, cur, hashes, done + 1, cap)
-        if out is None or (fixpoint and out[0] == cur):
-            break                       # nothing changes from here on
-        if fixpoint and done == MAX_FIXPOINT_STEPS:
-            raise LSystemRecursionError(
-                f"{grammar.source_name}: no fixpoint after {MAX_FIXPOINT_STEPS} steps (the string "
-                f"still changes at {len(out[0]):,} modules); give a derivation length")
-        cur, hashes = out
-        done += 1
-        lengths.append(len(cur))
-    if not fixpoint:
-        lengths.extend([len(cur)] * (steps - done))
-        done = steps
-    return Derivation(cur, hashes, lengths, done, grammar)
-
-
-# ---------------------------------------------------------------- termination and counting
-
-def _chain(modules, most=6):
-    names = [str(m) for m in modules]
-    if len(names) > most:
-        names = names[:most - 2] + ["…", names[-1]]
-    return " -> ".join(names)
-
-
-def check_termination(grammar, limit=MAX_FIXPOINT_STEPS, budget=TERMINATION_STATES):
-    """Steps a context-free grammar needs to stop changing (every stochastic alternative
-    considered), found by a memoised depth-first walk over the module states (symbol,
-    params) reachable from the axiom. None when it cannot tell: the grammar has context,
-    or more than `budget` states are reachable. Raises LSystemRecursionError for a state
-    that reaches itself (A -> B -> A, A -> A B) or needs more than `limit` steps."""
-    if not grammar.is_context_free:
-        return None
-
-    def expand(m):
-        cands = grammar._candidates(m, None)
-        return bool(cands), iter([c for prod, vals, _ in cands for c in prod._successor(vals, m)])
-
-    def refuse(m, why):
-        return LSystemRecursionError(f"{grammar.source_name}: symbol {m.symbol} {why}; give a "
-                                     "derivation length or a condition that ends it")
-
-    height = {}
-    for root in grammar.axiom:
-        if root in height:
-            continue
-        has, it = expand(root)
-        path, onpath, iters, best = [root], {root: 0}, [it], [int(has)]
-        while path:
-            child = next(iters[-1], None)
-            if child is None:           # all successors done: 1 + the deepest of them
-                m, h = path.pop(), best.pop()
-                iters.pop()
-                del onpath[m]
-                height[m] = h
-                if best:
-                    best[-1] = max(best[-1], h + 1)
-            elif child in height:
-                best[-1] = max(best[-1], height[child] + 1)
-            elif child in onpath:
-                cycle = path[onpath[child]:] + [child]
-                raise refuse(child, f"rewrites forever ({_chain(cycle)})")
-            elif len(path) > limit:
-                raise refuse(path[0], f"needs more than {limit} steps to stop rewriting ({_chain(path)})")
-            elif len(height) + len(path) >= budget:
-                return None
-            else:
-                has, it = expand(child)
-                onpath[child] = len(path)
-                path.append(child)
-                iters.append(it)
-                best.append(int(has))
-    steps = max((height[m] for m in grammar.axiom), default=0)
-    if steps > limit:
-        deepest = max(grammar.axiom, key=height.get)
-        raise refuse(deepest, f"needs {steps} steps to stop rewriting (more than {limit})")
-    return steps
-
-
-class Counts(NamedTuple):
-    length: int | float
-    per_symbol: dict
-    exact: bool                     # False: expected values of a stochastic grammar (floats)
-
-
-def count(grammar, steps=None, cap=DEFAULT_CAP):
-    """Module counts of the derived string. A context-free grammar is counted without
-    deriving it, memoised on (module, steps left) in Python ints (exact for 10^30
-    modules); where a stochastic choice is met the counts are expectations (floats,
-    exact=False). A context-sensitive grammar is derived (within `cap`) and counted."""
-    if steps is None:
-        steps = grammar.derivation_length
-    if steps is None and grammar.is_context_free:
-        steps = check_termination(grammar)
-    if not grammar.is_context_free or steps is None:
-        d = derive(grammar, steps, cap)
-        return Counts(len(d.modules), dict(Counter(m.symbol for m in d.modules)), True)
-    if steps < 0:
-        raise LSystemError(f"{grammar.source_name}: derivation length must be >= 0, got {steps}")
-    alts = {}                          # module -> [(probability, ((child, multiplicity), ...))]
-
-    def alternatives(m):
-        if m not in alts:
-            alts[m] = [(p, tuple(Counter(prod._successor(vals, m)).items()))
-                       for prod, vals, p in grammar._candidates(m, None)]
-        return alts[m]
-
-    memo, chose = {}, False
-    todo = [(m, steps, False) for m in set(grammar.axiom)]
-    while todo:                         # post-order without recursion (steps may be large)
-        m, r, ready = todo.pop()
-        if (m, r) in memo:
-            continue
-        a = alternatives(m) if r > 0 else ()
-        if not a:
-            memo[m, r] = {m.symbol: 1}
-        elif not ready:
-            todo.append((m, r, True))
-            todo.extend((c, r - 1, False) for _, kids in a for c, _ in kids if (c, r - 1) not in memo)
-        else:
-            chose |= len(a) > 1
-            total = {}
-            for p, kids in a:
-                for c, k in kids:
-                    w = k * p if len(a) > 1 else k      # stays an int where nothing is chosen
-                    for s, n in memo[c, r - 1].items():
-                        total[s] = total.get(s, 0) + n * w
-            memo[m, r] = total
-    per = {}
-    for m, k in Counter(grammar.axiom).items():
-        for s, n in memo[m, steps].items():
-            per[s] = per.get(s, 0) + n * k
-    if chose:
-        per = {s: float(n) for s, n in per.items()}
-    return Counts(sum(per.values()) if per else (0.0 if chose else 0), per, not chose)

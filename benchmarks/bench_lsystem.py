@@ -19,7 +19,7 @@ Sections (each a key of DIR/lsystem.json, lsystem_quick.json for --quick):
   process with an empty numba cache. Thesis: 700 s (2001 hardware); goal <= 10 s.
 * ``rays`` - the same rays traced through the DCSG (an L-system prototype,
   compiled with geometry.compile_geometry, traced with raycast.trace_closest_batch,
-  and the stand-alone dcsg.trace_closest) and through the flattened primitives
+  and the stand-alone dcsg_trace.trace_closest) and through the flattened primitives
   (Prototype(primitives=DCSG.flatten()), the two-level BVH), single-threaded,
   warm, best of `reps` interleaved. Rays start on a sphere around the object and
   aim at random points in the (1.5x enlarged) local boxes of random primitives.
@@ -57,6 +57,8 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 from photon_lightmaps.engine.geometry import dcsg  # noqa: E402
+from photon_lightmaps.engine.geometry import dcsg_areas
+from photon_lightmaps.engine.geometry import dcsg_trace
 from photon_lightmaps.engine import demo_scenes  # noqa: E402
 from photon_lightmaps.engine import lsystem_stats  # noqa: E402
 from photon_lightmaps.engine.geometry import raycast  # noqa: E402
@@ -138,7 +140,7 @@ def tree_scene(cfg):
 def e2e_once(cfg):
     """One compile + photon pass + render of the sympodial tree -> dict of seconds and counts."""
     graph_area = [0.0, 0]
-    orig = dcsg.estimate_graph_areas
+    orig = dcsg_areas.estimate_graph_areas
 
     def timed(*a, **k):                   # the graph part of area estimation, which the OL rows leave out
         t = time.perf_counter()
@@ -152,11 +154,11 @@ def e2e_once(cfg):
     t0 = time.perf_counter()
     sc = tree_scene(cfg)
     t1 = time.perf_counter()
-    dcsg.estimate_graph_areas = timed
+    dcsg_areas.estimate_graph_areas = timed
     try:
         cs = session.compile(sc)
     finally:
-        dcsg.estimate_graph_areas = orig
+        dcsg_areas.estimate_graph_areas = orig
     t2 = time.perf_counter()
     ps = session.render_photon_pass(cs, settings)
     t3 = time.perf_counter()
@@ -311,12 +313,12 @@ def bench_rays_one(name, steps, n_rays, reps):
     numba.set_num_threads(1)
     for fn in (lambda: raycast.trace_closest_batch(gd, o[:256], d[:256]),
                lambda: raycast.trace_closest_batch(gf, o[:256], d[:256]),
-               lambda: dcsg.trace_closest(graph, o[:256], d[:256])):
+               lambda: dcsg_trace.trace_closest(graph, o[:256], d[:256])):
         fn()                                                    # warm (load / compile)
     best, res = best_interleaved({
         "dcsg_scene": lambda: raycast.trace_closest_batch(gd, o, d),
         "flat_bvh": lambda: raycast.trace_closest_batch(gf, o, d),
-        "dcsg_standalone": lambda: dcsg.trace_closest(graph, o, d)}, reps)
+        "dcsg_standalone": lambda: dcsg_trace.trace_closest(graph, o, d)}, reps)
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     t_d, _, shape_d = res["dcsg_scene"]
     t_f, _, shape_f = res["flat_bvh"]

@@ -459,14 +459,14 @@ def _lsystem_areas(ols, maps, geom, dcsg):
     """{OL: (area per bin, variance, samples, seconds)} of the L-system geometry each
     OL owns: a stub its subtree, an instance's OL the rest, nested stubs left to
     their own OLs."""
-    from .geometry import dcsg as D
+    from .geometry import dcsg_areas
     views = (geom.trace_i64, geom.trace_f32, geom.trace_i32, geom.trace_f64, geom.trace_features)
     out = {}
 
     def add(k, start, h, rot, i, graph):
         ol = ols[k]
         t = time.perf_counter()
-        a, v = D.estimate_graph_areas(views, graph, dcsg["node_area"], start, h, rot,
+        a, v = dcsg_areas.estimate_graph_areas(views, graph, dcsg["node_area"], start, h, rot,
                                       geom.inst_inv[i], int(ol.resolution), int(ol.samples),
                                       int(ol.seed) + 7919 * (start + 1))
         row = (a, v, int(ol.samples), time.perf_counter() - t)

@@ -11,6 +11,9 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine.geometry import dcsg
+from photon_lightmaps.engine.geometry import dcsg_areas
+from photon_lightmaps.engine.geometry import dcsg_blob
+from photon_lightmaps.engine.geometry import dcsg_trace
 from photon_lightmaps.engine.lsystem import grammar as LS
 from photon_lightmaps.engine.lsystem import derivation
 from photon_lightmaps.engine.lsystem import turtle
@@ -101,7 +104,7 @@ def test_graph_stands_for_the_derived_string(text):
 def test_rays_agree_with_the_flattened_primitives(text, cache_mb):
     graph = dcsg.DCSG(LS.parse(text), cache_mb=cache_mb)
     o, d = _rays(graph, 1500)
-    t, row, address, _stub, normal = dcsg.trace_closest(graph, o, d)
+    t, row, address, _stub, normal = dcsg_trace.trace_closest(graph, o, d)
     tb, hb = _brute_force(graph.flatten(), o, d)
     hit = np.isfinite(tb)
     assert 300 < hit.sum() < 1500                                  # the test sees hits and misses
@@ -134,7 +137,7 @@ def test_expansion_cache_changes_no_hit(text):
         assert 0 < st["cache_bytes"] <= st["cache_limit_bytes"]
     assert lazy.stats()["cache_subgraphs"] == 0 and lazy.stats()["cache_hit_rate"] == 0.0
     o, d = _rays(cached, 2000, seed=5)
-    a, b = dcsg.trace_closest(cached, o, d), dcsg.trace_closest(lazy, o, d)
+    a, b = dcsg_trace.trace_closest(cached, o, d), dcsg_trace.trace_closest(lazy, o, d)
     hit = b[1] >= 0
     assert hit.sum() > 300
     np.testing.assert_array_equal(a[1] >= 0, hit)
@@ -170,7 +173,7 @@ def test_node_count_follows_the_steps_not_the_primitives():
     assert graph.stats()["dcsg_nodes"] <= 2 * 30 + 10
     # rays still find the object (aimed as at the depth the flattening allows)
     o, d = _rays(dcsg.DCSG(LS.parse(ABOP_124A.format(n=5))), 200)
-    t, row = dcsg.trace_closest(graph, o, d)[:2]
+    t, row = dcsg_trace.trace_closest(graph, o, d)[:2]
     assert (row >= 0).sum() > 20 and np.all(np.isfinite(t[row >= 0]))
 
 
@@ -204,8 +207,8 @@ A --> F [ + A ] [ - A ] A
     assert set(np.unique(flat.stub[flat.stub != 0]).tolist()) == level2
     assert np.sum(flat.stub == 0) == 1 + 3                         # the F drawn by the A of levels 0, 1
     o, d = _rays(graph, 1500, seed=5)
-    _t, row, address, stub = dcsg.trace_closest(graph, o, d)[:4]
-    table = dcsg.stub_addresses(graph).tolist()
+    _t, row, address, stub = dcsg_trace.trace_closest(graph, o, d)[:4]
+    table = dcsg_blob.stub_addresses(graph).tolist()
     assert table == sorted(level2)
     owner = dict(zip(flat.address.tolist(), flat.stub.tolist()))
     hit = row >= 0
@@ -227,13 +230,13 @@ def test_grammars_that_cannot_be_a_graph_are_refused():
 def test_area_estimate_is_unbiased_under_an_instance_transform():
     g = LS.parse(TAPERED.replace("derivation length: 5", "derivation length: 3"))
     graph = dcsg.DCSG(g)
-    views = dcsg.dcsg_table([graph])[0]
+    views = dcsg_trace.dcsg_table([graph])[0]
     c, s = np.cos(0.7), np.sin(0.7)
     xf = np.eye(4)
     xf[:3, :3] = 2.0 * np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
     xf[:3, 3] = (1, 2, 3)
     inv = np.linalg.inv(xf)[:3]
-    area, var = dcsg.estimate_graph_areas(views, graph, dcsg.node_areas(graph), graph.arrays().root,
+    area, var = dcsg_areas.estimate_graph_areas(views, graph, dcsg_areas.node_areas(graph), graph.arrays().root,
                                        graph.root_hash, np.eye(3), inv, 8, 40000, seed=3)
     exact = 4.0 * quadrature_area(graph.flatten())           # scale 2: area x 4
     assert abs(area.sum() - exact) < 4 * np.sqrt(var.sum())
@@ -294,7 +297,7 @@ def test_organs_are_hit_where_their_meshes_are(cache_mb):
     target = tris[rng.integers(0, tris.shape[0], 1500)].mean(axis=1) + rng.normal(size=(1500, 3)) * 0.05
     o = 0.5 * (lo + hi) + rng.normal(size=(1500, 3)) * 4.0
     d = target - o
-    t, row, _, _, normal = dcsg.trace_closest(graph, o, d)
+    t, row, _, _, normal = dcsg_trace.trace_closest(graph, o, d)
     flat = graph.flatten()
     seg = dcsg.Flattened(*(a[flat.kind != dcsg.ORGAN] for a in flat))
     t_ref = np.minimum(_brute_triangles(tris, o, d), _brute_force(seg, o, d)[0])
@@ -310,8 +313,8 @@ def test_organs_are_hit_where_their_meshes_are(cache_mb):
 
 def test_organ_area_is_estimated_through_the_graph():
     graph = dcsg.DCSG(LS.parse(LEAVES), organs={"leaf": LEAF})
-    views = dcsg.dcsg_table([graph])[0]
-    area, var = dcsg.estimate_graph_areas(views, graph, dcsg.node_areas(graph), graph.arrays().root,
+    views = dcsg_trace.dcsg_table([graph])[0]
+    area, var = dcsg_areas.estimate_graph_areas(views, graph, dcsg_areas.node_areas(graph), graph.arrays().root,
                                        graph.root_hash, np.eye(3), np.eye(4)[:3], 8, 40000, seed=5)
     tris, _ = _organ_triangles(graph)
     leaves = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1).sum()

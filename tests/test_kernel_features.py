@@ -110,4 +110,4 @@ def test_csg_scene_compiles_the_csg_core(tmp_path):
     assert got["t"][3] is None
     assert got["occluded"] == [True, False, True, False]
     assert "csg_trace.csg_closest_core" in got["names"]
-    assert "dcsg.dcsg_closest_core" not in got["names"]
+    assert "dcsg_trace.dcsg_closest_core" not in got["names"]

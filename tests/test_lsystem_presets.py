@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from photon_lightmaps.engine.geometry import dcsg
+from photon_lightmaps.engine.geometry import dcsg_trace
 from photon_lightmaps.engine.lsystem import grammar as LS
 from photon_lightmaps.engine.lsystem import derivation
 from photon_lightmaps.engine.lsystem import presets
@@ -193,7 +194,7 @@ def test_menger_sponge_rays_hit_the_boxes():
     xy = rng.uniform(-0.5, 0.5, (400, 2))
     xy[0] = (0.01, 0.02)                                        # down the central tunnel
     o = np.column_stack([xy, np.full(len(xy), -2.0)])
-    t = dcsg.trace_closest(graph, o, np.tile([0.0, 0.0, 1.0], (len(xy), 1)))[0]
+    t = dcsg_trace.trace_closest(graph, o, np.tile([0.0, 0.0, 1.0], (len(xy), 1)))[0]
     # along +z a ray enters the lowest box whose footprint holds it, at its bottom face
     inside = np.all(np.abs(xy[:, None, :] - c[None, :, :2]) < 1 / 54, axis=2)
     z0 = np.where(inside, c[None, :, 2] - 1 / 54, np.inf).min(axis=1)
@@ -331,5 +332,5 @@ A --> F(0.5) !(0.3) [ + ;(2) @B ] / [ - @B(0.2) A ]
     i = index[addresses[[k for k, p in enumerate(prims) if p.kind == "box"][0]]]
     m = flat.transform[i]
     h = m[:, 2] / np.linalg.norm(m[:, 2])
-    t = dcsg.trace_closest(graph, (m[:, 3] - 3 * h)[None], h[None])[0]
+    t = dcsg_trace.trace_closest(graph, (m[:, 3] - 3 * h)[None], h[None])[0]
     assert t[0] == pytest.approx(3 - np.linalg.norm(m[:, 2]), abs=1e-9)

@@ -24,6 +24,8 @@ import numpy as np
 
 from .bvh import build_bvh, pack_bvh
 from . import dcsg as D
+from . import dcsg_areas
+from .dcsg_blob import H_DCSG, NO_VSHAPE, pack_blob as pack_dcsg_blob
 from ..core import features
 from .csg import CSG, MESH, flatten_csg, pack_blob
 from .primitives import TRIANGLE, check_primitive, prim_local_bounds
@@ -493,7 +495,7 @@ def _dcsg_layout(per_proto, graphs, stubs, vs0):
     roots, node_area, n0 = [], [], 0
     for g in graphs:
         roots.append(g.arrays().root + n0)
-        node_area.append(D.node_areas(g))
+        node_area.append(dcsg_areas.node_areas(g))
         n0 += len(g.nodes)
     return {"graphs": graphs, "proto_graphs": [[gi for gi, _, _ in mine] for mine in per_proto],
             "stubs": stubs, "stub_first": stub_first, "roots": roots, "vs0": vs0,
@@ -607,7 +609,7 @@ def compile_geometry(scene):
     _add_csg_virtual_shapes(csg, parts)
     csg_blob = pack_blob(csg, parts.vs0)
     _add_dcsg_virtual_shapes(per_proto, graphs, parts)
-    dcsg_blob, _, stubs = D.pack_blob(graphs, parts.dcsg_vs0 if graphs else D.NO_VSHAPE,
+    dcsg_blob, _, stubs = pack_dcsg_blob(graphs, parts.dcsg_vs0 if graphs else NO_VSHAPE,
                                       [ls.name for mine in per_proto for _, _, ls in mine])
     dcsg = _dcsg_layout(per_proto, graphs, stubs, parts.dcsg_vs0)
     sa = _shape_arrays(parts)
@@ -619,7 +621,7 @@ def compile_geometry(scene):
     tlas = _build_tlas(inst)
     mask = (features.CSG if csg.leaf_kind.shape[0] else 0) | (features.DCSG if graphs else 0)
     g = _geometry_tuple(sa, blas, inst, tlas, pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob), mask)
-    if (g.trace.ctypes.data + int(g.trace_i64[H_F64]) + 8 * int(g.trace_i64[D.H_DCSG])) % 16:
+    if (g.trace.ctypes.data + int(g.trace_i64[H_F64]) + 8 * int(g.trace_i64[H_DCSG])) % 16:
         raise SceneError("internal: the L-system blob is not 16-byte aligned")   # the vector loads
     return g, _geometry_info(scene, parts, csg, blas, inst, tlas, g, t0, dcsg, notes)
 

@@ -44,7 +44,8 @@ from .trace_layout import STACK_WORDS, TRI_LEAF, new_stack  # noqa: F401  (re-ex
 from ..core import features
 from .csg import CSG_SCRATCH_WORDS
 from .csg_trace import csg_closest_core, csg_surface_core, csg_vs0
-from .dcsg import DCSG_REF, dcsg_closest_core, dcsg_hit_surface, dcsg_vs0
+from .dcsg_blob import DCSG_REF
+from .dcsg_trace import dcsg_closest_core, dcsg_hit_surface, dcsg_vs0
 from .primitives import prim_hits, prim_surface
 from .triangle import pick, triangle_normal, woop_setup, woop_test
 from .wide_bvh import (  # noqa: F401
@@ -178,11 +179,11 @@ def _is_csg_shape(buf, shape):
 
 
 def _dcsg_closest(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
-    """dcsg.dcsg_closest_core, or a miss for a scene without L-systems."""
+    """dcsg_trace.dcsg_closest_core, or a miss for a scene without L-systems."""
 
 
 def _dcsg_surface(buf, stack, s0):
-    """dcsg.dcsg_hit_surface (a scene without L-systems never calls it)."""
+    """dcsg_trace.dcsg_hit_surface (a scene without L-systems never calls it)."""
 
 
 def _is_dcsg_shape(buf, shape):

@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit
 
 from .bvh import REC_WORDS, STACK_BUDGET, aligned_empty, pack_bvh
-from . import dcsg as D
+from .dcsg_blob import DCSG_REF, H_DCSG, SCRATCH_WORDS
 from .csg import CSG, CSG_SCRATCH_WORDS, H_CSG
 
 # Count flag of a packed BLAS leaf made only of triangles: its ref is then the
@@ -40,16 +40,16 @@ H_PRIM_PARAMS = 16    # float64[P*4]
 H_INST_IDENT = 17     # int32[I]: 1 if the instance transform is the identity
 H_SINGLE = 18         # the only instance in the TLAS, or -1 (then the TLAS is walked)
 # word 19 is reserved for engine/geometry/csg.py (H_CSG: its blob's offset in the float64 section),
-# word 20 for engine/geometry/dcsg.py (H_DCSG: the L-system graphs' blob)
+# word 20 for engine/geometry/dcsg_blob.py (H_DCSG: the L-system graphs' blob)
 
 # Stack words a two-level traversal may need: two int32 words per entry,
 # at most STACK_BUDGET entries per level (guaranteed by bvh.pack_bvh). The
 # ray-CSG kernel's interval lists follow (engine/geometry/csg.py), so no ray allocates.
 TRAV_WORDS = 2 * 2 * STACK_BUDGET
-STACK_WORDS = TRAV_WORDS + CSG_SCRATCH_WORDS + D.SCRATCH_WORDS   # then the DCSG ray stack
+STACK_WORDS = TRAV_WORDS + CSG_SCRATCH_WORDS + SCRATCH_WORDS   # then the DCSG ray stack
 # shape_ref of a CSG solid: CSG_REF - root node (far below any -1 - primitive row)
 CSG_REF = -(1 << 30)
-# shape kind of an L-system (after CSG); its shape_ref is dcsg.DCSG_REF - graph
+# shape kind of an L-system (after CSG); its shape_ref is dcsg_blob.DCSG_REF - graph
 DCSG = CSG + 1
 
 
@@ -116,7 +116,7 @@ def _build_trace(records, rec_tlas, i32_parts, f64_parts, extra=()):
     f64 = []
     n = 0
     for key, a in f64_parts:
-        if key == D.H_DCSG and n % 8:     # 64-byte aligned: the blob's records need 16
+        if key == H_DCSG and n % 8:     # 64-byte aligned: the blob's records need 16
             f64.append(np.zeros(8 - n % 8))
             n += f64[-1].size
         off[key] = n
@@ -184,7 +184,7 @@ def pack_trace(sa, blas, inst, tlas, csg_blob, dcsg_blob):
          (H_PROTO_SLOT, blas.proto_slot + tlas.n_rec), (H_INST_PROTO, inst.proto),
          (H_TLAS_ITEMS, items), (H_PRIM_KIND, sa.prim_kind), (H_INST_IDENT, ident)],
         [(H_TRI4, blas.tri4), (H_INST_INV, inst.inv), (H_PRIM_INV, sa.prim_inv),
-         (H_PRIM_PARAMS, sa.prim_params), (H_CSG, csg_blob), (D.H_DCSG, dcsg_blob)],
+         (H_PRIM_PARAMS, sa.prim_params), (H_CSG, csg_blob), (H_DCSG, dcsg_blob)],
         extra=[(H_SINGLE, int(items[0]) if len(items) == 1 else -1)])
 
 
@@ -247,6 +247,6 @@ def pack_blas(proto_root, n_nodes, blas_min, blas_max, blas_a, blas_count, shape
     is_csg = shape_kind[:n_shapes] == CSG
     shape_ref[is_csg] = CSG_REF - shape_index[:n_shapes][is_csg]
     is_dcsg = shape_kind[:n_shapes] == DCSG
-    shape_ref[is_dcsg] = D.DCSG_REF - shape_index[:n_shapes][is_dcsg]
+    shape_ref[is_dcsg] = DCSG_REF - shape_index[:n_shapes][is_dcsg]
 
     return rec_parts, proto_slot, blas_need, tri4, lane_shape, shape_ref, n_packets

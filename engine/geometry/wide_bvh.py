@@ -3,7 +3,7 @@ test of a record's four child boxes, then the ordered descent (nearest hit
 interior child next, the others pushed with their entry distances, popped
 entries beyond the closest hit skipped). The two-level traversal
 (engine/geometry/raycast.py) and the expansion cache of the scene graphs
-(engine/geometry/dcsg.py) walk their records with it.
+(engine/geometry/dcsg_trace.py) walk their records with it.
 
 Robustness: boxes are float32 rounded outward and the slab test widens its
 exit distance by a few ulps (Ize 2013). Records must start on a 16-byte

@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit
 
 from . import lightmap
-from ..geometry.dcsg import dcsg_vs0
+from ..geometry.dcsg_trace import dcsg_vs0
 from ..core.jit import CORE, typed
 from ..geometry.primitives import octa_encode
 from ..core.scene import SceneError

@@ -572,6 +572,33 @@ def _sample_emissive(area, two_sided, l_cell_start, l_cell_count, l_inst, l_shap
     return wx, wy, wz, d, cos_l / (d * d) / pdf_area, True
 
 
+# Direct light at a point: with at most this many lights every light gets one
+# sample, else LIGHT_DRAWS lights are drawn in proportion to power.
+ALL_LIGHTS_UP_TO = 8
+LIGHT_DRAWS = 4
+
+
+@njit(**INLINE)
+def light_sample_count(n_lights):
+    """Light samples one direct-light estimate takes (see pick_light)."""
+    return n_lights if n_lights <= ALL_LIGHTS_UP_TO else LIGHT_DRAWS
+
+
+@njit(**INLINE)
+def pick_light(ls, j, n_samples, state):
+    """Light sample j of n_samples -> (state, light index, selection weight): every
+    light once when there are few, else drawn in proportion to power, weighted
+    1 / (n_samples p) so the sum stays unbiased. The renderer and the texel
+    gather share it, so a pixel and a texel sample the same lights."""
+    n_lights = ls.kind.shape[0]
+    if n_lights <= ALL_LIGHTS_UP_TO:
+        return state, j, 1.0
+    state, us = next_float(state)
+    li = sample_discrete(ls.power_cdf, us)
+    p_li = (ls.power_cdf[li] - (ls.power_cdf[li - 1] if li > 0 else 0.0)) / ls.power_cdf[n_lights - 1]
+    return state, li, 1.0 / (n_samples * p_li)
+
+
 @njit(**INLINE)
 def sample_light(ls, g, li, px, py, pz, u1, u2, u3):
     """Direct light from light li at point p.

@@ -31,11 +31,11 @@ from ..shading import environment
 from . import final_gather
 from . import irradiance_cache
 from ..core import parallel
-from ..shading.lights import EMISSIVE, sample_light_radiance
+from ..shading.lights import EMISSIVE, light_sample_count, pick_light, sample_light_radiance
 from ..core.errors import Cancelled
 from .photon_tracer import ray_epsilon
 from ..geometry.raycast import STACK_WORDS, intersect_closest, occluded
-from ..core.sampling import next_float, sample_discrete, stream_state
+from ..core.sampling import next_float, stream_state
 from .texel_gather import grid_side, jitter, light_stratum, texel_shift
 
 CameraData = namedtuple("CameraData", "xf kind sx sy width height")
@@ -123,18 +123,9 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
     nb = e.shape[0]
     glossy = ps + pm + pg > 0.0 and p[bsdf.P_ALPHA] > bsdf.DELTA_ALPHA
     eps = ray_epsilon(px, py, pz)
-    all_lights = n_lights <= 8
-    n_samples = n_lights if all_lights else 4
-    total = ls.power_cdf[n_lights - 1]
+    n_samples = light_sample_count(n_lights)
     for j in range(n_samples):
-        if all_lights:
-            li = j
-            w_sel = 1.0
-        else:
-            state, us = next_float(state)
-            li = sample_discrete(ls.power_cdf, us)
-            p_li = (ls.power_cdf[li] - (ls.power_cdf[li - 1] if li > 0 else 0.0)) / total
-            w_sel = 1.0 / (n_samples * p_li)
+        state, li, w_sel = pick_light(ls, j, n_samples, state)
         state, u1 = next_float(state)
         state, u2 = next_float(state)
         state, u3 = next_float(state)

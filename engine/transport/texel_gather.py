@@ -45,7 +45,8 @@ from ..lightmaps import lightmap
 from ..lightmaps import texel_areas
 from ..geometry import primitives
 from ..shading.lights import (
-    AREA, EMISSIVE, ENVIRONMENT, POINT, SPOT, sample_environment_diffuse, sample_light_radiance)
+    AREA, EMISSIVE, ENVIRONMENT, POINT, SPOT, light_sample_count, pick_light, sample_environment_diffuse,
+    sample_light_radiance)
 from .photon_tracer import ray_epsilon
 from ..geometry.assembly import prototype_surfaces
 from ..geometry.raycast import STACK_WORDS, occluded
@@ -127,21 +128,9 @@ def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, 
     if n_lights == 0:
         return state
     eps = ray_epsilon(px, py, pz)
-    all_lights = n_lights <= 8
-    n_samples = n_lights if all_lights else 4
-    total = ls.power_cdf[n_lights - 1]
+    n_samples = light_sample_count(n_lights)
     for j in range(n_samples):
-        if all_lights:
-            li = j
-            w_sel = 1.0
-        else:
-            state, us = next_float(state)
-            target = us * total
-            li = 0
-            while li < n_lights - 1 and ls.power_cdf[li] <= target:
-                li += 1
-            p_li = (ls.power_cdf[li] - (ls.power_cdf[li - 1] if li > 0 else 0.0)) / total
-            w_sel = 1.0 / (n_samples * p_li)
+        state, li, w_sel = pick_light(ls, j, n_samples, state)
         if ls.kind[li] == ENVIRONMENT and not ls.env_constant:
             for side in range(sides):
                 sg = 1.0 - 2.0 * side

@@ -99,7 +99,8 @@ def test_mesh_scene_compiles_no_csg_or_lsystem_core(tmp_path):
     assert got["t"][1:] == [None, None, None]
     assert got["occluded"] == [True, False, False, False]
     assert "raycast.closest_core" in got["names"]
-    assert not [n for n in got["names"] if n.split(".")[0] in ("csg", "csg_trace", "dcsg", "dcsg_trace", "dcsg_areas")], got["names"]
+    kinds = ("csg", "csg_trace", "dcsg", "dcsg_trace", "dcsg_areas")
+    assert not [n for n in got["names"] if n.split(".")[0] in kinds], got["names"]
 
 
 def test_csg_scene_compiles_the_csg_core(tmp_path):

@@ -219,7 +219,7 @@ def run_scene(name, cfg, log):
     pos = np.stack([geo[n][0] for n in names])[mask]
     nrm = np.stack([geo[n][1] for n in names])[mask]
     for n_ph in cfg["pm_photons"]:
-        job = methods.B.prepare_bake(bpy.context, objs, photons=n_ph, seed=7, resolution=res)
+        job = methods.bake.prepare_bake(bpy.context, objs, photons=n_ph, seed=7, resolution=res)
         t0 = time.perf_counter()
         cs = compile_scene(job.scene)
         stats = trace_photons(cs, n_ph, seed=7, max_bounces=methods.MAX_BOUNCES, record_direct=True,

@@ -154,7 +154,8 @@ def test_gather_noise_falls_as_one_over_sqrt_rays():
 _THREADS_SCRIPT = """
 import hashlib
 import numba
-from photon_lightmaps.engine import demo_scenes, renderer
+from photon_lightmaps.engine import demo_scenes
+from photon_lightmaps.engine.transport import renderer
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.transport.photon_tracer import trace_photons
 for threads, seed in ((4, 5), (1, 5), (3, 5), (4, 6)):

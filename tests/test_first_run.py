@@ -44,7 +44,8 @@ def test_warmup_then_render_compiles_nothing(tmp_path):
 
 AHEAD = """
 import json, sys
-from photon_lightmaps.engine import demo_scenes, kernel_watch, session, warmup
+from photon_lightmaps.engine import demo_scenes, session, warmup
+from photon_lightmaps.engine.core import kernel_watch
 scene = demo_scenes.cornell_box(width=16, height=16, with_primitives=False)
 settings = session.Settings(photons=5000, samples=1)
 with kernel_watch.watching() as watch:

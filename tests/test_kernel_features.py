@@ -65,7 +65,7 @@ class L(event.Listener):
         pass
 event.register("numba:compile", L())
 import numpy as np
-from photon_lightmaps.engine import raycast
+from photon_lightmaps.engine.geometry import raycast
 from photon_lightmaps.engine.geometry.assembly import compile_geometry
 from tests.test_kernel_features import _add_solid, _meshes
 s = _meshes()

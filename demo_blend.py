@@ -5,7 +5,7 @@ Both start from an empty file, so what they build does not depend on the
 user's startup file. Materials are Principled BSDFs with Specular IOR Level 0:
 pure Lambertian surfaces, which this engine and Cycles shade identically, so
 comparisons measure light transport rather than the glossy-layer approximation
-(see export.py).
+(see export/materials.py).
 """
 import math
 

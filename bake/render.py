@@ -24,7 +24,7 @@ TILE = 64
 
 @dataclass
 class RenderRun:
-    """What one render did; headless.py turns it into the JSON report."""
+    """What one render did; the CLI writes it as the JSON report (cli.py --json)."""
     scene: str = ""
     width: int = 0
     height: int = 0

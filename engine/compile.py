@@ -1,6 +1,6 @@
 """Compiles a plain `Scene` into the arrays the kernels read.
 
-Geometry and both BVH levels (geometry.py), materials, lights with their
+Geometry and both BVH levels (geometry/assembly.py), materials, lights with their
 exact flux, per-instance photon lightmaps with exact texel areas, and the
 camera. The result is what the photon pass and the renderer share.
 """

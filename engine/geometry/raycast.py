@@ -19,8 +19,8 @@ exit distance by a few ulps (Ize 2013); triangles use the watertight test
 (engine/geometry/triangle.py), so rays through shared edges and vertices of closed
 meshes always hit.
 
-Calling convention: the kernels read only the trace buffer of engine/
-geometry.py, as the tuple `buf` of its four typed views (g.trace_i64,
+Calling convention: the kernels read only the trace buffer
+(engine/geometry/trace_layout.py), as the tuple `buf` of its four typed views (g.trace_i64,
 g.trace_f32, g.trace_i32, g.trace_f64) and its features marker (see the gates
 below and engine/core/features.py), so a call passes a few dozen machine
 words instead of the ~300 of the Geometry namedtuple, which measurably cost

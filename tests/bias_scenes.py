@@ -20,7 +20,7 @@ import bmesh
 import bpy
 import numpy as np
 
-from photon_lightmaps import demo_blend
+from photon_lightmaps import demo_blend as D
 
 RES = 32                  # texels per side of every object's lightmap
 MAX_BOUNCES = 8           # ours and Cycles' (max and diffuse bounces)
@@ -56,7 +56,7 @@ def _box(name, size, location, material, rotation_z=0.0):
     sx, sy, sz = (0.5 * s for s in size)
     v = [(x, y, z) for x in (-sx, sx) for y in (-sy, sy) for z in (-sz, sz)]
     faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    ob = demo_blend.mesh_object(name, v, faces, material, uvs=_grid_uvs(6, 3))
+    ob = D.mesh_object(name, v, faces, material, uvs=_grid_uvs(6, 3))
     ob.location = location
     ob.rotation_euler = (0.0, 0.0, math.radians(rotation_z))
     return ob
@@ -66,11 +66,11 @@ def _sphere(name, radius, location, material):
     """Blender's 48 x 24 UV sphere; its own UV map (equirectangular) is the Lightmap layer."""
     me = bpy.data.meshes.new(name)
     bm = bmesh.new()
-    bm.loops.layers.uv.new(demo_blend.LIGHTMAP_UV)
+    bm.loops.layers.uv.new(D.LIGHTMAP_UV)
     bmesh.ops.create_uvsphere(bm, u_segments=48, v_segments=24, radius=radius, calc_uvs=True)
     bm.to_mesh(me)
     bm.free()
-    uv = me.uv_layers[demo_blend.LIGHTMAP_UV].uv
+    uv = me.uv_layers[D.LIGHTMAP_UV].uv
     a = np.empty(2 * len(uv), np.float32)
     uv.foreach_get("vector", a)
     uv.foreach_set("vector", (1.5 / RES + (1.0 - 3.0 / RES) * a).astype(np.float32))  # off the borders
@@ -93,33 +93,33 @@ def _room(scene, colours):
         "right": [(x, -y, 0), (x, -y, H), (x, y, H), (x, y, 0)],
     }
     for name, corners in walls.items():
-        demo_blend.mesh_object(name, corners, [(0, 1, 2, 3)], colours.get(name, colours["white"]),
-                      uvs=demo_blend.quad_uvs())
+        D.mesh_object(name, corners, [(0, 1, 2, 3)], colours.get(name, colours["white"]),
+                      uvs=D.quad_uvs())
 
 
 def build(name):
     """Builds scene `name` (one of SCENES) from an empty file; returns the bpy scene."""
-    scene = demo_blend._reset()
-    white = demo_blend.principled("white", (0.75, 0.75, 0.75))
-    colours = {"white": white, "left": demo_blend.principled("red", (0.7, 0.15, 0.1)),
-               "right": demo_blend.principled("green", (0.15, 0.55, 0.2))}
+    scene = D._reset()
+    white = D.principled("white", (0.75, 0.75, 0.75))
+    colours = {"white": white, "left": D.principled("red", (0.7, 0.15, 0.1)),
+               "right": D.principled("green", (0.15, 0.55, 0.2))}
     _room(scene, colours)
     if name == "room":
         _sphere("sphere", 0.45, (0.6, 0.3, 0.45), white)
         _box("box", (0.7, 0.7, 1.1), (-1.0, 0.2, 0.55), white, rotation_z=25.0)
-        demo_blend.add_light(scene, "AREA", "ceiling_light", power=300.0, location=(0.0, 0.0, H - 0.02),
+        D.add_light(scene, "AREA", "ceiling_light", power=300.0, location=(0.0, 0.0, H - 0.02),
                     size=1.0, size_y=1.0)
-        demo_blend.add_light(scene, "SPOT", "spot", power=400.0, location=(-1.6, -1.2, 2.2),
+        D.add_light(scene, "SPOT", "spot", power=400.0, location=(-1.6, -1.2, 2.2),
                     rotation=(math.radians(50.0), 0.0, math.radians(-50.0)),
                     spot_size=math.radians(50.0), spot_blend=0.3, radius=0.05)
     elif name == "shelves":
         _box("shelf", (1.4, 0.4, 0.03), (0.3, 0.5 * L - 0.2, 1.4), white)         # touches the back wall
         _box("panel", (0.04, 1.2, 0.9), (1.2, -0.3, 0.45), white, rotation_z=10.0)  # stands on the floor
-        demo_blend.add_light(scene, "AREA", "ceiling_light", power=300.0, location=(-0.8, 0.0, H - 0.02),
+        D.add_light(scene, "AREA", "ceiling_light", power=300.0, location=(-0.8, 0.0, H - 0.02),
                     size=1.0, size_y=1.0)
     else:
         raise ValueError(f"unknown bias scene '{name}'")
-    demo_blend.set_world(scene)
+    D.set_world(scene)
     scene.photon_lightmaps.max_bounces = MAX_BOUNCES
     return scene
 
@@ -133,5 +133,5 @@ def cycles_bake(samples, seed=0):
     """Cycles' Diffuse bake (Direct + Indirect, no Color) of every mesh -> {name: (RES, RES, 3)}."""
     from blender_session import cycles_diffuse_bake
     return {ob.name: cycles_diffuse_bake(ob, RES, samples, seed=seed, bounces=MAX_BOUNCES, margin=2,
-                                         uv_layer=demo_blend.LIGHTMAP_UV)[..., :3].copy()
+                                         uv_layer=D.LIGHTMAP_UV)[..., :3].copy()
             for ob in bake_objects()}

@@ -18,7 +18,7 @@ import pathlib
 import bpy
 import numpy as np
 
-from photon_lightmaps import demo_blend
+from photon_lightmaps import demo_blend as D
 
 RES = 64                  # texels per side of the result's lightmap
 MAX_BOUNCES = 8
@@ -60,29 +60,29 @@ def _cylinder(white, user_uvs):
         uvs = [p for k in range(n) for p in ((u(k), INSET), (u(k + 1), INSET), (u(k + 1), 1 - INSET),
                                              (u(k), 1 - INSET))]
         uvs += [(1 - INSET, 1 - INSET)] * (2 * n)
-    return demo_blend.mesh_object("cylinder", verts, faces, white, uvs=uvs)
+    return D.mesh_object("cylinder", verts, faces, white, uvs=uvs)
 
 
 def build(user_uvs=True):
     """Builds the scene from an empty file; returns the bpy scene."""
-    scene = demo_blend._reset()
-    white = demo_blend.principled("white", (0.75, 0.75, 0.75))
-    demo_blend.mesh_object("floor", [(-3, -3, 0), (3, -3, 0), (3, 3, 0), (-3, 3, 0)], [(0, 1, 2, 3)], white,
-                  uvs=demo_blend.quad_uvs())
+    scene = D._reset()
+    white = D.principled("white", (0.75, 0.75, 0.75))
+    D.mesh_object("floor", [(-3, -3, 0), (3, -3, 0), (3, 3, 0), (-3, 3, 0)], [(0, 1, 2, 3)], white,
+                  uvs=D.quad_uvs())
     v = [(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (0, 2)]
     faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    cube = demo_blend.mesh_object("cube", v, faces, white, uvs=_cube_uvs() if user_uvs else None)
+    cube = D.mesh_object("cube", v, faces, white, uvs=_cube_uvs() if user_uvs else None)
     cube.data.uv_layers.new(name="UVMap")      # a layer of the user's that nothing may touch
     cylinder = _cylinder(white, user_uvs)
     cylinder.hide_render = True
     cylinder.display_type = "WIRE"
     mod = cube.modifiers.new("Hole", "BOOLEAN")
     mod.operation, mod.solver, mod.object = "DIFFERENCE", "EXACT", cylinder
-    demo_blend.add_light(scene, "AREA", "light", power=400.0, location=(0.6, -0.4, 4.0), size=1.0, size_y=1.0)
+    D.add_light(scene, "AREA", "light", power=400.0, location=(0.6, -0.4, 4.0), size=1.0, size_y=1.0)
     # no world light: an open plane (the floor) lit from below by the world passes some of
     # that light to its top side in our engine (about +0.03 on the cube's sides against
     # Cycles, measured), which is not what this scene tests
-    demo_blend.set_world(scene)
+    D.set_world(scene)
     scene.photon_lightmaps.max_bounces = MAX_BOUNCES
     return scene
 

@@ -8,6 +8,24 @@ production:
 F --> F[+F]F[-F]F
 """
 
+# stochastic and context-sensitive: neither fits the preview's per-symbol plan
+STOCHASTIC = """axiom: F
+derivation length: 4
+angle: 22.5
+seed: 3
+production:
+F --> F[+F]F : 0.33
+F --> F[-F]F : 0.33
+F --> F[&F][^F]F : 0.34
+"""
+CONTEXT = """axiom: F A F
+derivation length: 3
+angle: 30
+production:
+F < A --> F[+A]A
+A --> F
+"""
+
 # parametric, tapering (frustums), spheres and material slots
 TAPERED = """axiom: !(0.4) A(1)
 derivation length: 5

@@ -21,7 +21,7 @@ from photon_lightmaps.export import lsystems  # noqa: E402
 from photon_lightmaps.ui import panels  # noqa: E402
 
 from blender_session import addon  # noqa: E402,F401  (session-wide registration)
-from lsystem_grammars import TAPERED  # noqa: E402
+from lsystem_grammars import CONTEXT, STOCHASTIC, TAPERED  # noqa: E402
 
 ABOP_124A = lsystems.FALLBACK_PRESET_TEXT
 # two rewritable symbols, F -> FF (exits that grow with the depth)
@@ -42,22 +42,6 @@ B --> ;(1) F(0.5) @O(0.2) !(0.02) F
 """
 # parametric: every level has new parameter values (the flattened path)
 PARAMETRIC = TAPERED
-STOCHASTIC = """axiom: F
-derivation length: 4
-angle: 22.5
-seed: 3
-production:
-F --> F[+F]F : 0.33
-F --> F[-F]F : 0.33
-F --> F[&F][^F]F : 0.34
-"""
-CONTEXT = """axiom: F A F
-derivation length: 3
-angle: 30
-production:
-F < A --> F[+A]A
-A --> F
-"""
 
 
 @pytest.fixture(autouse=True)

@@ -6,24 +6,10 @@ import pytest
 
 from photon_lightmaps.bake import lsystem_plan
 from photon_lightmaps.engine.geometry.dcsg import DCSG
-from photon_lightmaps.engine.lsystem import grammar
+from photon_lightmaps.engine.lsystem import derivation, grammar
 from photon_lightmaps.export import lsystems
 
-STOCHASTIC = """axiom: F
-derivation length: 3
-angle: 22.5
-seed: 3
-production:
-F --> F[+F]F : 0.5
-F --> F[-F]F : 0.5
-"""
-CONTEXT = """axiom: F A F
-derivation length: 3
-angle: 30
-production:
-F < A --> F[+A]A
-A --> F
-"""
+from lsystem_grammars import CONTEXT, STOCHASTIC
 
 
 @pytest.mark.parametrize("name", ["abop_1_24a", "abop_1_24d", "hilbert_3d"])
@@ -42,10 +28,9 @@ def test_what_does_not_fit_is_refused_and_flattened(text):
         lsystem_plan.symbol_plan(g)
     flat = lsystem_plan.flat_preview(g, 3)
     assert flat.depth == 3 and len(flat.kinds) == flat.transforms.shape[0] == flat.materials.shape[0] > 0
-    if g.is_context_free:
-        assert flat.source == "dcsg" and len(flat.kinds) == DCSG(g, steps=3).implicit_primitives
-    else:
-        assert flat.source == "derived"
+    assert flat.source == ("dcsg" if g.is_context_free else "derived")
+    # the same choices as the derived string (module hashes): one segment per F
+    assert len(flat.kinds) == sum(m.symbol == "F" for m in derivation.derive(g, 3).modules)
 
 
 def test_a_flat_preview_above_its_limit_lowers_the_depth_and_realizes_every_primitive():

@@ -96,15 +96,14 @@ def texel_items(cs, lightmap_ids):
     """(texel items, lit sides summed over them) of the bake kernels, as they collect them."""
     mesh, prim = texel_gather.collect_texels(cs, texel_gather.lightmap_owners(cs), sorted(lightmap_ids), 0, with_sides=True)
     items = sides = 0
-    cat = mesh.packed()
-    if cat is not None:
-        items += cat["texel"].size
-        sides += int(np.where(cat["side"] == 0, 2, 1).sum())   # side 0: gathered on both sides
-    packed = prim.packed()
-    if packed is not None:
-        cat, per_lm = packed
-        items += cat["texel"].size
-        sides += int(np.where(per_lm[5][cat["lm"]] == 2, 2, 1).sum())
+    tx = mesh.packed()
+    if tx is not None:
+        items += tx.texel.size
+        sides += int(np.where(tx.side == 0, 2, 1).sum())   # side 0: gathered on both sides
+    tx = prim.packed()
+    if tx is not None:
+        items += tx.texel.size
+        sides += int(np.where(tx.sides[tx.lm] == 2, 2, 1).sum())
     return items, sides
 
 

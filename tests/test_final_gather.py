@@ -9,8 +9,9 @@ from numba import njit
 
 from photon_lightmaps.engine import demo_scenes
 from photon_lightmaps.engine.transport import final_gather, renderer
-from photon_lightmaps.engine.shading import bsdf
-from photon_lightmaps.engine.lightmaps import lightmap, orientation_lightmap
+from photon_lightmaps.engine.lightmaps import lightmap
+from photon_lightmaps.engine.transport.kernel_scene import kernel_scene
+from photon_lightmaps.engine.transport.path_vertex import path_scratch
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.transport.photon_tracer import trace_photons
 from photon_lightmaps.engine.geometry.raycast import STACK_WORDS
@@ -66,27 +67,16 @@ def test_gather_and_lookup_agree_on_the_room_mean():
 
 
 @njit(cache=True)
-def _many(cs_g, ms, bt, ts, ls, lm, ol, env, p, f, n_rays, n_trials, mode, out, count):
-    stack = np.empty(STACK_WORDS, np.int32)
-    nb = out.shape[1]
-    kd = np.empty(nb)
-    ks = np.empty(nb)
-    kt = np.empty(nb)
-    pc = np.empty(bsdf.P_SIZE)
-    ind = np.empty(nb)
-    e = np.empty(nb)
-    tp = np.empty(nb)
-    fw = np.empty(nb)
-    rad = np.empty(nb)
+def _many(scene, p, f, n_rays, n_trials, mode, out, count):
+    w = path_scratch(out.shape[1], np.empty(STACK_WORDS, np.int32), count)
     for k in range(n_trials):
         state = stream_state(np.uint64(11), k)
-        for b in range(nb):
-            e[b] = 0.0
-        final_gather.gather_irradiance(cs_g, ms, bt, ts, ls, lm, ol, env, np.zeros(0, np.int64), stack, p[0], p[1], p[2], f[0], f[1], f[2],
-                             f[0], f[1], f[2], n_rays, mode, state, kd, ks, kt, pc, ind, tp, fw, rad, e, count,
-                             0, out, rad)
-        for b in range(nb):
-            out[k, b] = e[b]
+        for b in range(out.shape[1]):
+            w.e[b] = 0.0
+        final_gather.gather_irradiance(scene, w, (p[0], p[1], p[2]), (f[0], f[1], f[2]), (f[0], f[1], f[2]),
+                                       n_rays, mode, state, w.e, (np.int64(0), w.bands, w.tp))
+        for b in range(out.shape[1]):
+            out[k, b] = w.e[b]
 
 
 def test_progressive_passes_add_up_to_the_one_pass_image_and_cancel_between_tiles():
@@ -135,14 +125,13 @@ def test_gather_noise_falls_as_one_over_sqrt_rays():
     glass ball, at most final_gather.CHAIN per gather ray."""
     cs = compile_scene(demo_scenes.cornell_box(width=8, height=8))
     trace_photons(cs, 200_000, seed=3, record_direct=True)
-    ol = orientation_lightmap.empty_maps(cs.geometry.inst_proto.shape[0])
+    scene = kernel_scene(cs)
     p, f = np.array([0.3, 0.2, 1e-4]), np.array([0.0, 0.0, 1.0])
     stats = []
     for n in (8, 32, 128):
         out = np.zeros((400, cs.n_bands))
         count = np.zeros(1, np.int64)
-        _many(cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights, cs.lightmaps, ol, cs.environment, p, f, n,
-              400, lightmap.MODE_BILINEAR, out, count)
+        _many(scene, p, f, n, 400, lightmap.MODE_BILINEAR, out, count)
         assert 400 * n < count[0] <= 400 * n * final_gather.CHAIN
         stats.append((out[:, 0].mean(), out[:, 0].std()))
     print("\n" + "\n".join(f"{n} rays: mean {m:.4f}, std {s:.4f}" for n, (m, s) in zip((8, 32, 128), stats)))

@@ -67,8 +67,8 @@ def test_records_trace_far_fewer_rays(cornell):
     cs, full, cached, info = cornell
     ids = sorted({int(l) for lids in cs.instance_lightmaps for l in lids})
     cat = bake_gather.Texels(cs, ids, (), POINTS, 0, 1).mesh
-    assert np.array_equal(cat["texel"], full.ids)
-    sides = np.where(cat["side"] == 0, 2, 1)         # side 0: gathered on both sides
+    assert np.array_equal(cat.texel, full.ids)
+    sides = np.where(cat.side == 0, 2, 1)         # side 0: gathered on both sides
     full_rays = int((full.rays * POINTS * sides).sum())
     print(f"\n{info}; per-texel gather: {full_rays:,} rays")
     assert info["fallback_items"] < 0.05 * info["items"]
@@ -101,7 +101,7 @@ def _records_of(cs, tex, IC):
         made["cache"] = self
     IC.Cache.add = spy
     try:
-        IC.cached_mesh_gather(cs, tex.fixed, tex.mesh, POINTS, POINTS * RAYS, bake_gather.STREAM_XOR)
+        IC.cached_mesh_gather(cs, tex.scene, tex.mode, tex.mesh, POINTS, POINTS * RAYS, bake_gather.STREAM_XOR)
     finally:
         IC.Cache.add = original
     return made["cache"]
@@ -215,7 +215,7 @@ def test_gradients_match_finite_differences(cornell):
         c = IC.Cache(cs.n_bands)
         P = np.repeat(np.asarray(points, float), S, axis=0)
         N = np.repeat(np.asarray(normals, float), S, axis=0)
-        c.add(tex.fixed, P, N, np.full(len(P), 7, np.uint64), np.full(len(P), 0.05), 1024, 0)
+        c.add(tex.scene, tex.mode, P, N, np.full(len(P), 7, np.uint64), np.full(len(P), 0.05), 1024, 0)
         return c.E.mean(axis=1).reshape(-1, S).mean(axis=1), c.gt.mean(axis=1), c.gr.mean(axis=1)
 
     d = 0.05

@@ -14,7 +14,6 @@ from photon_lightmaps.engine.shading import lights
 from photon_lightmaps.engine.transport import texel_gather
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.transport.photon_tracer import trace_photons
-from photon_lightmaps.engine.geometry.raycast import STACK_WORDS
 from photon_lightmaps.engine.core.sampling import (
     cosine_hemisphere, next_float, stream_state, to_world, uniform_sphere)
 from photon_lightmaps.engine.core.scene import (
@@ -108,28 +107,6 @@ def _photons(ls, g, n, old):
     return out
 
 
-@njit(cache=True)
-def _direct_both(g, ls, pts, n):
-    """renderer.direct_irradiance (one radiance per light) against texel_gather's (per band)."""
-    stack = np.empty(STACK_WORDS, np.int32)
-    nb = ls.radiance.shape[1]
-    a = np.zeros((pts.shape[0], nb))
-    b = np.zeros((pts.shape[0], nb))
-    for i in range(pts.shape[0]):
-        s1 = stream_state(9, i)
-        s2 = stream_state(9, i)
-        for _ in range(n):
-            s1 = _old_direct(g, ls, stack, pts[i, 0], pts[i, 1], pts[i, 2], 0.0, 0.0, 1.0, s1, a[i])
-            s2 = texel_gather.direct_irradiance(g, ls, stack, pts[i, 0], pts[i, 1], pts[i, 2], 0.0, 0.0, 1.0, s2, b[i])
-    return a, b
-
-
-try:
-    from photon_lightmaps.engine.transport.renderer import direct_irradiance as _old_direct
-except ImportError:     # the renderer's own copy may go; the kernel-level checks stay
-    _old_direct = None
-
-
 def world_scene(env, n_bands=3):
     """An open box of primitives on a floor quad, a sphere, lit by the world only."""
     s = Scene(n_bands=n_bands)
@@ -158,11 +135,6 @@ def test_constant_world_is_bit_identical_to_the_uniform_path():
     # photons: the very numbers of the uniform-sphere emission
     new, old = _photons(ls, cs.geometry, 2000, False), _photons(ls, cs.geometry, 2000, True)
     assert np.array_equal(new, old)
-    # direct light: texel_gather's per-band direct light = the renderer's one-radiance version
-    if _old_direct is not None:
-        pts = np.array([[0.0, 0.0, 1e-9], [1.5, 1.5, 0.0], [0.3, -0.2, 1.0], [-0.8, 0.6, 0.8]])
-        a, b = _direct_both(cs.geometry, ls, pts, 64)
-        assert np.array_equal(a, b) and a.max() > 0
 
 
 @njit(cache=True)

@@ -26,36 +26,39 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from ..shading import bsdf
 from ..geometry import csg
 from ..geometry import csg_trace
 from ..lightmaps import lightmap
-from ..lightmaps import orientation_lightmap
 from . import texel_gather
-from .csg_bake import csg_texel_items, csg_texel_point
+from .csg_bake import csg_texel_items, csg_texel_sample
 from .final_gather import gather_irradiance
-from ..core.jit import CORE
-from ..geometry.raycast import STACK_WORDS
-from ..core.sampling import next_float, stream_state
+from .kernel_scene import kernel_scene
+from .path_vertex import new_path_scratch
+from ..core.jit import CORE, typed
+from ..core.sampling import next_float
 from ..core import parallel
 
 STREAM_XOR = np.uint64(0x5BD1E9955BD1E995)
 STREAM_XOR_2 = np.uint64(0x2545F4914F6CDD1D)  # the adaptive pass
-SCRATCH_ROWS = 7      # kd ks kt ind tp f rad of gather_irradiance
+
+GatherPass = namedtuple("GatherPass", [
+    "mode",       # lightmap lookup where gather rays land (lightmap.MODE_*)
+    "points",     # points per texel
+    "rays",       # int64[K] gather rays per point and lit side of each item (0: skipped)
+    "order",      # int64[K] the order items are handed out in (_order)
+    "stream",     # uint64 xored into the texels' stream keys (STREAM_XOR, STREAM_XOR_2)
+])
 
 
 @njit(**CORE)
-def point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack, px, py, pz, nx, ny, nz,
-                   side, state, sc, pc, out, count):
+def point_indirect(scene, w, mode, n_rays, p, n, side, state, out):
     """Gathered indirect irradiance at a bake point into out (added): along n
-    (side >= 0) and against it (side <= 0); count[0] gains the rays traced."""
+    (side >= 0) and against it (side <= 0); w.count[0] gains the rays traced."""
     for sgn in (1.0, -1.0):
         if side * sgn < 0.0:
             continue
-        fx, fy, fz = sgn * nx, sgn * ny, sgn * nz
-        state = gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, isd, stack, px, py, pz, fx, fy, fz,
-                                  fx, fy, fz, n_rays, mode, state, sc[0], sc[1], sc[2], pc, sc[3],
-                                  sc[4], sc[5], sc[6], out, count, 0, sc, sc[0])
+        f = (sgn * n[0], sgn * n[1], sgn * n[2])
+        state = gather_irradiance(scene, w, p, f, f, n_rays, mode, state, out, (typed(0), w.bands, w.tp))
     return state
 
 
@@ -64,6 +67,15 @@ def add_caustic(lmc, lid, face, s, t, tmp, out):
     lightmap.lookup(lmc, lid, face, s, t, lightmap.MODE_CONSTANT, tmp)
     for b in range(out.shape[0]):
         out[b] += tmp[b]
+
+
+@njit(cache=True, inline="always")
+def add_mesh_caustic(scene, tx, it, t, b1, b2, tmp, out):
+    """The caustic lightmap of mesh texel it at barycentrics (b1, b2) of triangle t, added to out."""
+    uv = scene.geometry.tri_uv[t]
+    b0 = 1.0 - b1 - b2
+    add_caustic(scene.caustic_maps, tx.lid[it], 0, b0 * uv[0, 0] + b1 * uv[1, 0] + b2 * uv[2, 0],
+                b0 * uv[0, 1] + b1 * uv[1, 1] + b2 * uv[2, 1], tmp, out)
 
 
 @njit(cache=True)
@@ -95,58 +107,45 @@ def _variance(q, wsum, e):
 
 
 @njit(cache=True, nogil=True)
-def _indirect_mesh(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_inst, item_lid, item_side,
-                   item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, item_rays, order, stream, out, var,
-                   start, stop):
+def _indirect_mesh(scene, tx, job, out, var, start, stop):
     """The gather of mesh texels start..stop: the block's scratch, then the core."""
     nb = out.shape[1]
-    _indirect_mesh_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_inst, item_lid,
-                        item_side, item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, item_rays, order,
-                        stream, out, var, start, stop, np.empty(STACK_WORDS, np.int32),
-                        np.empty((SCRATCH_ROWS, nb)), np.empty(bsdf.P_SIZE), np.empty(nb), np.empty(nb),
-                        np.empty(3), np.zeros(1, np.int64))
+    _indirect_mesh_core(scene, tx, job, out, var, start, stop, new_path_scratch(nb), np.empty((2, nb)),
+                        np.empty(3))
 
 
 # Per-point loops compile without NRT, as texel_gather's kernels do (a read of a
 # scene tuple's field would otherwise be a contended atomic incref and decref).
 @njit(**CORE)
-def _indirect_mesh_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_inst, item_lid,
-                        item_side, item_key, item_local, pstart, ptri, parea, pnv, pb, n_points, item_rays, order,
-                        stream, out, var, start, stop, stack, sc, pc, e, ep, q, count):
+def _indirect_mesh_core(scene, tx, job, out, var, start, stop, w, bands, q):
     nb = out.shape[1]
+    e, ep = bands[0], bands[1]
+    n_points = job.points
     k = texel_gather.grid_side(n_points)
     for i in range(start, stop):
-        it = order[i]     # a shuffled order: the blocks get equal work
-        n_rays = item_rays[it]
+        it = job.order[i]     # a shuffled order: the blocks get equal work
+        n_rays = job.rays[it]
         if n_rays <= 0:
             continue
         for b in range(nb):
             e[b] = 0.0
         q[0] = q[1] = q[2] = 0.0
-        p0 = pstart[it]
-        p1 = pstart[it + 1]
-        total = 0.0
-        for p in range(p0, p1):
-            total += parea[p]
-        if total > 0.0:
-            xf = g.inst_xf[item_inst[it]]
-            state = stream_state(item_key[it] ^ stream, item_local[it])
+        pieces = texel_gather.mesh_texel_pieces(scene.geometry, tx, it)
+        if pieces[2] > 0.0:
+            state = texel_gather.texel_stream(tx, it, job.stream)
             for s in range(n_points):
                 state, j1 = next_float(state)
                 state, j2 = next_float(state)
                 u1, u2 = texel_gather.jitter(s, k, j1, j2)
-                ok, px, py, pz, nx, ny, nz, t, b1, b2 = texel_gather.mesh_texel_point(
-                    g, xf, ptri, parea, pnv, pb, p0, p1, total, u1, u2)
+                ok, px, py, pz, nx, ny, nz, t, b1, b2 = texel_gather.mesh_texel_sample(
+                    scene.geometry, tx, pieces, u1, u2)
                 for b in range(nb):
                     ep[b] = 0.0
                 if ok:
-                    state = point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack,
-                                           px, py, pz, nx, ny, nz, item_side[it], state, sc, pc, ep, count)
-                    if caustics:
-                        uv = g.tri_uv[t]
-                        b0 = 1.0 - b1 - b2
-                        add_caustic(lmc, item_lid[it], 0, b0 * uv[0, 0] + b1 * uv[1, 0] + b2 * uv[2, 0],
-                                     b0 * uv[0, 1] + b1 * uv[1, 1] + b2 * uv[2, 1], sc[3], ep)
+                    state = point_indirect(scene, w, job.mode, n_rays, (px, py, pz), (nx, ny, nz), tx.side[it],
+                                           state, ep)
+                    if scene.caustics:
+                        add_mesh_caustic(scene, tx, it, t, b1, b2, w.ind, ep)
                 _accumulate(1.0, ep, e, q)
         var[it] = _variance(q, float(n_points), e)
         for b in range(nb):
@@ -154,52 +153,42 @@ def _indirect_mesh_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode
 
 
 @njit(cache=True, nogil=True)
-def _indirect_prim(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_lm, item_lid, item_face,
-                   item_x, item_y, item_key, item_local, lm_kind, lm_params, lm_xf, lm_ncof, lm_res,
-                   lm_sides, n_points, item_rays, order, stream, out, var, start, stop):
+def _indirect_prim(scene, tx, job, out, var, start, stop):
     """The gather of primitive texels start..stop: the block's scratch, then the core."""
     nb = out.shape[1]
-    _indirect_prim_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_lm, item_lid, item_face,
-                        item_x, item_y, item_key, item_local, lm_kind, lm_params, lm_xf, lm_ncof, lm_res,
-                        lm_sides, n_points, item_rays, order, stream, out, var, start, stop,
-                        np.empty(STACK_WORDS, np.int32), np.empty((SCRATCH_ROWS, nb)), np.empty(bsdf.P_SIZE),
-                        np.empty(nb), np.empty(nb), np.empty(3), np.zeros(1, np.int64))
+    _indirect_prim_core(scene, tx, job, out, var, start, stop, new_path_scratch(nb), np.empty((2, nb)),
+                        np.empty(3))
 
 
 @njit(**CORE)
-def _indirect_prim_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, item_lm, item_lid, item_face,
-                        item_x, item_y, item_key, item_local, lm_kind, lm_params, lm_xf, lm_ncof, lm_res,
-                        lm_sides, n_points, item_rays, order, stream, out, var, start, stop, stack, sc, pc, e,
-                        ew, q, count):
+def _indirect_prim_core(scene, tx, job, out, var, start, stop, w, bands, q):
     nb = out.shape[1]
+    e, ew = bands[0], bands[1]
+    n_points = job.points
     k = texel_gather.grid_side(n_points)
     for i in range(start, stop):
-        it = order[i]     # a shuffled order: the blocks get equal work
-        n_rays = item_rays[it]
+        it = job.order[i]     # a shuffled order: the blocks get equal work
+        n_rays = job.rays[it]
         if n_rays <= 0:
             continue
         for b in range(nb):
             ew[b] = 0.0
         q[0] = q[1] = q[2] = 0.0
-        l = item_lm[it]
-        side = 0 if lm_sides[l] == 2 else 1
-        state = stream_state(item_key[it] ^ stream, item_local[it])
+        side = 0 if tx.sides[tx.lm[it]] == 2 else 1
+        state = texel_gather.texel_stream(tx, it, job.stream)
         wsum = 0.0
         for s in range(n_points):
             state, j1 = next_float(state)
             state, j2 = next_float(state)
             u1, u2 = texel_gather.jitter(s, k, j1, j2)
-            ok, jac, px, py, pz, nx, ny, nz, cs_, ct = texel_gather.prim_texel_point(
-                lm_kind[l], lm_params[l], lm_xf[l], lm_ncof[l], item_face[it], item_x[it], item_y[it],
-                1.0 / lm_res[l], u1, u2)
+            ok, jac, px, py, pz, nx, ny, nz, cs_, ct = texel_gather.prim_texel_sample(tx, it, u1, u2)
             if not ok:
                 continue
             for b in range(nb):
                 e[b] = 0.0
-            state = point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack, px, py, pz,
-                                   nx, ny, nz, side, state, sc, pc, e, count)
-            if caustics:
-                add_caustic(lmc, item_lid[it], item_face[it], cs_, ct, sc[3], e)
+            state = point_indirect(scene, w, job.mode, n_rays, (px, py, pz), (nx, ny, nz), side, state, e)
+            if scene.caustics:
+                add_caustic(scene.caustic_maps, tx.lid[it], tx.face[it], cs_, ct, w.ind, e)
             _accumulate(jac, e, ew, q)
             wsum += jac
         var[it] = _variance(q, wsum, ew)
@@ -208,59 +197,37 @@ def _indirect_prim_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode
 
 
 @njit(cache=True, nogil=True)
-def _indirect_csg(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, buf, item_lm, item_lid, item_face,
-                  item_x, item_y, item_row, item_key, item_local, lm_kind, lm_params, lm_leaf, lm_root,
-                  lm_pxf, lm_pinv, lm_wxf, lm_ncof, lm_res, lm_flip, lm_eps, n_points, item_rays, order, stream,
-                  acc, wsum, q, start, stop):
+def _indirect_csg(scene, tx, job, acc, wsum, q, start, stop):
     """acc[row] += J·E_indirect, wsum[row] += J, q[row] += the error sums, like
     csg_bake._gather_csg (outside only). An item's rows are its own (its texel and
     that texel's split regions), so parallel items never write the same row."""
-    cb = csg_trace.csg_base(buf)
+    cb = csg_trace.csg_base(tx.buf)
     nb = acc.shape[1]
+    n_points = job.points
     k = texel_gather.grid_side(n_points)
-    count = np.zeros(1, np.int64)
     for i in range(start, stop):
-        it = order[i]     # a shuffled order: the blocks get equal work
-        n_rays = item_rays[it]
+        it = job.order[i]     # a shuffled order: the blocks get equal work
+        n_rays = job.rays[it]
         if n_rays <= 0:
             continue
-        stack = np.empty(STACK_WORDS, np.int32)
+        w = new_path_scratch(nb)
         bits = np.empty(3 * csg.MAX_WORK + 8, np.int32)
-        sc = np.empty((SCRATCH_ROWS, nb))
-        pc = np.empty(bsdf.P_SIZE)
         e = np.zeros(nb)
-        l = item_lm[it]
-        sgn = -1.0 if lm_flip[l] else 1.0
-        state = stream_state(item_key[it] ^ stream, item_local[it])
+        state = texel_gather.texel_stream(tx, it, job.stream)
         for s in range(n_points):
             state, j1 = next_float(state)
             state, j2 = next_float(state)
             u1, u2 = texel_gather.jitter(s, k, j1, j2)
-            ok, row, jac, px, py, pz, nx, ny, nz, cs_, ct = csg_texel_point(
-                buf, cb, bits, lm.split, lm.split_first, lm.split_cell, lm_kind[l], lm_params[l],
-                lm_leaf[l], lm_root[l], lm_pxf[l], lm_pinv[l], lm_wxf[l], lm_ncof[l], lm_eps[l], sgn,
-                item_face[it], item_x[it], item_y[it], item_row[it], 1.0 / lm_res[l], u1, u2)
+            ok, row, jac, px, py, pz, nx, ny, nz, cs_, ct = csg_texel_sample(tx, it, cb, bits, u1, u2)
             if not ok:
                 continue
             for b in range(nb):
                 e[b] = 0.0
-            state = point_indirect(g, ms, bt, ts, ls, lm, ol, env, isd, mode, n_rays, stack, px, py, pz,
-                                   nx, ny, nz, 1, state, sc, pc, e, count)
-            if caustics:
-                add_caustic(lmc, item_lid[it], item_face[it], cs_, ct, sc[3], e)
+            state = point_indirect(scene, w, job.mode, n_rays, (px, py, pz), (nx, ny, nz), 1, state, e)
+            if scene.caustics:
+                add_caustic(scene.caustic_maps, tx.lid[it], tx.face[it], cs_, ct, w.ind, e)
             _accumulate(jac, e, acc[row], q[row])
             wsum[row] += jac
-
-
-def _inputs(cs):
-    """The photon-lightmap state every gather kernel reads (after a record_direct photon pass)."""
-    if not getattr(cs, "lightmaps_hold_direct", False) and np.any(cs.lightmaps.flux):
-        raise ValueError("a bake's final gather needs a photon pass that recorded direct light")
-    ol = cs.orientation if cs.orientation is not None else orientation_lightmap.empty_maps(cs.geometry.inst_proto.shape[0])
-    caustics = bool(getattr(cs, "caustics_traced", False)) and cs.caustics is not None
-    lmc = cs.caustics if caustics else cs.lightmaps
-    return (cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights, cs.lightmaps, lmc, caustics, ol,
-            cs.environment, texel_gather.instance_sides(cs))
 
 
 Gathered = namedtuple("Gathered", [
@@ -276,8 +243,10 @@ class Texels:
     kernel inputs they share; run() is one gather pass over them."""
 
     def __init__(self, cs, lightmap_ids, csg_leaves, points, mode, seed):
-        self.cs, self.points = cs, int(points)
-        self.fixed = _inputs(cs) + (int(mode),)
+        if not getattr(cs, "lightmaps_hold_direct", False) and np.any(cs.lightmaps.flux):
+            raise ValueError("a bake's final gather needs a photon pass that recorded direct light")
+        self.cs, self.points, self.mode = cs, int(points), int(mode)
+        self.scene = kernel_scene(cs, inst_side=texel_gather.instance_sides(cs))
         self.mesh = self.prim = self.csg = None
         ids = sorted({int(l) for l in lightmap_ids})
         if ids:
@@ -289,14 +258,12 @@ class Texels:
     def item_rows(self):
         """Per part, the texel row that each item's error is judged by (for a
         CSG texel cut into regions: the region rows too, see csg_rows)."""
-        rows = []
-        if self.mesh is not None:
-            rows.append(self.mesh["texel"])
-        if self.prim is not None:
-            rows.append(self.prim[0]["texel"])
-        if self.csg is not None:
-            rows.append(self.csg[1]["row"])
-        return rows
+        return [tx.texel if i < 2 else tx.row for i, tx in enumerate((self.mesh, self.prim, self.csg))
+                if tx is not None]
+
+    def job(self, item_rays, stream):
+        """The GatherPass of one part's items."""
+        return GatherPass(self.mode, self.points, item_rays, _order(item_rays), stream)
 
     def run(self, item_rays, stream, cached=False):
         """One pass, item_rays[part][item] rays per point -> (ids, E, var, rays) per texel row.
@@ -308,43 +275,37 @@ class Texels:
         parts, i = [], 0
         t0 = time.perf_counter()
         if self.mesh is not None:
-            cat, r = self.mesh, item_rays[i]
-            out, var = np.zeros((cat["texel"].size, nb)), np.zeros(cat["texel"].size)
+            tx, r = self.mesh, item_rays[i]
+            out, var = np.zeros((tx.texel.size, nb)), np.zeros(tx.texel.size)
             todo = r
             if cached and r.size:
                 from .irradiance_cache import cached_mesh_gather
                 out, var, fallback, self.cache_info = cached_mesh_gather(
-                    self.cs, self.fixed, cat, self.points, int(r.max()) * self.points, stream)
+                    self.cs, self.scene, self.mode, tx, self.points, int(r.max()) * self.points, stream)
                 todo = np.zeros_like(r)
                 todo[fallback] = r[fallback]
             if todo.any():
                 o2, v2 = np.zeros_like(out), np.zeros_like(var)
-                parallel.run(_indirect_mesh, out.shape[0], *self.fixed, cat["inst"], cat["lid"], cat["side"],
-                             cat["key"], cat["local"], cat["start"], cat["tri"], cat["area"], cat["nv"],
-                             cat["bary"], self.points, todo, _order(todo), stream, o2, v2)
+                parallel.run(_indirect_mesh, out.shape[0], self.scene, tx, self.job(todo, stream), o2, v2)
                 out[todo > 0], var[todo > 0] = o2[todo > 0], v2[todo > 0]
-            parts.append((cat["texel"], out, var, r))
+            parts.append((tx.texel, out, var, r))
             i += 1
         if self.prim is not None:
-            (cat, per_lm), r = self.prim, item_rays[i]
-            out, var = np.zeros((cat["texel"].size, nb)), np.zeros(cat["texel"].size)
-            parallel.run(_indirect_prim, out.shape[0], *self.fixed, cat["lm"], cat["lid"], cat["face"],
-                         cat["x"], cat["y"], cat["key"], cat["local"], *per_lm, self.points, r, _order(r),
-                         stream, out, var)
-            parts.append((cat["texel"], out, var, r))
+            tx, r = self.prim, item_rays[i]
+            out, var = np.zeros((tx.texel.size, nb)), np.zeros(tx.texel.size)
+            parallel.run(_indirect_prim, out.shape[0], self.scene, tx, self.job(r, stream), out, var)
+            parts.append((tx.texel, out, var, r))
             i += 1
         if self.csg is not None:
-            (buf, cat, per_lm), r = self.csg, item_rays[i]
+            tx, r = self.csg, item_rays[i]
             n_rows = self.cs.lightmaps.area.shape[0]
             acc, wsum, q = np.zeros((n_rows, nb)), np.zeros(n_rows), np.zeros((n_rows, 3))
-            parallel.run(_indirect_csg, cat["lm"].shape[0], *self.fixed, buf, cat["lm"], cat["lid"],
-                         cat["face"], cat["x"], cat["y"], cat["row"], cat["key"], cat["local"], *per_lm,
-                         self.points, r, _order(r), stream, acc, wsum, q)
+            parallel.run(_indirect_csg, tx.lm.shape[0], self.scene, tx, self.job(r, stream), acc, wsum, q)
             rows = np.flatnonzero(wsum > 0.0).astype(np.int64)
             var = np.array([_variance(q[j], wsum[j], acc[j]) for j in rows])
             # a row's rays: those of the item (texel) it belongs to
             row_rays = np.zeros(n_rows, np.int64)
-            for it_row, k in zip(*csg_rows(self.cs.lightmaps, cat["row"])):
+            for it_row, k in zip(*csg_rows(self.cs.lightmaps, tx.row)):
                 row_rays[it_row] = r[k]
             parts.append((rows, acc[rows] / wsum[rows][:, None], var, row_rays[rows]))
         self.seconds = time.perf_counter() - t0

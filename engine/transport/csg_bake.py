@@ -21,6 +21,7 @@ texel into several visible regions. A bake wants one image per solid, so:
   remap them into the leaf's block.
 """
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
@@ -33,8 +34,10 @@ from ..lightmaps import texel_areas
 from ..geometry import primitives
 from ..geometry.assembly import prototype_surfaces
 from ..geometry.raycast import STACK_WORDS
-from ..core.sampling import next_float, stream_state
-from .texel_gather import grid_side, jitter, direct_irradiance_stratum, light_stratum, texel_shift
+from ..core.sampling import next_float
+from ..core.jit import INLINE
+from .texel_gather import (
+    NO_XOR, direct_irradiance_stratum, grid_side, jitter, light_stratum, texel_shift, texel_stream)
 from ..core import parallel
 
 GUTTER = 1   # texels around each leaf block
@@ -232,49 +235,65 @@ def csg_texel_point(buf, cb, bits, split, split_first, split_cell, kind, params,
     return True, row, jac, px, py, pz, wx * f, wy * f, wz * f, s, t
 
 
+CsgTexels = namedtuple("CsgTexels", [
+    "buf",                    # the CSG trace views (csg_trace), with the solids' trees
+    "split", "split_first", "split_cell",   # the lightmaps' split texels (lightmap.py)
+    "lm", "lid",              # the item's lightmap within this set (per-lightmap columns), its id
+    "face", "x", "y", "row",  # chart tile, cell, and the texel's row
+    "key", "local",           # stream key and the texel within its lightmap
+    # per lightmap of the set: the leaf primitive's kind and parameters, its leaf and
+    # root in the tree, primitive and world transforms, normal cofactor, cells per
+    # tile side, whether the leaf is subtracted, the solid's point-test offset
+    "kind", "params", "leaf", "root", "pxf", "pinv", "wxf", "ncof", "res", "flip", "eps",
+])
+
+
+@njit(**INLINE)
+def csg_texel_sample(tx, it, cb, bits, u1, u2):
+    """csg_texel_point of item it of CsgTexels tx for unit-square sample (u1, u2);
+    cb: csg_trace.csg_base(tx.buf), bits: the point test's scratch."""
+    l = tx.lm[it]
+    return csg_texel_point(tx.buf, cb, bits, tx.split, tx.split_first, tx.split_cell, tx.kind[l], tx.params[l],
+                           tx.leaf[l], tx.root[l], tx.pxf[l], tx.pinv[l], tx.wxf[l], tx.ncof[l], tx.eps[l],
+                           -1.0 if tx.flip[l] else 1.0, tx.face[it], tx.x[it], tx.y[it], tx.row[it],
+                           1.0 / tx.res[l], u1, u2)
+
+
 @njit(cache=True, nogil=True)
-def _gather_csg(g, ls, buf, split, split_first, split_cell, item_lm, item_face, item_x, item_y,
-                item_row, item_key, item_local, lm_kind, lm_params, lm_leaf, lm_root, lm_pxf,
-                lm_pinv, lm_wxf, lm_ncof, lm_res, lm_flip, lm_eps, n_samples, acc, wsum, start, stop):
+def _gather_csg(g, ls, tx, n_samples, acc, wsum, start, stop):
     """acc[row] += J·E_direct and wsum[row] += J over the samples of each item's
     texel that lie on the solid's boundary as part of the item's leaf (rows of
     a split texel by the region label of the sample's cell)."""
-    cb = csg_trace.csg_base(buf)
+    cb = csg_trace.csg_base(tx.buf)
     nb = acc.shape[1]
     k = grid_side(n_samples)
     for it in range(start, stop):
         stack = np.empty(STACK_WORDS, np.int32)
         bits = np.empty(3 * csg.MAX_WORK + 8, np.int32)
         e = np.zeros(nb)
-        l = item_lm[it]
-        inv_r = 1.0 / lm_res[l]
-        sgn = -1.0 if lm_flip[l] else 1.0
         rad = np.empty(nb)
-        state = stream_state(item_key[it], item_local[it])
+        state = texel_stream(tx, it, NO_XOR)
         state, shift = texel_shift(state, k)
         for s in range(n_samples):
             state, j1 = next_float(state)
             state, j2 = next_float(state)
             u1, u2 = jitter(s, k, j1, j2)
-            ok, row, jac, px, py, pz, nx, ny, nz, _, _ = csg_texel_point(
-                buf, cb, bits, split, split_first, split_cell, lm_kind[l], lm_params[l], lm_leaf[l],
-                lm_root[l], lm_pxf[l], lm_pinv[l], lm_wxf[l], lm_ncof[l], lm_eps[l], sgn,
-                item_face[it], item_x[it], item_y[it], item_row[it], inv_r, u1, u2)
+            ok, row, jac, px, py, pz, nx, ny, nz, _, _ = csg_texel_sample(tx, it, cb, bits, u1, u2)
             if not ok:
                 continue
             for bb in range(nb):
                 e[bb] = 0.0
-            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e,
-                                              light_stratum(s, k, shift), k, rad, 1)
+            state = direct_irradiance_stratum(g, ls, stack, (px, py, pz), (nx, ny, nz), state, e,
+                                              (light_stratum(s, k, shift), k), rad, 1)
             for bb in range(nb):
                 acc[row, bb] += jac * e[bb]
             wsum[row] += jac
 
 
 def csg_texel_items(cs, leaves, seed=0):
-    """The texels of CSG leaves as the leaf-texel kernels take them -> (buf, items, per-lightmap
-    arrays) or None when no leaf has a texel on the solid. items carry the owning
-    lightmap (`lid`) and texel row of each; per-lightmap arrays are indexed by items['lm']."""
+    """The texels of CSG leaves as the leaf-texel kernels take them -> CsgTexels, or
+    None when no leaf has a texel on the solid. Items carry the owning lightmap
+    (`lid`) and texel row of each; per-lightmap columns are indexed by `lm`."""
     from .texel_gather import affine_compose, lightmap_key
     lm = cs.lightmaps
     g = cs.geometry
@@ -318,12 +337,11 @@ def csg_texel_items(cs, leaves, seed=0):
         return None
     cat = {k: np.ascontiguousarray(np.concatenate(v).astype(np.uint64 if k == "key" else np.int64))
            for k, v in items.items()}
-    per_lm = (np.asarray(pl["kind"], np.int32), np.stack(pl["params"]),
-              np.asarray(pl["leaf"], np.int64), np.asarray(pl["root"], np.int64),
-              np.stack(pl["pxf"]), np.stack(pl["pinv"]), np.stack(pl["wxf"]), np.stack(pl["ncof"]),
-              np.asarray(pl["res"], np.int64), np.asarray(pl["flip"], np.int64),
-              np.asarray(pl["eps"], np.float64))
-    return buf, cat, per_lm
+    return CsgTexels(buf, lm.split, lm.split_first, lm.split_cell, kind=np.asarray(pl["kind"], np.int32),
+                     params=np.stack(pl["params"]), leaf=np.asarray(pl["leaf"], np.int64),
+                     root=np.asarray(pl["root"], np.int64), pxf=np.stack(pl["pxf"]), pinv=np.stack(pl["pinv"]),
+                     wxf=np.stack(pl["wxf"]), ncof=np.stack(pl["ncof"]), res=np.asarray(pl["res"], np.int64),
+                     flip=np.asarray(pl["flip"], np.int64), eps=np.asarray(pl["eps"], np.float64), **cat)
 
 
 def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
@@ -337,15 +355,12 @@ def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
     """
     lm = cs.lightmaps
     nb = cs.n_bands
-    got = csg_texel_items(cs, leaves, seed)
-    if got is None:
+    tx = csg_texel_items(cs, leaves, seed)
+    if tx is None:
         return np.zeros(0, np.int64), np.zeros((0, nb))
-    buf, cat, per_lm = got
     acc = np.zeros((lm.area.shape[0], nb))
     wsum = np.zeros(lm.area.shape[0])
-    parallel.run(_gather_csg, cat["lm"].shape[0], cs.geometry, cs.lights, buf, lm.split, lm.split_first,
-                 lm.split_cell, cat["lm"], cat["face"], cat["x"], cat["y"], cat["row"], cat["key"], cat["local"],
-                 *per_lm, int(samples_per_texel), acc, wsum)
+    parallel.run(_gather_csg, tx.lm.shape[0], cs.geometry, cs.lights, tx, int(samples_per_texel), acc, wsum)
     ids = np.flatnonzero(wsum > 0.0).astype(np.int64)
     return ids, acc[ids] / wsum[ids][:, None]
 

@@ -32,7 +32,8 @@ from ..shading import environment
 from ..shading import light_hits
 from ..shading import materials
 from ..lightmaps import orientation_lightmap
-from .photon_tracer import CAUSTIC_ALPHA, ray_epsilon
+from .photon_tracer import CAUSTIC_ALPHA
+from .path_vertex import leave_surface
 from ..core.jit import CORE, typed
 from ..geometry.raycast import intersect_closest
 from ..core.sampling import cosine_hemisphere, next_float, to_world
@@ -42,33 +43,39 @@ CHAIN = 3          # vertices a gather ray follows through glossy lobes
 
 
 @njit(**CORE)
-def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, pz, fx, fy, fz, sx, sy, sz,
-                      n_rays, mode, state, kd, ks, kt, pc, ind, tp, f, rad, out, count, rings, cell_e, cell_t):
+def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
     """Indirect irradiance at p from n_rays gather rays into out[bands] (added).
 
-    inst_side (one per instance, or empty: no test): the lit side of a closed
-    surface, +1 along its hit normal, 0 for open ones. A ray that first meets a
-    closed surface from inside reads nothing: p lies inside that solid (a bake
-    point where a box touches the floor), where no light comes, while its texels
-    hold the outside's.
-    f: the face normal on the viewer's side, s: the shading normal (rays are
-    cosine-distributed about s; those that leave below f count zero, as the
-    direct light's do). kd, ks, kt, pc, ind, tp, f, rad: scratch arrays; count[0]
-    gains the rays traced (glossy chains included). A
-    randomly shifted rank-1 lattice stratifies the rays; it stays unbiased.
+    scene.inst_side (one per instance, or empty: no test): the lit side of a
+    closed surface, +1 along its hit normal, 0 for open ones. A ray that first
+    meets a closed surface from inside reads nothing: p lies inside that solid
+    (a bake point where a box touches the floor), where no light comes, while
+    its texels hold the outside's.
+    fn: the face normal on the viewer's side, sn: the shading normal (rays are
+    cosine-distributed about sn; those that leave below fn count zero, as the
+    direct light's do). w: the gather path's scratch (path_vertex.PathScratch);
+    w.count[0] gains the rays traced (glossy chains included). A randomly
+    shifted rank-1 lattice stratifies the rays; it stays unbiased.
 
-    rings > 0 (irradiance-cache records): the hemisphere about s is cut into
-    `rings` rings of equal cosine-weighted measure by n_rays // rings sectors
-    of azimuth, one jittered ray per cell (Ward & Heckbert's split), and each
-    ray's own estimate and the distance to what it met first (inf: nothing)
-    also go to cell_e[i] and cell_t[i], for the record's gradients. Otherwise
-    cell_e and cell_t are not touched (any arrays of their types do)."""
+    cells = (rings, cell_e, cell_t). rings > 0 (irradiance-cache records): the
+    hemisphere about sn is cut into `rings` rings of equal cosine-weighted
+    measure by n_rays // rings sectors of azimuth, one jittered ray per cell
+    (Ward & Heckbert's split), and each ray's own estimate and the distance to
+    what it met first (inf: nothing) also go to cell_e[i] and cell_t[i], for
+    the record's gradients. Otherwise cell_e and cell_t are not touched (any
+    arrays of their types do)."""
+    rings, cell_e, cell_t = cells
+    g, ms, ls, lm, ol = scene.geometry, scene.materials, scene.lights, scene.lightmaps, scene.orientation
+    inst_side = scene.inst_side
+    kd, ks, kt, pc, ind, tp, f, rad = w.kd, w.ks, w.kt, w.closure, w.ind, w.tp, w.f, w.rad
+    px, py, pz = p
+    fx, fy, fz = fn
+    sx, sy, sz = sn
     nb = out.shape[0]
-    eps = ray_epsilon(px, py, pz)
-    ox0, oy0, oz0 = px + eps * fx, py + eps * fy, pz + eps * fz
+    ox0, oy0, oz0 = leave_surface(p, fn, fn)
     state, o1 = next_float(state)
     state, o2 = next_float(state)
-    w = 1.0 / n_rays
+    wr = 1.0 / n_rays
     # texture footprint at q: a gather ray stands for about 1/N of the hemisphere
     spread = 2.0 / math.sqrt(n_rays)
     env_li = light_hits.environment_light(ls)
@@ -87,7 +94,7 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
                 dst[b] = 0.0
             cell_t[i] = math.inf
         else:
-            u1 = (i + o1) * w
+            u1 = (i + o1) * wr
             u2 = (o2 + i * GOLDEN) % 1.0
             lx, ly, lz = cosine_hemisphere(u1, u2)
         dx, dy, dz = to_world(lx, ly, lz, sx, sy, sz)
@@ -95,12 +102,12 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
             continue
         ox, oy, oz = ox0, oy0, oz0
         for b in range(nb):
-            tp[b] = w if rings == 0 else 1.0
+            tp[b] = wr if rings == 0 else 1.0
         sharp = True         # every lobe followed so far was sharp: lights seen are caustics
         for k in range(CHAIN):
-            count[0] += 1
+            w.count[0] += 1
             hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
-                g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
+                g, w.stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
             if k > 0 and not sharp:
                 # the "irradiance" here is radiance weighted by cos/pdf (tp): lights met count
                 light_hits.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf, 0.0, typed(True), tp, dst)
@@ -108,7 +115,7 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
                 cell_t[i] = t
             if not hit:
                 if k > 0 and not sharp and env_li >= 0:
-                    environment.radiance(env, dx, dy, dz, rad)
+                    environment.radiance(scene.environment, dx, dy, dz, rad)
                     for b in range(nb):
                         dst[b] += tp[b] * rad[b]
                 break
@@ -120,13 +127,14 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
                 for b in range(nb):
                     dst[b] += tp[b] * ms.emission[m, b]
             qx, qy, qz = ox + t * dx, oy + t * dy, oz + t * dz
-            rough, ior, _ = materials.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, spread * t, kd, ks, kt)
+            rough, ior, _ = materials.surface_inputs(ms, scene.textures, g, inst, m, shape, face, u, v, spread * t,
+                                                     kd, ks, kt)
             cos_o = min(abs(cos_dn), 1.0)
-            bsdf.closure_scalars(bt, m, rough, ior, cos_dn < 0.0, cos_o, pc)
+            bsdf.closure_scalars(scene.bsdf, m, rough, ior, cos_dn < 0.0, cos_o, pc)
             pd, ps, pm, pg = bsdf.lobe_probabilities(pc, kd, ks, kt, cos_o)
             ds = bsdf.diffuse_scale(pc)
             if pd > 0.0 and ds > 0.0 and orientation_lightmap.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
-                                                               nx, ny, nz, mode, ind):
+                                                                                 nx, ny, nz, mode, ind):
                 for b in range(nb):
                     dst[b] += tp[b] * kd[b] * ds * ind[b]
             if ps + pm + pg <= 0.0 or k == CHAIN - 1:
@@ -149,10 +157,8 @@ def gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, inst_side, stack, px, py, 
             dx, dy, dz = bsdf.from_local(ix, iy, iz, gx, gy, gz)
             for b in range(nb):
                 tp[b] *= f[b]
-            e2 = ray_epsilon(qx, qy, qz)
-            side = e2 if (dx * nx + dy * ny + dz * nz) > 0.0 else -e2
-            ox, oy, oz = qx + side * nx, qy + side * ny, qz + side * nz
+            ox, oy, oz = leave_surface((qx, qy, qz), (nx, ny, nz), (dx, dy, dz))
         if rings > 0:
             for b in range(nb):
-                out[b] += w * dst[b]
+                out[b] += wr * dst[b]
     return state

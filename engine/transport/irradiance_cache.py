@@ -43,14 +43,13 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from ..shading import bsdf
 from . import texel_gather
 from ..core import parallel
 from . import final_gather
-from .bake_gather import SCRATCH_ROWS, add_caustic
+from .bake_gather import GatherPass, add_mesh_caustic
+from .path_vertex import new_path_scratch
 from ..core.jit import CORE
 from ..lightmaps.lightmap import MODE_BILINEAR as LM_MODE_BILINEAR
-from ..geometry.raycast import STACK_WORDS
 from ..core.sampling import next_float, orthonormal_basis, stream_state
 
 RECORD_STRIDE = 3         # first records: every 3rd texel along each lightmap axis
@@ -81,30 +80,33 @@ def strata(n_rays):
 
 
 @njit(cache=True, nogil=True)
-def _records(g, ms, bt, ts, ls, lm, lmc, caustics, ol, env, isd, mode, pos, nrm, key, size, n_theta, n_phi,
-             E, se, radius, gt, gr, start, stop):
-    nb = E.shape[1]
-    n = n_theta * n_phi
-    _records_core(g, ms, bt, ts, ls, lm, ol, env, isd, mode, pos, nrm, key, size, n_theta, n_phi, E, se, radius,
-                  gt, gr, start, stop, np.empty(STACK_WORDS, np.int32), np.empty((SCRATCH_ROWS, nb)),
-                  np.empty(bsdf.P_SIZE), np.empty(nb), np.empty((n, nb)), np.empty(n), np.zeros(1, np.int64))
+def _records(scene, mode, sites, strata, rec, start, stop):
+    """Records start..stop-1: the block's scratch, then the core. sites = (pos,
+    nrm, key, size) of each record; strata = (rings, sectors); rec = (E, se,
+    radius, gt, gr), the records' columns to fill."""
+    nb = rec[0].shape[1]
+    n = strata[0] * strata[1]
+    _records_core(scene, mode, sites, strata, rec, start, stop, new_path_scratch(nb),
+                  (np.empty(nb), np.empty((n, nb)), np.empty(n)))
 
 
 @njit(**CORE)
-def _records_core(g, ms, bt, ts, ls, lm, ol, env, isd, mode, pos, nrm, key, size, n_theta, n_phi, E, se, radius,
-                  gt, gr, start, stop, stack, sc, pc, e, cell_e, cell_t, count):
+def _records_core(scene, mode, sites, strata, rec, start, stop, w, cells):
+    pos, nrm, key, size = sites
+    n_theta, n_phi = strata
+    E, se, radius, gt, gr = rec
+    e, cell_e, cell_t = cells
     nb = E.shape[1]
     n = n_theta * n_phi
-    w = 1.0 / n
+    wc = 1.0 / n
     for r in range(start, stop):
         state = stream_state(key[r] ^ STREAM_RECORD, r)
-        px, py, pz = pos[r, 0], pos[r, 1], pos[r, 2]
+        p = (pos[r, 0], pos[r, 1], pos[r, 2])
         nx, ny, nz = nrm[r, 0], nrm[r, 1], nrm[r, 2]
         for b in range(nb):
             e[b] = 0.0
-        final_gather.gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, isd, stack, px, py, pz, nx, ny, nz, nx, ny, nz, n,
-                             mode, state, sc[0], sc[1], sc[2], pc, sc[3], sc[4], sc[5], sc[6], e, count,
-                             n_theta, cell_e, cell_t)
+        final_gather.gather_irradiance(scene, w, p, (nx, ny, nz), (nx, ny, nz), n, mode, state, e,
+                                       (n_theta, cell_e, cell_t))
         inv = 0.0
         for c in range(n):
             if cell_t[c] > 0.0 and cell_t[c] < math.inf:
@@ -119,7 +121,7 @@ def _records_core(g, ms, bt, ts, ls, lm, ol, env, isd, mode, pos, nrm, key, size
             for b in range(nb):
                 m += cell_e[c, b] - cell_e[c + 1, b]
             d2 += (m / nb) ** 2
-        se[r] = math.sqrt(d2) * w
+        se[r] = math.sqrt(d2) * wc
         # Ward's radius: the harmonic mean distance to the surroundings (a miss is far)
         rr = n / inv if inv > 0.0 else math.inf
         radius[r] = min(max(rr, MIN_RADIUS_TEXELS * size[r]), MAX_RADIUS_TEXELS * size[r])
@@ -279,56 +281,49 @@ class Grid:
 # --------------------------------------------------------------------------------------
 
 @njit(cache=True, nogil=True)
-def _interpolate(g, lmc, caustics, items, item_inst, item_lid, item_side, item_key, item_local, pstart, ptri,
-                 parea, pnv, pb, n_points, stream, rec_pos, rec_nrm, rec_E, rec_se, rec_R, rec_gt, rec_gr, cell,
-                 mask, gstart, gentries, out, var, miss, miss_pos, miss_nrm, start, stop):
-    """Items items[start:stop]: the block's scratch, then the core."""
+def _interpolate(scene, tx, job, rec, out, var, misses, start, stop):
+    """Items job.order[start:stop] of mesh texels tx: the block's scratch, then the core.
+    job: the bake's GatherPass (points and stream; order: the items to do); rec:
+    the records (Records); misses = (miss, miss_pos, miss_nrm), the first point
+    of each item that no record reaches."""
     nb = out.shape[1]
-    _interpolate_core(g, lmc, caustics, items, item_inst, item_lid, item_side, item_key, item_local, pstart, ptri,
-                      parea, pnv, pb, n_points, stream, rec_pos, rec_nrm, rec_E, rec_se, rec_R, rec_gt, rec_gr,
-                      cell, mask, gstart, gentries, out, var, miss, miss_pos, miss_nrm, start, stop, np.empty(nb),
-                      np.empty(nb), np.empty(nb))
+    _interpolate_core(scene, tx, job, rec, out, var, misses, start, stop, np.empty((3, nb)))
 
 
 @njit(**CORE)
-def _interpolate_core(g, lmc, caustics, items, item_inst, item_lid, item_side, item_key, item_local, pstart,
-                      ptri, parea, pnv, pb, n_points, stream, rec_pos, rec_nrm, rec_E, rec_se, rec_R, rec_gt, rec_gr,
-                      cell, mask, gstart, gentries, out, var, miss, miss_pos, miss_nrm, start, stop, e, ep, tmp):
+def _interpolate_core(scene, tx, job, rec, out, var, misses, start, stop, bands):
+    miss, miss_pos, miss_nrm = misses
+    e, ep, tmp = bands[0], bands[1], bands[2]
     nb = out.shape[1]
+    n_points = job.points
     k = texel_gather.grid_side(n_points)
     for j in range(start, stop):
-        it = items[j]
+        it = job.order[j]
         for b in range(nb):
             e[b] = 0.0
         miss[it] = 0
         v2 = 0.0
-        p0 = pstart[it]
-        p1 = pstart[it + 1]
-        total = 0.0
-        for p in range(p0, p1):
-            total += parea[p]
+        pieces = texel_gather.mesh_texel_pieces(scene.geometry, tx, it)
         n_ok = 0
-        if total > 0.0:
-            xf = g.inst_xf[item_inst[it]]
+        if pieces[2] > 0.0:
             # the per-texel gather's points: the same stream, so the same places
-            state = stream_state(item_key[it] ^ stream, item_local[it])
+            state = texel_gather.texel_stream(tx, it, job.stream)
             for s in range(n_points):
                 state, j1 = next_float(state)
                 state, j2 = next_float(state)
                 u1, u2 = texel_gather.jitter(s, k, j1, j2)
-                ok, px, py, pz, nx, ny, nz, t, b1, b2 = texel_gather.texel_point_on_triangles(
-                    g.tri_p, xf, ptri, parea, pnv, pb, p0, p1, total, u1, u2)
+                ok, px, py, pz, nx, ny, nz, t, b1, b2 = texel_gather.mesh_texel_sample(
+                    scene.geometry, tx, pieces, u1, u2)
                 if not ok:
                     continue
                 n_ok += 1
                 for b in range(nb):
                     ep[b] = 0.0
                 for sgn in (1.0, -1.0):
-                    if item_side[it] * sgn < 0.0:
+                    if tx.side[it] * sgn < 0.0:
                         continue
                     fx, fy, fz = sgn * nx, sgn * ny, sgn * nz
-                    wsum, vs = lookup(px, py, pz, fx, fy, fz, rec_pos, rec_nrm, rec_E, rec_se, rec_R, rec_gt,
-                                      rec_gr, cell, mask, gstart, gentries, tmp)
+                    wsum, vs = lookup(rec, (px, py, pz), (fx, fy, fz), tmp)
                     if wsum <= 0.0:
                         if miss[it] == 0:
                             miss[it] = 1
@@ -338,11 +333,8 @@ def _interpolate_core(g, lmc, caustics, items, item_inst, item_lid, item_side, i
                     for b in range(nb):
                         ep[b] += tmp[b]
                     v2 += vs
-                if caustics:
-                    uv = g.tri_uv[t]
-                    b0 = 1.0 - b1 - b2
-                    add_caustic(lmc, item_lid[it], 0, b0 * uv[0, 0] + b1 * uv[1, 0] + b2 * uv[2, 0],
-                                 b0 * uv[0, 1] + b1 * uv[1, 1] + b2 * uv[2, 1], tmp, ep)
+                if scene.caustics:
+                    add_mesh_caustic(scene, tx, it, t, b1, b2, tmp, ep)
                 for b in range(nb):
                     e[b] += ep[b]
         for b in range(nb):
@@ -353,20 +345,23 @@ def _interpolate_core(g, lmc, caustics, items, item_inst, item_lid, item_side, i
 
 
 @njit(**CORE)
-def lookup(px, py, pz, nx, ny, nz, rec_pos, rec_nrm, rec_E, rec_se, rec_R, rec_gt, rec_gr, cell, mask, gstart,
-           gentries, out):
-    """Ward's weighted mean of the records that reach x, each moved to x and
-    tilted to n by its gradients -> (weight sum, variance of the mean from the
-    records' errors); out[bands] the irradiance (0 weights: none)."""
+def lookup(rec, p, n, out):
+    """Ward's weighted mean of the records (Records) that reach p, each moved to p
+    and tilted to normal n by its gradients -> (weight sum, variance of the mean
+    from the records' errors); out[bands] the irradiance (0 weights: none)."""
+    px, py, pz = p
+    nx, ny, nz = n
+    rec_pos, rec_nrm, rec_E, rec_se, rec_R, rec_gt, rec_gr = rec.pos, rec.nrm, rec.E, rec.se, rec.R, rec.gt, rec.gr
+    cell = rec.cell
     nb = out.shape[0]
     for b in range(nb):
         out[b] = 0.0
     h = _hash(np.int64(math.floor(px / cell)), np.int64(math.floor(py / cell)),
-              np.int64(math.floor(pz / cell)), mask)
+              np.int64(math.floor(pz / cell)), rec.mask)
     wsum = 0.0
     w2v = 0.0
-    for j in range(gstart[h], gstart[h + 1]):
-        r = gentries[j]
+    for j in range(rec.start[h], rec.start[h + 1]):
+        r = rec.entries[j]
         w = _weight(px, py, pz, nx, ny, nz, rec_pos, rec_nrm, rec_R, r)
         if not w > 0.0:
             continue
@@ -412,8 +407,8 @@ def _weight(px, py, pz, nx, ny, nz, rec_pos, rec_nrm, rec_R, r):
 def _first_sites(cs, cat):
     """Items whose texel lies on the every-RECORD_STRIDE-th lattice of its lightmap."""
     lm = cs.lightmaps
-    w = lm.width[cat["lid"]].astype(np.int64)
-    x, y = cat["local"] % w, cat["local"] // w
+    w = lm.width[cat.lid].astype(np.int64)
+    x, y = cat.local % w, cat.local // w
     return np.flatnonzero((x % RECORD_STRIDE == 0) & (y % RECORD_STRIDE == 0))
 
 
@@ -424,9 +419,9 @@ def _texel_sizes(cs, cat):
     units, and a sliver's own small area made records there reach almost nothing
     (and neighbour clamping spread that: thin walls ended with more records than
     texels)."""
-    area = np.add.reduceat(cat["area"], cat["start"][:-1]) if cat["area"].size else np.zeros(0)
-    area[np.diff(cat["start"]) == 0] = 0.0
-    cover = cs.lightmaps.coverage[cat["texel"]] if cat["texel"].size else np.zeros(0)
+    area = np.add.reduceat(cat.area, cat.start[:-1]) if cat.area.size else np.zeros(0)
+    area[np.diff(cat.start) == 0] = 0.0
+    cover = cs.lightmaps.coverage[cat.texel] if cat.texel.size else np.zeros(0)
     return np.sqrt(np.maximum(area, 0.0) / np.maximum(cover, 0.05))
 
 
@@ -436,23 +431,18 @@ def _site_points(cs, cat, items, stream):
     pos = np.zeros((items.size, 3))
     nrm = np.zeros((items.size, 3))
     ok = np.zeros(items.size, bool)
-    _centres(cs.geometry.tri_p, cs.geometry.inst_xf, cat["inst"], cat["start"], cat["tri"], cat["area"],
-             cat["nv"], cat["bary"], items, pos, nrm, ok)
+    _centres(cs.geometry, cat, items, pos, nrm, ok)
     return _sided(cat, items[ok], pos[ok], nrm[ok])
 
 
 @njit(cache=True)
-def _centres(tri_p, inst_xf, item_inst, pstart, ptri, parea, pnv, pb, items, pos, nrm, ok):
+def _centres(g, tx, items, pos, nrm, ok):
     for j in range(items.shape[0]):
         it = items[j]
-        p0, p1 = pstart[it], pstart[it + 1]
-        total = 0.0
-        for p in range(p0, p1):
-            total += parea[p]
-        if not total > 0.0:
+        pieces = texel_gather.mesh_texel_pieces(g, tx, it)
+        if not pieces[2] > 0.0:
             continue
-        good, px, py, pz, nx, ny, nz, _, _, _ = texel_gather.texel_point_on_triangles(
-            tri_p, inst_xf[item_inst[it]], ptri, parea, pnv, pb, p0, p1, total, 0.5, 0.5)
+        good, px, py, pz, nx, ny, nz, _, _, _ = texel_gather.mesh_texel_sample(g, tx, pieces, 0.5, 0.5)
         if good:
             ok[j] = True
             pos[j, 0], pos[j, 1], pos[j, 2] = px, py, pz
@@ -460,7 +450,7 @@ def _centres(tri_p, inst_xf, item_inst, pstart, ptri, parea, pnv, pb, items, pos
 
 
 def _sided(cat, items, pos, nrm):
-    side = cat["side"][items]
+    side = cat.side[items]
     rows, normals = [], []
     for sgn in (1.0, -1.0):
         keep = side * sgn >= 0
@@ -468,7 +458,7 @@ def _sided(cat, items, pos, nrm):
         normals.append(sgn * nrm[keep])
     order = np.concatenate(rows)
     return (np.ascontiguousarray(pos[order]), np.ascontiguousarray(np.concatenate(normals)),
-            np.ascontiguousarray(cat["key"][items][order]), items[order])
+            np.ascontiguousarray(cat.key[items][order]), items[order])
 
 
 class Cache:
@@ -484,7 +474,7 @@ class Cache:
         self.gr = np.zeros((0, nb, 3))      # rotational gradient (E changes by gr · (n_i x n))
         self.rays = 0
 
-    def add(self, fixed, pos, nrm, key, size, n_rays, first_id):
+    def add(self, scene, mode, pos, nrm, key, size, n_rays, first_id):
         n = pos.shape[0]
         if n == 0:
             return
@@ -494,7 +484,7 @@ class Cache:
         # the record's id in the key: records of later rounds at the same texel differ
         keyed = key ^ (np.arange(first_id, first_id + n, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15))
         n_theta, n_phi = strata(n_rays)
-        parallel.run(_records, n, *fixed, pos, nrm, keyed, size, n_theta, n_phi, E, se, R, gt, gr)
+        parallel.run(_records, n, scene, int(mode), (pos, nrm, keyed, size), (n_theta, n_phi), (E, se, R, gt, gr))
         self.pos = np.concatenate([self.pos, pos])
         self.nrm = np.concatenate([self.nrm, nrm])
         self.E = np.concatenate([self.E, E])
@@ -505,34 +495,31 @@ class Cache:
         self.rays += n * n_theta * n_phi
 
 
-def cached_mesh_gather(cs, fixed, cat, n_points, n_rays, stream):
-    """The gather of the mesh items `cat` (bake_gather's packed mesh texels) through
+def cached_mesh_gather(cs, scene, mode, cat, n_points, n_rays, stream):
+    """The gather of the mesh items `cat` (bake_gather's MeshTexels) through
     the irradiance cache -> (E (K, B), var (K,), fallback items, info): the items in
     `fallback` were not reached by any record and must be gathered per texel."""
-    out, var, missed, info, _ = _build(cs, fixed, cat, n_points, n_rays, stream)
+    out, var, missed, info, _ = _build(cs, scene, mode, cat, n_points, n_rays, stream)
     return out, var, missed, info
 
 
-def _build(cs, fixed, cat, n_points, n_rays, stream):
+def _build(cs, scene, mode, cat, n_points, n_rays, stream):
     """Records placed for the items of `cat`, round by round -> (E, var, missed, info,
     (cache, grid)) with E and var interpolated at every item's points."""
     nb = cs.n_bands
-    K = cat["texel"].size
+    K = cat.texel.size
     size = _texel_sizes(cs, cat)
     cache = Cache(nb)
     pos, nrm, key, owner = _site_points(cs, cat, _first_sites(cs, cat), stream)
-    cache.add(fixed, pos, nrm, key, size[owner], n_rays, 0)
+    cache.add(scene, mode, pos, nrm, key, size[owner], n_rays, 0)
     out, var = np.zeros((K, nb)), np.zeros(K)
     miss = np.zeros(K, np.int64)
     rounds = 0
     miss_pos, miss_nrm = np.zeros((K, 3)), np.zeros((K, 3))
-    g, lmc, caustics = fixed[0], fixed[6], fixed[7]
     # Round 0 interpolates every item; each later round places a record at the
     # first unreached point of every item that had one and tries those items
     # again (a reached point stays reached as records are added). If records were
     # added, a last pass interpolates every item with all of them.
-    args = (cat["inst"], cat["lid"], cat["side"], cat["key"], cat["local"], cat["start"], cat["tri"], cat["area"],
-            cat["nv"], cat["bary"], int(n_points), stream)
     grid = [None]
     clamped_for = [-1]       # the record count the radii were last clamped for
 
@@ -551,9 +538,9 @@ def _build(cs, fixed, cat, n_points, n_rays, stream):
             clamped_for[0] = cache.pos.shape[0]
             grid[0] = Grid(cache.pos, cache.R)
         gr = grid[0]
-        parallel.run(_interpolate, items.size, g, lmc, caustics, items, *args, cache.pos, cache.nrm, cache.E,
-                     cache.se, cache.R, cache.gt, cache.gr, gr.cell, gr.mask, gr.start, gr.entries, out, var, miss,
-                     miss_pos, miss_nrm)
+        job = GatherPass(int(mode), int(n_points), np.zeros(0, np.int64), items, stream)
+        parallel.run(_interpolate, items.size, scene, cat, job, records(cache, gr), out, var,
+                     (miss, miss_pos, miss_nrm))
         return items[miss[items] > 0]
 
     missed = interpolate(np.arange(K, dtype=np.int64))
@@ -564,7 +551,7 @@ def _build(cs, fixed, cat, n_points, n_rays, stream):
         # past the budget, records would cost more rays than gathering those texels
         # each: a subset spread over them, and the rest fall back
         add = missed if missed.size <= room else missed[np.linspace(0, missed.size - 1, room).astype(np.int64)]
-        cache.add(fixed, miss_pos[add], miss_nrm[add], cat["key"][add], size[add], n_rays,
+        cache.add(scene, mode, miss_pos[add], miss_nrm[add], cat.key[add], size[add], n_rays,
                   cache.pos.shape[0])
         missed = interpolate(missed)
     if rounds:
@@ -579,6 +566,12 @@ def _build(cs, fixed, cat, n_points, n_rays, stream):
 # --------------------------------------------------------------------------------------
 
 Records = namedtuple("Records", ["pos", "nrm", "E", "se", "R", "gt", "gr", "cell", "mask", "start", "entries"])
+
+
+def records(cache, grid):
+    """The Records of a Cache and its Grid."""
+    return Records(cache.pos, cache.nrm, cache.E, cache.se, cache.R, cache.gt, cache.gr, float(grid.cell),
+                   int(grid.mask), grid.start, grid.entries)
 
 
 def no_records(nb):
@@ -599,6 +592,6 @@ def scene_records(cs, rays, seed=0):
     tex = bake_gather.Texels(cs, ids, (), RENDER_POINTS, LM_MODE_BILINEAR, seed)
     if tex.mesh is None:
         return no_records(cs.n_bands), dict(records=0)
-    _, _, _, info, (cache, grid) = _build(cs, tex.fixed, tex.mesh, RENDER_POINTS, int(rays), bake_gather.STREAM_XOR)
-    return Records(cache.pos, cache.nrm, cache.E, cache.se, cache.R, cache.gt, cache.gr, float(grid.cell),
-                   int(grid.mask), grid.start, grid.entries), info
+    _, _, _, info, (cache, grid) = _build(cs, tex.scene, tex.mode, tex.mesh, RENDER_POINTS, int(rays),
+                                          bake_gather.STREAM_XOR)
+    return records(cache, grid), info

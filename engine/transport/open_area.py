@@ -42,9 +42,9 @@ from ..core import parallel
 from . import texel_gather
 from ..geometry.assembly import instance_boxes
 from ..core.jit import CORE
-from .photon_tracer import ray_epsilon
+from .path_vertex import ray_epsilon
 from ..geometry.raycast import STACK_WORDS, intersect_closest
-from ..core.sampling import next_float, stream_state, uniform_sphere
+from ..core.sampling import next_float, uniform_sphere
 
 SAMPLES = 16          # points per texel, a 4 x 4 jittered grid, one ray each...
 MORE_SAMPLES = 64     # ...then 8 x 8 where some are open and some buried,
@@ -53,44 +53,36 @@ STREAM_XOR = np.uint64(0x94D049BB133111EB)
 
 
 @njit(cache=True, nogil=True)
-def _open_mesh(g, inst_side, item_inst, item_side, item_key, item_local, pstart, ptri, parea, pnv, pb,
-               n_samples, n_rays, n_more, n_more_rays, out, start, stop):
-    """Open fraction of mesh texels start..stop: the block's scratch, then the core."""
-    _open_mesh_core(g, inst_side, item_inst, item_side, item_key, item_local, pstart, ptri, parea, pnv, pb,
-                    n_samples, n_rays, n_more, n_more_rays, out, start, stop, np.empty(STACK_WORDS, np.int32))
+def _open_mesh(g, inst_side, tx, counts, out, start, stop):
+    """Open fraction of mesh texels start..stop: the block's scratch, then the core.
+    counts = (points, rays per point, points, rays per point) of the first count
+    and of the finer one; arguments, not constants: one signature of _count_open."""
+    _open_mesh_core(g, inst_side, tx, counts, out, start, stop, np.empty(STACK_WORDS, np.int32))
 
 
 @njit(**CORE)
-def _open_mesh_core(g, inst_side, item_inst, item_side, item_key, item_local, pstart, ptri, parea, pnv, pb,
-                    n_samples, n_rays, n_more, n_more_rays, out, start, stop, stack):
-    # the counts arrive as arguments, not constants: one signature of _count_open, not two
+def _open_mesh_core(g, inst_side, tx, counts, out, start, stop, stack):
+    n_samples, n_rays, n_more, n_more_rays = counts
     for it in range(start, stop):
-        p0 = pstart[it]
-        p1 = pstart[it + 1]
-        total = 0.0
-        for p in range(p0, p1):
-            total += parea[p]
+        pieces = texel_gather.mesh_texel_pieces(g, tx, it)
         out[it] = 1.0
-        if not (total > 0.0):
+        if not (pieces[2] > 0.0):
             continue
-        xf = g.inst_xf[item_inst[it]]
-        side = item_side[it]
-        state = stream_state(item_key[it] ^ STREAM_XOR, item_local[it])
-        state, n_ok, n_open = _count_open(g, inst_side, stack, xf, side, ptri, parea, pnv, pb, p0, p1, total,
-                                          n_samples, n_rays, state)
+        side = tx.side[it]
+        state = texel_gather.texel_stream(tx, it, STREAM_XOR)
+        state, n_ok, n_open = _count_open(g, inst_side, stack, tx, pieces, side, n_samples, n_rays, state)
         if 0 < n_open < n_ok:
             # a mixed texel (or a buried one that a ray left through a touching face):
             # counted again, finer and with RAYS rays per point
-            state, n_ok, n_open = _count_open(g, inst_side, stack, xf, side, ptri, parea, pnv, pb, p0, p1,
-                                              total, n_more, n_more_rays, state)
+            state, n_ok, n_open = _count_open(g, inst_side, stack, tx, pieces, side, n_more, n_more_rays, state)
         if n_ok > 0:
             out[it] = n_open / n_ok
 
 
 @njit(**CORE)
-def _count_open(g, inst_side, stack, xf, side, ptri, parea, pnv, pb, p0, p1, total, n_samples, n_rays, state):
-    """n_samples stratified points of a texel, n_rays rays each
-    -> (state, points with area, open points)."""
+def _count_open(g, inst_side, stack, tx, pieces, side, n_samples, n_rays, state):
+    """n_samples stratified points of a texel (its pieces: texel_gather.mesh_texel_pieces),
+    n_rays rays each -> (state, points with area, open points)."""
     k = texel_gather.grid_side(n_samples)
     n_ok = 0
     n_open = 0
@@ -98,8 +90,7 @@ def _count_open(g, inst_side, stack, xf, side, ptri, parea, pnv, pb, p0, p1, tot
         state, j1 = next_float(state)
         state, j2 = next_float(state)
         u1, u2 = texel_gather.jitter(s, k, j1, j2)
-        ok, px, py, pz, nx, ny, nz, _, _, _ = texel_gather.mesh_texel_point(g, xf, ptri, parea, pnv, pb,
-                                                                  p0, p1, total, u1, u2)
+        ok, px, py, pz, nx, ny, nz, _, _, _ = texel_gather.mesh_texel_sample(g, tx, pieces, u1, u2)
         if not ok:
             continue
         n_ok += 1
@@ -159,13 +150,11 @@ def estimate(cs, seed=0, samples=SAMPLES, more=MORE_SAMPLES):
     ids = sorted(lid for lid, (inst, _, (kind, _)) in owners.items() if kind == "mesh" and touching[inst])
     if ids:
         mesh, _ = texel_gather.collect_texels(cs, owners, ids, seed, with_sides=True)
-        cat = mesh.packed()
-        if cat is not None:
-            out = np.ones(cat["texel"].size)
-            parallel.run(_open_mesh, out.size, g, inst_side, cat["inst"], cat["side"], cat["key"],
-                         cat["local"], cat["start"], cat["tri"], cat["area"], cat["nv"], cat["bary"],
-                         int(samples), 1, int(more), RAYS, out)
-            lm.open[cat["texel"]] = out
+        tx = mesh.packed()
+        if tx is not None:
+            out = np.ones(tx.texel.size)
+            parallel.run(_open_mesh, out.size, g, inst_side, tx, (int(samples), 1, int(more), RAYS), out)
+            lm.open[tx.texel] = out
     cs.__dict__["_open_area_done"] = True
     seconds = time.perf_counter() - t0
     cs.timings["open_area"] = seconds

@@ -14,23 +14,24 @@ tests audit energy against each light's exact emitted flux.
 """
 import math
 import time
+from collections import namedtuple
 from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 
 from ..core.errors import Cancelled
-from ..core.jit import CORE
+from ..core.jit import CORE, INLINE
 from ..lightmaps import lightmap
 from ..core import memory_budget
 from ..core import parallel
 from ..shading import photon_aim
 from ..lightmaps import orientation_lightmap
-from ..lightmaps.lightmap import lightmap_slot  # noqa: F401  (hosts import it from here)
 from ..shading.lights import emit_photon, photon_tint
 from ..shading import bsdf
-from ..shading import materials
-from ..geometry.raycast import STACK_WORDS, intersect_closest
+from ..geometry.raycast import intersect_closest
+from .kernel_scene import kernel_scene
+from .path_vertex import leave_surface, new_path_scratch, surface_closure
 from ..core.sampling import next_float, stream_state
 
 MAX_BOUNCES_LIMIT = 256
@@ -68,165 +69,194 @@ class PhotonStats:
                                                            "radius": float(self.aim[1])}}
 
 
-@njit(cache=True)
-def ray_epsilon(px, py, pz):
-    """Offset that moves a ray origin off its surface, relative to the coordinates' size."""
-    return 1e-7 * (1.0 + max(abs(px), abs(py), abs(pz)))
+PhotonPass = namedtuple("PhotonPass", [
+    "seed", "first",          # the pass's random streams, and the chunk's first photon in them
+    "n_total",                # photons in the whole pass (each carries 1/n_total of the lights' power)
+    "max_bounces",
+    "record_from",            # the first bounce recorded (1: renders sample direct light themselves)
+    "main_last",              # the last bounce the main lightmaps and OLs keep (one less under a final gather)
+])
+
+# A chunk's output, one row per photon: the texel rows it recorded into (-1: none)
+# with the power of each and (photon-map baselines) the hit itself; its energy
+# ledger (emitted, absorbed, escaped, truncated per band) and the rays it traced.
+PhotonRecords = namedtuple("PhotonRecords", "texel power point ledger rays")
 
 
 @njit(cache=True, nogil=True)
-def _trace_chunk(g, ms, bt, ts, ls, lm, lmc, use_caustics, caustic_alpha, ol, seed, first, n_total,
-                 max_bounces, record_from, main_last,
-                 rec_texel, rec_power, rec_point, ledger, rays, start, stop):
-    """Rows start..stop-1 of the chunk (parallel.run spreads the rows over
+def _trace_chunk(scene, job, out, start, stop):
+    """Photons start..stop-1 of the chunk (parallel.run spreads them over
     threads): the block's scratch, then the core."""
-    nb = ledger.shape[2]
-    _trace_chunk_core(g, ms, bt, ts, ls, lm, lmc, use_caustics, caustic_alpha, ol, seed, first, n_total,
-                      max_bounces, record_from, main_last, rec_texel, rec_power, rec_point, ledger, rays, start,
-                      stop, np.empty(STACK_WORDS, np.int32), np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nb),
-                      np.empty(nb), np.empty(bsdf.P_SIZE))
+    _trace_chunk_core(scene, job, out, start, stop, new_path_scratch(out.ledger.shape[2]))
 
 
 # The photon loop compiles without NRT: with it, every read of a field of the
 # scene tuples is an atomic incref and decref that the threads contend for.
 @njit(**CORE)
-def _trace_chunk_core(g, ms, bt, ts, ls, lm, lmc, use_caustics, caustic_alpha, ol, seed, first, n_total,
-                      max_bounces, record_from, main_last, rec_texel, rec_power, rec_point, ledger, rays, start,
-                      stop, stack, power, wt, kd, ks, kt, pc):
-    n_rec = rec_texel.shape[1]
-    nb = ledger.shape[2]
-    scale = ls.total_power / n_total
-    n_main = lm.area.shape[0]
+def _trace_chunk_core(scene, job, out, start, stop, w):
+    g = scene.geometry
+    power = w.tp            # the photon's power per band
     for i in range(start, stop):
-        for r in range(n_rec):
-            rec_texel[i, r] = -1
-        for k in range(4):
-            for b in range(nb):
-                ledger[i, k, b] = 0.0
-        state = stream_state(seed, first + i)
-        state, li, ox, oy, oz, dx, dy, dz, w = emit_photon(ls, g, state)
-        p_light = ls.flux[li].mean()
-        photon_tint(ls, li, dx, dy, dz, wt)     # an environment map's colour along d
-        for b in range(nb):
-            power[b] = w * wt[b] * ls.flux[li, b] * scale / p_light if p_light > 0.0 else 0.0
-            ledger[i, 0, b] = power[b]
+        state, ox, oy, oz, dx, dy, dz = _emit(scene, job, out, i, w)
         n_rays = 0
-        caustic = use_caustics
+        caustic = scene.caustics
         rec = 0
         depth = 0
-        tmin = 0.0
         while True:
             hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
-                g, stack, ox, oy, oz, dx, dy, dz, tmin, math.inf)
+                g, w.stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
             n_rays += 1
             if not hit:
-                for b in range(nb):
-                    ledger[i, 2, b] += power[b]
+                _book(out, i, ESCAPED, power)
                 break
-            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-            if depth >= record_from:
-                lid = -1
-                if caustic and depth >= 1:
-                    # only sharp mirrors and glass since the light: the finer caustic lightmap
-                    lid, f, s, tt = lightmap.record_slot(g, lmc, inst, shape, face, u, v)
-                    if lid >= 0 and rec < n_rec:
-                        rec_texel[i, rec] = n_main + lightmap.record_index(lmc, lid, f, s, tt)
-                        if record_from == 0 and depth <= main_last and rec + 1 < n_rec:
-                            # total irradiance for the final gather: in the main lightmap too
-                            for b in range(nb):
-                                rec_power[i, rec, b] = power[b]
-                            rec += 1
-                            lid = -1
-                if lid < 0 and depth <= main_last:
-                    lid, f, s, tt = lightmap.record_slot(g, lm, inst, shape, face, u, v)
-                    if lid >= 0 and rec < n_rec:
-                        rec_texel[i, rec] = lightmap.record_index(lm, lid, f, s, tt)
-                if lid >= 0 and rec < n_rec:
-                    for b in range(nb):
-                        rec_power[i, rec, b] = power[b]
-                    if rec_point.shape[0] > 0:
-                        # Photon-map baselines keep the hit itself: position and normal.
-                        rec_point[i, rec, 0] = px
-                        rec_point[i, rec, 1] = py
-                        rec_point[i, rec, 2] = pz
-                        rec_point[i, rec, 3] = nx
-                        rec_point[i, rec, 4] = ny
-                        rec_point[i, rec, 5] = nz
-                    rec += 1
-                # the hit's normal bin in its OL and every level above (thesis 6.2)
-                k = orientation_lightmap.hit_ol(g, ol, inst, shape, face) if depth <= main_last else -1
-                while k >= 0 and rec < n_rec:
-                    rec_texel[i, rec] = orientation_lightmap.bin_index(lm, ol, k, nx, ny, nz)
-                    for b in range(nb):
-                        rec_power[i, rec, b] = power[b]
-                    rec += 1
-                    k = ol.parent[k]
-            if depth >= max_bounces or (depth >= main_last and not caustic):
-                for b in range(nb):
-                    ledger[i, 3, b] += power[b]
+            p = (ox + t * dx, oy + t * dy, oz + t * dz)
+            surf = (inst, shape, face, u, v)
+            if depth >= job.record_from:
+                rec = _record_hit(scene, job, out, i, rec, depth, caustic, (surf, (nx, ny, nz)), p, power)
+            if depth >= job.max_bounces or (depth >= job.main_last and not caustic):
+                _book(out, i, TRUNCATED, power)
                 break
-            m = g.shape_material[shape]
-            # photons read textures at their finest level: the albedo at the hit itself
-            rough, ior, _ = materials.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, 0.0, kd, ks, kt)
-            snx, sny, snz = materials.shading_normal(ms, ts, g, inst, m, shape, face, u, v, 0.0, nx, ny, nz)
-            # the local frame faces where the photon came from; entering by the outward normal
-            cos_dn = dx * nx + dy * ny + dz * nz
-            if cos_dn > 0.0:
-                fx, fy, fz, sx, sy, sz = -nx, -ny, -nz, -snx, -sny, -snz
-            else:
-                fx, fy, fz, sx, sy, sz = nx, ny, nz, snx, sny, snz
-            cos_o = -(dx * sx + dy * sy + dz * sz)
-            if cos_o <= 1e-6:
-                sx, sy, sz = fx, fy, fz
-                cos_o = abs(cos_dn)
-            bsdf.closure_scalars(bt, m, rough, ior, cos_dn < 0.0, cos_o, pc)
-            pd, ps, pm, pg = bsdf.lobe_probabilities(pc, kd, ks, kt, cos_o)
-            state, ur = next_float(state)
-            state, u1 = next_float(state)
-            state, u2 = next_float(state)
-            state, u3 = next_float(state)
-            ok = True
-            # a diffuse or rough bounce spreads the focus: the rest of the path is no caustic
-            caustic = caustic and ur >= pd and pc[bsdf.P_ALPHA] <= caustic_alpha
-            if ur < pd:
-                # Russian roulette on the lobe (thesis 3.4.3): a survivor keeps
-                # power k/p <= power per band, the rest is absorbed here
-                ix, iy, iz = bsdf.sample_diffuse(u1, u2)
-                ds = bsdf.diffuse_scale(pc)
-                for b in range(nb):
-                    wt[b] = kd[b] * ds / pd
-            elif ur < pd + ps + pm + pg:
-                q = ps + pm + pg
-                lox, loy, loz = bsdf.to_local(-dx, -dy, -dz, sx, sy, sz)
-                ok, ix, iy, iz, _, _ = bsdf.sample_glossy(pc, ks, kt, ps, pm, pg, lox, loy, loz,
-                                                        (ur - pd) / q, u1, u2, u3, wt)
-                for b in range(nb):
-                    wt[b] /= q
-            else:
-                for b in range(nb):
-                    ledger[i, 1, b] += power[b]
+            alive, o, d, caustic, state = _scatter(scene, w, out, i, (surf, (nx, ny, nz)), p, (dx, dy, dz),
+                                                   caustic, state)
+            if not alive:
                 break
-            if not ok:
-                for b in range(nb):
-                    ledger[i, 1, b] += power[b]
-                break
-            for b in range(nb):
-                kept = power[b] * wt[b]
-                ledger[i, 1, b] += power[b] - kept
-                power[b] = kept
-            dx, dy, dz = bsdf.from_local(ix, iy, iz, sx, sy, sz)
-            if (dx * fx + dy * fy + dz * fz) * iz <= 0.0:
-                # the shading frame's side and the face's disagree: absorbed, so a
-                # normal map never leaks light through the surface
-                for b in range(nb):
-                    ledger[i, 1, b] += power[b]
-                break
-            # Leave the surface on the side the new direction points to.
-            eps = ray_epsilon(px, py, pz)
-            side = eps if (dx * nx + dy * ny + dz * nz) > 0.0 else -eps
-            ox, oy, oz = px + side * nx, py + side * ny, pz + side * nz
+            ox, oy, oz = o
+            dx, dy, dz = d
             depth += 1
-        rays[i] = n_rays
+        out.rays[i] = n_rays
+
+
+# ledger columns
+EMITTED, ABSORBED, ESCAPED, TRUNCATED = 0, 1, 2, 3
+
+
+@njit(**INLINE)
+def _book(out, i, column, power):
+    """Photon i's power goes to ledger column `column` (absorbed, escaped, truncated)."""
+    for b in range(power.shape[0]):
+        out.ledger[i, column, b] += power[b]
+
+
+@njit(**INLINE)
+def _emit(scene, job, out, i, w):
+    """Photon i leaves a light: its record row cleared, its power in w.tp and the
+    ledger -> (state, origin, direction)."""
+    ls = scene.lights
+    power, wt = w.tp, w.f
+    nb = power.shape[0]
+    for r in range(out.texel.shape[1]):
+        out.texel[i, r] = -1
+    for k in range(4):
+        for b in range(nb):
+            out.ledger[i, k, b] = 0.0
+    state = stream_state(job.seed, job.first + i)
+    state, li, ox, oy, oz, dx, dy, dz, wl = emit_photon(ls, scene.geometry, state)
+    p_light = ls.flux[li].mean()
+    photon_tint(ls, li, dx, dy, dz, wt)     # an environment map's colour along d
+    scale = ls.total_power / job.n_total
+    for b in range(nb):
+        power[b] = wl * wt[b] * ls.flux[li, b] * scale / p_light if p_light > 0.0 else 0.0
+        out.ledger[i, EMITTED, b] = power[b]
+    return state, ox, oy, oz, dx, dy, dz
+
+
+@njit(**INLINE)
+def _record_hit(scene, job, out, i, rec, depth, caustic, hit, p, power):
+    """Photon i's hit, hit = ((instance, shape, face, u, v), n), with `power`
+    recorded from row `rec` on: in the texel of its lightmap, or of its caustic
+    lightmap while only sharp mirrors and glass lie behind it, and in its
+    normal's bin of its OL and every level above (thesis 6.2) -> the next free row."""
+    g, lm, lmc, ol = scene.geometry, scene.lightmaps, scene.caustic_maps, scene.orientation
+    (inst, shape, face, u, v), n = hit
+    n_rec = out.texel.shape[1]
+    n_main = lm.area.shape[0]
+    lid = -1
+    if caustic and depth >= 1:
+        # only sharp mirrors and glass since the light: the finer caustic lightmap
+        lid, f, s, tt = lightmap.record_slot(g, lmc, inst, shape, face, u, v)
+        if lid >= 0 and rec < n_rec:
+            out.texel[i, rec] = n_main + lightmap.record_index(lmc, lid, f, s, tt)
+            if job.record_from == 0 and depth <= job.main_last and rec + 1 < n_rec:
+                # total irradiance for the final gather: in the main lightmap too
+                _set_power(out, i, rec, power)
+                rec += 1
+                lid = -1
+    if lid < 0 and depth <= job.main_last:
+        lid, f, s, tt = lightmap.record_slot(g, lm, inst, shape, face, u, v)
+        if lid >= 0 and rec < n_rec:
+            out.texel[i, rec] = lightmap.record_index(lm, lid, f, s, tt)
+    if lid >= 0 and rec < n_rec:
+        _set_power(out, i, rec, power)
+        if out.point.shape[0] > 0:
+            # Photon-map baselines keep the hit itself: position and normal.
+            for c in range(3):
+                out.point[i, rec, c] = p[c]
+                out.point[i, rec, 3 + c] = n[c]
+        rec += 1
+    k = orientation_lightmap.hit_ol(g, ol, inst, shape, face) if depth <= job.main_last else -1
+    while k >= 0 and rec < n_rec:
+        out.texel[i, rec] = orientation_lightmap.bin_index(lm, ol, k, n[0], n[1], n[2])
+        _set_power(out, i, rec, power)
+        rec += 1
+        k = ol.parent[k]
+    return rec
+
+
+@njit(**INLINE)
+def _set_power(out, i, rec, power):
+    for b in range(power.shape[0]):
+        out.power[i, rec, b] = power[b]
+
+
+@njit(**INLINE)
+def _scatter(scene, w, out, i, hit, p, d, caustic, state):
+    """Russian roulette on the closure at photon i's hit (thesis 3.4.3): a lobe
+    or absorption. A survivor keeps power k/p <= its power per band, the rest is
+    booked absorbed here -> (alive, origin, direction, still a caustic path, state)."""
+    surf, n = hit
+    power, wt = w.tp, w.f
+    nb = power.shape[0]
+    m = scene.geometry.shape_material[surf[1]]
+    # photons read textures at their finest level: the albedo at the hit itself
+    fn, sn, _, _, lobes = surface_closure(scene, w, m, surf, n, d, 0.0)
+    pd, ps, pm, pg = lobes
+    state, ur = next_float(state)
+    state, u1 = next_float(state)
+    state, u2 = next_float(state)
+    state, u3 = next_float(state)
+    ok = True
+    # a diffuse or rough bounce spreads the focus: the rest of the path is no caustic
+    caustic = caustic and ur >= pd and w.closure[bsdf.P_ALPHA] <= CAUSTIC_ALPHA
+    if ur < pd:
+        ix, iy, iz = bsdf.sample_diffuse(u1, u2)
+        ds = bsdf.diffuse_scale(w.closure)
+        for b in range(nb):
+            wt[b] = w.kd[b] * ds / pd
+    elif ur < pd + ps + pm + pg:
+        q = ps + pm + pg
+        lox, loy, loz = bsdf.to_local(-d[0], -d[1], -d[2], sn[0], sn[1], sn[2])
+        ok, ix, iy, iz, _, _ = bsdf.sample_glossy(w.closure, w.ks, w.kt, ps, pm, pg, lox, loy, loz,
+                                                  (ur - pd) / q, u1, u2, u3, wt)
+        for b in range(nb):
+            wt[b] /= q
+    else:
+        _book(out, i, ABSORBED, power)
+        return False, p, d, caustic, state
+    if not ok:
+        _book(out, i, ABSORBED, power)
+        return False, p, d, caustic, state
+    for b in range(nb):
+        kept = power[b] * wt[b]
+        out.ledger[i, ABSORBED, b] += power[b] - kept
+        power[b] = kept
+    d = bsdf.from_local(ix, iy, iz, sn[0], sn[1], sn[2])
+    if (d[0] * fn[0] + d[1] * fn[1] + d[2] * fn[2]) * iz <= 0.0:
+        # the shading frame's side and the face's disagree: absorbed, so a
+        # normal map never leaks light through the surface
+        _book(out, i, ABSORBED, power)
+        return False, p, d, caustic, state
+    # Leave the surface on the side the new direction points to.
+    return True, leave_surface(p, n, d), d, caustic, state
 
 
 def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
@@ -264,39 +294,35 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     if n_photons == 0 or cs.lights.total_power <= 0.0:
         return stats
     t0 = time.perf_counter()
-    ol = cs.orientation if cs.orientation is not None else orientation_lightmap.empty_maps(cs.geometry.inst_proto.shape[0])
+    # bakes keep every photon in the one lightmap they write out; renders split caustics off
+    use_caustics = bool(caustics) and getattr(cs, "caustics", None) is not None
+    lights = photon_aim.aimed(cs.lights, aim)
+    if lights.aim_radius < cs.lights.aim_radius:
+        stats.aim = (lights.aim_center.copy(), float(lights.aim_radius))
+    scene = kernel_scene(cs, lights=lights, caustics=use_caustics)
+    lm, lmc = scene.lightmaps, scene.caustic_maps
     # one record per hit on an own lightmap, plus one per OL level above the instance
-    n_rec = (int(max_bounces) + 1) * (1 + orientation_lightmap.levels(ol))
-    lmc = getattr(cs, "caustics", None)
-    use_caustics = bool(caustics) and lmc is not None
+    n_rec = (int(max_bounces) + 1) * (1 + orientation_lightmap.levels(scene.orientation))
     if use_caustics and record_direct:
         n_rec += int(max_bounces)          # a caustic hit is recorded twice
     chunk = chunk or max(4096, min(1 << 16, (1 << 21) // n_rec))
     if keep_points:   # a photon map keeps every hit: refuse what cannot fit before tracing
         memory_budget.check(f"photon map ({n_photons:,} photons kept, up to {n_rec} hits each)",
                             n_photons * min(n_rec, 4) * (6 + nb) * 8 * 2, "lower the photon count")
-    rec_texel = np.empty((chunk, n_rec), np.int64)
-    rec_power = np.empty((chunk, n_rec, nb))
-    ledger = np.empty((chunk, 4, nb))
-    rays = np.empty(chunk, np.int64)
-    rec_point = np.empty((chunk if keep_points else 0, n_rec, 6))
+    out = PhotonRecords(np.empty((chunk, n_rec), np.int64), np.empty((chunk, n_rec, nb)),
+                        np.empty((chunk if keep_points else 0, n_rec, 6)), np.empty((chunk, 4, nb)),
+                        np.empty(chunk, np.int64))
+    rec_texel, rec_power, rec_point, ledger, rays = out
     points, point_power = [], []
-    lm = cs.lightmaps
-    # bakes keep every photon in the one lightmap they write out; renders split caustics off
-    lmc = lmc if use_caustics else lm
     cs.caustics_traced = use_caustics
     cs.lightmaps_hold_direct = bool(record_direct)
     n_main = lm.area.shape[0]
-    lights = photon_aim.aimed(cs.lights, aim)
-    if lights.aim_radius < cs.lights.aim_radius:
-        stats.aim = (lights.aim_center.copy(), float(lights.aim_radius))
     done = 0
     while done < n_photons:
         c = min(chunk, n_photons - done)
-        parallel.run(_trace_chunk, c, cs.geometry, cs.materials, cs.bsdf, cs.textures, lights, lm, lmc,
-                     use_caustics, CAUSTIC_ALPHA, ol, np.uint64(seed), done, n_photons, int(max_bounces),
-                     0 if record_direct else 1, int(max_bounces) - 1 if gather else int(max_bounces),
-                     rec_texel, rec_power, rec_point, ledger, rays, min_block=64)
+        job = PhotonPass(np.uint64(seed), done, n_photons, int(max_bounces), 0 if record_direct else 1,
+                         int(max_bounces) - 1 if gather else int(max_bounces))
+        parallel.run(_trace_chunk, c, scene, job, out, min_block=64)
         # the threads wait for this serial step: one pass, no masked copies
         stats.records += lightmap.accumulate_records(lm, lmc, rec_texel, rec_power, c, n_main)
         if keep_points:

@@ -21,7 +21,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from ..core.jit import CORE
+from ..core.jit import CORE, INLINE, typed
 from ..lightmaps import lightmap
 from ..lightmaps import orientation_lightmap
 from ..shading import bsdf
@@ -33,7 +33,8 @@ from . import irradiance_cache
 from ..core import parallel
 from ..shading.lights import EMISSIVE, light_sample_count, pick_light, sample_light_radiance
 from ..core.errors import Cancelled
-from .photon_tracer import ray_epsilon
+from .kernel_scene import kernel_scene
+from .path_vertex import leave_surface, new_path_scratch, path_scratch, ray_epsilon, surface_closure
 from ..geometry.raycast import STACK_WORDS, intersect_closest, occluded
 from ..core.sampling import next_float, stream_state
 from .texel_gather import grid_side, jitter, light_stratum, texel_shift
@@ -106,22 +107,31 @@ PIXEL_SHIFT_XOR = np.uint64(0x9E3779B97F4A7C15)
 
 
 @njit(cache=True)
-def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx, sy, sz,
-                 ox, oy, oz, state, e, lg, f, rad, count, stratum, k):
+def direct_light(g, ls, w, lobes, p, fn, sn, wo, state, strata):
     """Direct light at p, sampled as texel_gather.direct_irradiance samples it: the
-    diffuse irradiance into e[bands] and the glossy lobes' radiance towards wo
-    (local o, in the frame of s) into lg, weighted by the power heuristic against
-    glossy sampling (light_hits); count[0] gains the shadow rays. f is the face normal on the viewer's side, s the
-    (normal-mapped) shading normal: cosines are s's, and a light must lie on the
-    side of f that the lobe scatters to (no light through a normal map's tilt).
-    stratum >= 0: the cell of a k x k grid the light's two random numbers are
-    jittered in (texel_gather.light_stratum: a pixel's samples cover each light
-    evenly); -1: plain uniform."""
+    diffuse irradiance into w.e and the glossy lobes' radiance towards wo (local,
+    in the frame of sn) into w.lg, both added, the glossy part weighted by the
+    power heuristic against glossy sampling (light_hits); w.count[0] gains the
+    shadow rays. lobes: (pd, ps, pm, pg) of the closure in w. fn is the face
+    normal on the viewer's side, sn the (normal-mapped) shading normal: cosines
+    are sn's, and a light must lie on the side of fn that the lobe scatters to
+    (no light through a normal map's tilt).
+    strata = (stratum, k); stratum >= 0: the cell of a k x k grid the light's two
+    random numbers are jittered in (texel_gather.light_stratum: a pixel's samples
+    cover each light evenly); -1: plain uniform. Takes the geometry and lights,
+    not the whole scene: a call copies its arguments, and this one runs per hit."""
+    stratum, k = strata
     n_lights = ls.kind.shape[0]
     if n_lights == 0:
         return state
+    _, ps, pm, pg = lobes
+    pc, ks, kt, e, lg, f, rad = w.closure, w.ks, w.kt, w.e, w.lg, w.f, w.rad
+    px, py, pz = p
+    fx, fy, fz = fn
+    sx, sy, sz = sn
+    ox, oy, oz = wo
     nb = e.shape[0]
-    glossy = ps + pm + pg > 0.0 and p[bsdf.P_ALPHA] > bsdf.DELTA_ALPHA
+    glossy = ps + pm + pg > 0.0 and pc[bsdf.P_ALPHA] > bsdf.DELTA_ALPHA
     eps = ray_epsilon(px, py, pz)
     n_samples = light_sample_count(n_lights)
     for j in range(n_samples):
@@ -144,10 +154,10 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
         gl = 0.0
         if glossy and ls.kind[li] != EMISSIVE:
             ix, iy, iz = bsdf.to_local(wx, wy, wz, sx, sy, sz)
-            pdf_b = bsdf.eval_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz, ix, iy, iz, f)
+            pdf_b = bsdf.eval_glossy(pc, ks, kt, ps, pm, pg, ox, oy, oz, ix, iy, iz, f)
             pdf_l = light_hits.light_pdf(ls, li, px, py, pz, wx, wy, wz, dist)
             gl = 1.0 if pdf_l == math.inf else light_hits.power_heuristic(light_hits.selection_factor(ls, li) * pdf_l,
-                                                                 pdf_b)
+                                                                          pdf_b)
         if cos_r <= 0.0 and gl == 0.0:
             continue
         side = eps if cos_r > 0.0 else -eps
@@ -155,8 +165,8 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
         tmax = dist * (1.0 - 1e-6) - eps if dist < math.inf else math.inf
         if tmax <= 0.0:
             continue
-        count[0] += 1
-        if occluded(g, stack, qx, qy, qz, wx, wy, wz, 0.0, tmax):
+        w.count[0] += 1
+        if occluded(g, w.stack, qx, qy, qz, wx, wy, wz, 0.0, tmax):
             continue
         c = scale * w_sel
         for b in range(nb):
@@ -167,151 +177,193 @@ def direct_light(g, ls, stack, p, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz, sx
     return state
 
 
+Tile = namedtuple("Tile", [
+    "x0", "y0", "width", "height",   # the tile's pixels in the frame
+    "spp", "s0", "s1",               # samples s0 <= s < s1 of the pixel's spp
+    "seed", "mode",                  # random streams; lightmap lookup (lightmap.MODE_*)
+    "max_depth",                     # glossy vertices a camera path follows
+    "indirect",                      # bool: add the stored (or gathered) indirect light
+    "gather",                        # final-gather rays at the first diffuse hit (0: the texel's own)
+])
+
+# A render tile's scratch: the camera path's and its gathers' (one stack and
+# ray counter for both), and the pixel's sum.
+RenderScratch = namedtuple("RenderScratch", "camera gather acc")
+
+
 @njit(cache=True, nogil=True)
-def _render_tile(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed, mode,
-                 max_depth, indirect, gather, rec, out, rays, start, stop):
+def _render_tile(scene, cam, tile, rec, out, rays, start, stop):
     """Pixels start..stop-1 of the tile (parallel.run spreads them over threads):
     the block's scratch, then the core. rays[y, x]: the rays a pixel traced.
     rec: irradiance-cache records (irradiance_cache.Records; none: gather rays
     everywhere) that a diffuse hit reads before it gathers."""
     nb = out.shape[2]
-    sc = np.empty((16, nb))
-    _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed,
-                      mode, max_depth, indirect, gather, rec, out, rays, start, stop, np.empty(STACK_WORDS, np.int32),
-                      np.zeros(0, np.int64), sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7], sc[8],
-                      sc[9], sc[10], sc[11], sc[12], sc[13], sc[14], sc[15], np.empty(bsdf.P_SIZE),
-                      np.empty(bsdf.P_SIZE), np.zeros(1, np.int64))
+    w = new_path_scratch(nb)
+    _render_tile_core(scene, cam, tile, rec, out, rays, start, stop,
+                      RenderScratch(w, path_scratch(nb, w.stack, w.count), np.empty(nb)))
+
+
+@njit(cache=True, inline="always")
+def _ray_cone(cam):
+    """(width at the camera, growth per metre travelled) of a pixel's ray cone (texture filtering)."""
+    pixel = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height)
+    return (pixel, 0.0) if cam.kind == 1 else (0.0, pixel)
 
 
 # The pixel loop compiles without NRT: with it, every read of a field of the
 # scene tuples is an atomic incref and decref that the threads contend for.
 @njit(**CORE)
-def _render_tile_core(g, ms, bt, ts, ls, lm, lmc, caustics, ol, cam, env, x0, y0, tw, th, spp, s0, s1, seed,
-                      mode, max_depth, indirect, gather, rec, out, rays, start, stop, stack, no_sides, acc, tp, e,
-                      lg, ind, f, kd, ks, kt, rad, kd2, ks2, kt2, tp2, f2, rad2, pc, pc2, count):
+def _render_tile_core(scene, cam, tile, rec, out, rays, start, stop, work):
     # Samples s0 <= s < s1 of the pixel's spp, each weighted 1/spp: the passes of a
     # progressive render add up to the one-pass image (the same streams).
     nb = out.shape[2]
-    # a pixel's ray cone: its width grows by this per metre travelled (texture filtering)
-    spread = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 0 else 0.0
-    width0 = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 1 else 0.0
-    env_li = light_hits.environment_light(ls)
-    # no_sides: camera hits are on the outside already
+    acc, count = work.acc, work.camera.count
+    # A pixel's samples are stratified on a k x k grid, and so are their first
+    # hits' light samples (shifted per pixel, texel_gather.light_stratum).
+    k = grid_side(tile.spp)
     for idx in range(start, stop):
         for b in range(nb):
             acc[b] = 0.0
         count[0] = 0
-        px_i = x0 + idx % tw
-        py_i = y0 + idx // tw
-        pixel = py_i * cam.width + px_i
-        # A pixel's samples are stratified on a k x k grid, and so are their first
-        # hits' light samples (shifted per pixel, texel_gather.light_stratum).
-        k = grid_side(spp)
-        _, shift = texel_shift(stream_state(seed ^ PIXEL_SHIFT_XOR, pixel), k)
-        for s in range(s0, s1):
-            state, jx, jy = _pixel_sample(seed, pixel, spp, s, k)
-            ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
-            for b in range(nb):
-                tp[b] = 1.0 / spp
-            pdf_b = 0.0
-            delta = True
-            travelled = 0.0
-            n_gather = gather
-            for depth in range(max_depth + 1):
-                count[0] += 1
-                hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
-                    g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
-                if depth > 0:      # lights are invisible to the camera, as in Cycles
-                    light_hits.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf,
-                                       pdf_b, delta, tp, acc)
-                if not hit:
-                    w = 1.0
-                    if not delta and env_li >= 0:
-                        w = light_hits.power_heuristic(pdf_b, light_hits.selection_factor(ls, env_li) *
-                                               light_hits.light_pdf(ls, env_li, ox, oy, oz, dx, dy, dz, math.inf))
-                    environment.radiance(env, dx, dy, dz, rad)
-                    for b in range(nb):
-                        acc[b] += tp[b] * rad[b] * w
-                    break
-                px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-                m = g.shape_material[shape]
-                cos_dn = dx * nx + dy * ny + dz * nz
-                for b in range(nb):
-                    acc[b] += tp[b] * ms.emission[m, b]
-                travelled += t
-                foot = width0 + spread * travelled
-                rough, ior, _ = materials.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, foot, kd, ks, kt)
-                snx, sny, snz = materials.shading_normal(ms, ts, g, inst, m, shape, face, u, v, foot, nx, ny, nz)
-                # the frame faces the viewer; the outward normal tells entering from leaving
-                if cos_dn > 0.0:
-                    fx, fy, fz, sx, sy, sz = -nx, -ny, -nz, -snx, -sny, -snz
-                else:
-                    fx, fy, fz, sx, sy, sz = nx, ny, nz, snx, sny, snz
-                cos_o = -(dx * sx + dy * sy + dz * sz)
-                if cos_o <= 1e-6:      # a normal map tilted away from the viewer: use the face's
-                    sx, sy, sz = fx, fy, fz
-                    cos_o = abs(cos_dn)
-                bsdf.closure_scalars(bt, m, rough, ior, cos_dn < 0.0, cos_o, pc)
-                pd, ps, pm, pg = bsdf.lobe_probabilities(pc, kd, ks, kt, cos_o)
-                lox, loy, loz = bsdf.to_local(-dx, -dy, -dz, sx, sy, sz)
-                ds = bsdf.diffuse_scale(pc)
-                for b in range(nb):
-                    e[b] = 0.0
-                    lg[b] = 0.0
-                if pd > 0.0 or (ps + pm + pg > 0.0 and pc[bsdf.P_ALPHA] > bsdf.DELTA_ALPHA):
-                    state = direct_light(g, ls, stack, pc, ks, kt, ps, pm, pg, px, py, pz, fx, fy, fz,
-                                         sx, sy, sz, lox, loy, loz, state, e, lg, f, rad, count,
-                                         light_stratum(s, k, shift) if depth == 0 else -1, k)
-                if pd > 0.0 and indirect and n_gather > 0:
-                    reached = False
-                    if rec.pos.shape[0] > 0:
-                        wsum, _ = irradiance_cache.lookup(px, py, pz, fx, fy, fz, rec.pos, rec.nrm, rec.E, rec.se, rec.R,
-                                            rec.gt, rec.gr, rec.cell, rec.mask, rec.start, rec.entries, ind)
-                        if wsum > 0.0:
-                            reached = True
-                            for b in range(nb):
-                                e[b] += ind[b]
-                    if not reached:
-                        state = final_gather.gather_irradiance(g, ms, bt, ts, ls, lm, ol, env, no_sides, stack, px, py, pz,
-                                                     fx, fy, fz, sx, sy, sz, n_gather, mode, state,
-                                                     kd2, ks2, kt2, pc2, ind, tp2, f2, rad2, e, count,
-                                                     0, rec.E, rec.R)
-                    n_gather = max(1, n_gather // 4)
-                elif pd > 0.0 and indirect and orientation_lightmap.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
-                                                                     nx, ny, nz, mode, ind):
-                    for b in range(nb):
-                        e[b] += ind[b]
-                if pd > 0.0 and indirect and caustics:
-                    lid, cf, cs_, ct = lightmap.lightmap_slot(g, lmc, inst, shape, face, u, v)
-                    if lid >= 0:
-                        lightmap.lookup(lmc, lid, cf, cs_, ct, mode, ind)
-                        for b in range(nb):
-                            e[b] += ind[b]
-                for b in range(nb):
-                    acc[b] += tp[b] * (kd[b] * ds * e[b] / math.pi + lg[b])
-                # Continue along the glossy lobes (the diffuse light came from the lightmaps).
-                q = ps + pm + pg
-                if depth == max_depth or q <= 0.0:
-                    break
-                state, u0 = next_float(state)
-                state, u1 = next_float(state)
-                state, u2 = next_float(state)
-                state, u3 = next_float(state)
-                ok, ix, iy, iz, pdf_b, delta = bsdf.sample_glossy(pc, ks, kt, ps, pm, pg, lox, loy, loz,
-                                                                u0, u1, u2, u3, f)
-                if not ok:
-                    break
-                dx, dy, dz = bsdf.from_local(ix, iy, iz, sx, sy, sz)
-                if (dx * fx + dy * fy + dz * fz) * iz <= 0.0:
-                    break           # the shading frame's side and the face's disagree
-                for b in range(nb):
-                    tp[b] *= f[b]
-                eps = ray_epsilon(px, py, pz)
-                side = eps if (dx * nx + dy * ny + dz * nz) > 0.0 else -eps
-                ox, oy, oz = px + side * nx, py + side * ny, pz + side * nz
+        px_i = tile.x0 + idx % tile.width
+        py_i = tile.y0 + idx // tile.width
+        _, shift = texel_shift(stream_state(tile.seed ^ PIXEL_SHIFT_XOR, py_i * cam.width + px_i), k)
+        for s in range(tile.s0, tile.s1):
+            _camera_path(scene, cam, tile, rec, work, px_i, py_i, s, (k, shift))
         for b in range(nb):
-            out[idx // tw, idx % tw, b] = acc[b]
-        rays[idx // tw, idx % tw] = count[0]
+            out[idx // tile.width, idx % tile.width, b] = acc[b]
+        rays[idx // tile.width, idx % tile.width] = count[0]
+
+
+@njit(**INLINE)
+def _camera_path(scene, cam, tile, rec, work, px_i, py_i, s, strata):
+    """Sample s of pixel (px_i, py_i): a camera path through glossy lobes, its
+    radiance (weighted 1/spp) added to work.acc. strata: (k, shift) of the pixel's
+    first-hit light strata."""
+    g, ms, ls = scene.geometry, scene.materials, scene.lights
+    w, acc = work.camera, work.acc
+    tp = w.tp
+    nb = acc.shape[0]
+    k = strata[0]
+    width0, spread = _ray_cone(cam)
+    env_li = light_hits.environment_light(ls)
+    state, jx, jy = _pixel_sample(tile.seed, py_i * cam.width + px_i, tile.spp, s, k)
+    ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
+    for b in range(nb):
+        tp[b] = 1.0 / tile.spp
+    pdf_b = 0.0
+    delta = True
+    travelled = 0.0
+    n_gather = tile.gather
+    for depth in range(tile.max_depth + 1):
+        w.count[0] += 1
+        hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
+            g, w.stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
+        if depth > 0:      # lights are invisible to the camera, as in Cycles
+            light_hits.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf, pdf_b, delta, tp, acc)
+        if not hit:
+            mis = 1.0
+            if not delta and env_li >= 0:
+                mis = light_hits.power_heuristic(pdf_b, light_hits.selection_factor(ls, env_li) *
+                                                 light_hits.light_pdf(ls, env_li, ox, oy, oz, dx, dy, dz, math.inf))
+            environment.radiance(scene.environment, dx, dy, dz, w.rad)
+            for b in range(nb):
+                acc[b] += tp[b] * w.rad[b] * mis
+            return
+        p = (ox + t * dx, oy + t * dy, oz + t * dz)
+        m = g.shape_material[shape]
+        for b in range(nb):
+            acc[b] += tp[b] * ms.emission[m, b]
+        travelled += t
+        surf = (inst, shape, face, u, v)
+        fn, sn, _, _, lobes = surface_closure(scene, w, m, surf, (nx, ny, nz), (dx, dy, dz),
+                                              width0 + spread * travelled)
+        wo = bsdf.to_local(-dx, -dy, -dz, sn[0], sn[1], sn[2])
+        stratum = light_stratum(s, k, strata[1]) if depth == 0 else -1
+        state = _shade(scene, tile, rec, work, surf, (nx, ny, nz), p, (fn, sn, wo), lobes, (stratum, n_gather),
+                       state)
+        if tile.gather > 0 and lobes[0] > 0.0:
+            n_gather = max(1, n_gather // 4)
+        # Continue along the glossy lobes (the diffuse light came from the lightmaps).
+        if depth == tile.max_depth or lobes[1] + lobes[2] + lobes[3] <= 0.0:
+            return
+        ok, o, d, pdf_b, delta, state = _scatter_glossy(w, lobes, (fn, sn, wo), (nx, ny, nz), p, state)
+        if not ok:
+            return
+        ox, oy, oz = o
+        dx, dy, dz = d
+
+
+@njit(**INLINE)
+def _shade(scene, tile, rec, work, surf, n, p, frame, lobes, strata, state):
+    """The light a camera-path vertex sends back along the path, times the
+    throughput, added to work.acc: direct light from light samples (diffuse and
+    glossy), and the diffuse part's indirect light from the irradiance-cache
+    records, a final gather or the hit's own lightmap (or OL), plus its caustic
+    lightmap. frame: (face normal, shading normal, local direction back); strata:
+    (this vertex's light stratum or -1, its gather rays)."""
+    w, gw, acc = work.camera, work.gather, work.acc
+    e, ind = w.e, w.ind
+    nb = e.shape[0]
+    fn, sn, wo = frame
+    stratum, n_gather = strata
+    pd, ps, pm, pg = lobes
+    inst, shape, face, u, v = surf
+    nx, ny, nz = n
+    for b in range(nb):
+        e[b] = 0.0
+        w.lg[b] = 0.0
+    if pd > 0.0 or (ps + pm + pg > 0.0 and w.closure[bsdf.P_ALPHA] > bsdf.DELTA_ALPHA):
+        state = direct_light(scene.geometry, scene.lights, w, lobes, p, fn, sn, wo, state,
+                             (stratum, grid_side(tile.spp)))
+    if pd > 0.0 and tile.indirect and n_gather > 0:
+        reached = False
+        if rec.pos.shape[0] > 0:
+            wsum, _ = irradiance_cache.lookup(rec, p, fn, ind)
+            if wsum > 0.0:
+                reached = True
+                for b in range(nb):
+                    e[b] += ind[b]
+        if not reached:
+            state = final_gather.gather_irradiance(scene, gw, p, fn, sn, n_gather, tile.mode, state, e,
+                                                   (typed(0), rec.E, rec.R))
+    elif pd > 0.0 and tile.indirect and orientation_lightmap.surface_irradiance(
+            scene.geometry, scene.lightmaps, scene.orientation, inst, shape, face, u, v, nx, ny, nz, tile.mode, ind):
+        for b in range(nb):
+            e[b] += ind[b]
+    if pd > 0.0 and tile.indirect and scene.caustics:
+        lmc = scene.caustic_maps
+        lid, cf, cs_, ct = lightmap.lightmap_slot(scene.geometry, lmc, inst, shape, face, u, v)
+        if lid >= 0:
+            lightmap.lookup(lmc, lid, cf, cs_, ct, tile.mode, ind)
+            for b in range(nb):
+                e[b] += ind[b]
+    ds = bsdf.diffuse_scale(w.closure)
+    for b in range(nb):
+        acc[b] += w.tp[b] * (w.kd[b] * ds * e[b] / math.pi + w.lg[b])
+    return state
+
+
+@njit(**INLINE)
+def _scatter_glossy(w, lobes, frame, n, p, state):
+    """A glossy, mirror or glass direction from the closure in w, its weight
+    multiplied into w.tp -> (ok, origin, direction, pdf, delta, state); ok False
+    when the path ends here (no sample, or the shading frame's side and the
+    face's disagree)."""
+    _, ps, pm, pg = lobes
+    fn, sn, wo = frame
+    state, u0 = next_float(state)
+    state, u1 = next_float(state)
+    state, u2 = next_float(state)
+    state, u3 = next_float(state)
+    ok, ix, iy, iz, pdf_b, delta = bsdf.sample_glossy(w.closure, w.ks, w.kt, ps, pm, pg, wo[0], wo[1], wo[2],
+                                                      u0, u1, u2, u3, w.f)
+    d = bsdf.from_local(ix, iy, iz, sn[0], sn[1], sn[2])
+    if not ok or (d[0] * fn[0] + d[1] * fn[1] + d[2] * fn[2]) * iz <= 0.0:
+        return False, p, d, pdf_b, delta, state
+    for b in range(w.tp.shape[0]):
+        w.tp[b] *= w.f[b]
+    return True, leave_surface(p, n, d), d, pdf_b, delta, state
 
 
 def progressive_passes(samples):
@@ -385,10 +437,7 @@ def add_samples(cs, img, samples, start, stop, seed=0, mode=lightmap.MODE_BILINE
     Rendered viewport) adds one sample at a time. on_tile(x0, y0, th, tw) after each tile.
     Returns the rays traced (camera, shadow, gather and glossy rays)."""
     cam = cs.camera
-    env = cs.environment        # environment.EnvMap
-    ol = cs.orientation if cs.orientation is not None else orientation_lightmap.empty_maps(cs.geometry.inst_proto.shape[0])
-    # photons the caustic lightmaps hold are in no other lightmap (photon_tracer)
-    lmc = cs.caustics if getattr(cs, "caustics_traced", False) else cs.lightmaps
+    scene = kernel_scene(cs)
     rec = records if records is not None else irradiance_cache.no_records(cs.n_bands)
     traced = 0
     for y0 in range(0, cam.height, tile):
@@ -396,10 +445,9 @@ def add_samples(cs, img, samples, start, stop, seed=0, mode=lightmap.MODE_BILINE
             tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
             out = np.zeros((th, tw, cs.n_bands))
             rays = np.zeros((th, tw), np.int64)
-            parallel.run(_render_tile, tw * th, cs.geometry, cs.materials, cs.bsdf, cs.textures,
-                         cs.lights, cs.lightmaps, lmc, lmc is not cs.lightmaps, ol, cam, env,
-                         x0, y0, tw, th, int(samples), int(start), int(stop), np.uint64(seed), int(mode),
-                         int(max_depth), bool(indirect), max(int(gather), 0), rec, out, rays)
+            params = Tile(x0, y0, tw, th, int(samples), int(start), int(stop), np.uint64(seed), int(mode),
+                          int(max_depth), bool(indirect), max(int(gather), 0))
+            parallel.run(_render_tile, tw * th, scene, cam, params, rec, out, rays)
             img[y0:y0 + th, x0:x0 + tw] += out
             traced += int(rays.sum())
             if on_tile is not None:
@@ -408,25 +456,26 @@ def add_samples(cs, img, samples, start, stop, seed=0, mode=lightmap.MODE_BILINE
 
 
 @njit(cache=True, nogil=True)
-def _aux_tile(g, ms, ts, cam, x0, y0, tw, th, spp, seed, albedo, normal, start, stop):
+def _aux_tile(scene, cam, tile, albedo, normal, start, stop):
     """First-hit albedo and shading normal of pixels start..stop-1 of the tile,
     averaged over the render's own anti-aliasing jitter (same stream as
     _render_tile), for the denoiser."""
+    g, ms, ts = scene.geometry, scene.materials, scene.textures
     nb = ms.emission.shape[1]
-    spread = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 0 else 0.0
-    width0 = 2.0 * max(cam.sx, cam.sy) / max(cam.width, cam.height) if cam.kind == 1 else 0.0
+    spp = tile.spp
+    width0, spread = _ray_cone(cam)
     for idx in range(start, stop):
         stack = np.empty(STACK_WORDS, np.int32)
         kd = np.empty(nb)
         ks = np.empty(nb)
         kt = np.empty(nb)
-        px_i = x0 + idx % tw
-        py_i = y0 + idx // tw
+        iy, ix = idx // tile.width, idx % tile.width
+        px_i = tile.x0 + ix
+        py_i = tile.y0 + iy
         pixel = py_i * cam.width + px_i
-        iy, ix = idx // tw, idx % tw
         k = grid_side(spp)
         for s in range(spp):
-            _, jx, jy = _pixel_sample(seed, pixel, spp, s, k)
+            _, jx, jy = _pixel_sample(tile.seed, pixel, spp, s, k)
             ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
             hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
                 g, stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
@@ -437,7 +486,7 @@ def _aux_tile(g, ms, ts, cam, x0, y0, tw, th, spp, seed, albedo, normal, start, 
                 continue
             materials.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, width0 + spread * t, kd, ks, kt)
             sx, sy, sz = materials.shading_normal(ms, ts, g, inst, m, shape, face, u, v, width0 + spread * t,
-                                           nx, ny, nz)
+                                                  nx, ny, nz)
             if dx * nx + dy * ny + dz * nz > 0.0:     # the side facing the camera, as the render shades it
                 sx, sy, sz = -sx, -sy, -sz
             for c in range(3):
@@ -452,6 +501,7 @@ def _aux_tile(g, ms, ts, cam, x0, y0, tw, th, spp, seed, albedo, normal, start, 
 def render_aux(cs, samples=4, seed=0, tile=64):
     """(albedo, normal), each (height, width, 3) float32, of cs.camera's first hits."""
     cam = cs.camera
+    scene = kernel_scene(cs)
     albedo = np.zeros((cam.height, cam.width, 3))
     normal = np.zeros((cam.height, cam.width, 3))
     for y0 in range(0, cam.height, tile):
@@ -459,8 +509,8 @@ def render_aux(cs, samples=4, seed=0, tile=64):
             tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
             a = np.zeros((th, tw, 3))
             n = np.zeros((th, tw, 3))
-            parallel.run(_aux_tile, tw * th, cs.geometry, cs.materials, cs.textures, cam, x0, y0, tw, th,
-                         int(samples), np.uint64(seed), a, n)
+            params = Tile(x0, y0, tw, th, int(samples), 0, int(samples), np.uint64(seed), 0, 0, False, 0)
+            parallel.run(_aux_tile, tw * th, scene, cam, params, a, n)
             albedo[y0:y0 + th, x0:x0 + tw] = a
             normal[y0:y0 + th, x0:x0 + tw] = n
     return albedo.astype(np.float32), normal.astype(np.float32)

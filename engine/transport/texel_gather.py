@@ -35,6 +35,7 @@ into empty texels (bilinear lookups and image borders behave as before).
 """
 import math
 import time
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -47,13 +48,14 @@ from ..geometry import primitives
 from ..shading.lights import (
     AREA, EMISSIVE, ENVIRONMENT, POINT, SPOT, light_sample_count, pick_light, sample_environment_diffuse,
     sample_light_radiance)
-from .photon_tracer import ray_epsilon
+from .path_vertex import ray_epsilon
 from ..geometry.assembly import prototype_surfaces
 from ..geometry.raycast import STACK_WORDS, occluded
 from ..core.sampling import next_float, stream_state
 from ..core import parallel
 
 DEFAULT_SAMPLES = 16
+NO_XOR = np.uint64(0)      # texel_stream of the direct light: the lightmap's key itself
 
 
 # --------------------------------------------------------------------------------------
@@ -61,11 +63,10 @@ DEFAULT_SAMPLES = 16
 # --------------------------------------------------------------------------------------
 
 @njit(cache=True)
-def direct_irradiance(g, ls, stack, px, py, pz, nx, ny, nz, state, out):
+def direct_irradiance(g, ls, stack, p, n, state, out):
     """Adds the direct irradiance at p (normal n facing the viewer) into out[bands]
     (direct_irradiance_stratum with no stratum, one side)."""
-    return direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, -1, 0,
-                                     np.empty(out.shape[0]), 1)
+    return direct_irradiance_stratum(g, ls, stack, p, n, state, out, (-1, 0), np.empty(out.shape[0]), 1)
 
 
 # A texel whose direct-light samples disagree (a shadow's edge or a spot's rim
@@ -106,7 +107,7 @@ def light_stratum(s, k, shift):
 
 
 @njit(**INLINE)
-def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, stratum, k, rad, sides):
+def direct_irradiance_stratum(g, ls, stack, p, n, state, out, strata, rad, sides):
     """Adds the direct irradiance at p into out[bands]: of the side facing n
     (sides 1), or of both sides summed (sides 2: an open surface, whose photons
     from either side meet in one texel); rad[bands]: scratch. Inlined into the
@@ -120,10 +121,14 @@ def direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, out, 
     so it takes a sample per side. The radiance comes per band; every light
     other than a map gives exactly the numbers of sample_light. With stratum >= 0
     (light_stratum of the sample), the light's two random numbers are jittered
-    in that cell of a k x k grid, so a texel's samples cover an area light, a
-    sphere, a sun's disc or a map's CDF evenly: its soft shadows and a window's
-    bright patch are hit a near-fixed number of times, not a binomial one.
+    in that cell of a k x k grid (strata = (stratum, k)), so a texel's samples
+    cover an area light, a sphere, a sun's disc or a map's CDF evenly: its soft
+    shadows and a window's bright patch are hit a near-fixed number of times,
+    not a binomial one.
     """
+    px, py, pz = p
+    nx, ny, nz = n
+    stratum, k = strata
     n_lights = ls.kind.shape[0]
     if n_lights == 0:
         return state
@@ -191,18 +196,6 @@ def jitter(s, k, j1, j2):
     if s < k * k:
         return (s % k + j1) / k, (s // k + j2) / k
     return j1, j2
-
-
-@njit(**INLINE)
-def mesh_texel_point(g, xf, ptri, parea, pnv, pb, p0, p1, total, u1, u2):
-    """The point of a mesh texel for unit-square sample (u1, u2): uniform by world
-    area over its UV pieces p0..p1 (total area `total`).
-
-    -> (ok, px, py, pz, nx, ny, nz, triangle row, b1, b2): world point, unit
-    geometric normal from the world edges (its sign is the triangle's winding),
-    barycentrics; ok False on a zero-area triangle (it has no area share).
-    A façade: the body takes the triangle array only (lights.py says why)."""
-    return texel_point_on_triangles(g.tri_p, xf, ptri, parea, pnv, pb, p0, p1, total, u1, u2)
 
 
 @njit(**CORE)
@@ -282,34 +275,87 @@ def prim_texel_point(kind, params, xf, cof, face, x, y, inv_r, u1, u2):
     return True, jac, px, py, pz, nx / jac, ny / jac, nz / jac, s, t
 
 
+# --------------------------------------------------------------------------------------
+# Texel sets: the measured texels a bake's kernels walk, as records
+# --------------------------------------------------------------------------------------
+
+MeshTexels = namedtuple("MeshTexels", [
+    "texel",                  # int64[K] the texel's row in the lightmaps
+    "inst", "lid", "side",    # its instance, lightmap id, lit side (+1 / -1 along / against the winding normal, 0 both)
+    "key", "local",           # uint64 stream key of its lightmap, and the texel within that lightmap
+    "start",                  # int64[K + 1] its UV pieces: rows start[i]..start[i+1]-1 of the piece columns
+    "tri", "area", "nv", "bary",   # per piece: triangle row, world area, corners, barycentric polygon
+])
+
+PrimTexels = namedtuple("PrimTexels", [
+    "texel", "lm", "lid",     # the texel's row, its lightmap within this set (per-lightmap columns), its id
+    "face", "x", "y",         # chart tile and cell within the tile
+    "key", "local",           # stream key and the texel within its lightmap
+    # per lightmap of the set: primitive kind and parameters, world transform,
+    # normal cofactor (sign-corrected for mirroring), cells per tile side, lit sides
+    "kind", "params", "xf", "ncof", "res", "sides",
+])
+
+
+@njit(**INLINE)
+def mesh_texel_pieces(g, tx, it):
+    """Mesh texel it of set tx -> (first piece, end, their world area, the instance's transform)."""
+    p0 = tx.start[it]
+    p1 = tx.start[it + 1]
+    total = 0.0
+    for p in range(p0, p1):
+        total += tx.area[p]
+    return p0, p1, total, g.inst_xf[tx.inst[it]]
+
+
+@njit(**INLINE)
+def mesh_texel_sample(g, tx, pieces, u1, u2):
+    """The point of a mesh texel (its pieces: mesh_texel_pieces) for unit-square
+    sample (u1, u2): uniform by world area over its UV pieces.
+
+    -> (ok, px, py, pz, nx, ny, nz, triangle row, b1, b2): world point, unit
+    geometric normal from the world edges (its sign is the triangle's winding),
+    barycentrics; ok False on a zero-area triangle (it has no area share).
+    The core it calls takes the triangle array only (lights.py says why)."""
+    p0, p1, total, xf = pieces
+    return texel_point_on_triangles(g.tri_p, xf, tx.tri, tx.area, tx.nv, tx.bary, p0, p1, total, u1, u2)
+
+
+@njit(**INLINE)
+def prim_texel_sample(tx, it, u1, u2):
+    """prim_texel_point of primitive texel it of set tx for unit-square sample (u1, u2)."""
+    l = tx.lm[it]
+    return prim_texel_point(tx.kind[l], tx.params[l], tx.xf[l], tx.ncof[l], tx.face[it], tx.x[it], tx.y[it],
+                            1.0 / tx.res[l], u1, u2)
+
+
+@njit(**INLINE)
+def texel_stream(tx, it, xor):
+    """The random stream of texel it (its lightmap's key xored with a pass's, and the texel)."""
+    return stream_state(tx.key[it] ^ xor, tx.local[it])
+
+
 @njit(cache=True, nogil=True)
-def _gather_mesh(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pnv, pb,
-                 n_samples, out, start, stop):
+def _gather_mesh(g, ls, tx, n_samples, out, start, stop):
     """Direct light of mesh texels start..stop: the block's scratch, then the core."""
     nb = out.shape[1]
-    _gather_mesh_core(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pnv, pb, n_samples, out,
-                      start, stop, np.empty(STACK_WORDS, np.int32), np.empty(nb), np.empty(nb))
+    _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, np.empty(STACK_WORDS, np.int32), np.empty((2, nb)))
 
 
 # The per-sample loop compiles without NRT: with it, every read of a field of the
 # scene tuples is an atomic incref and decref, which two threads contend for
 # (half the kernel's time, measured with perf); scratch comes from the wrapper.
 @njit(**CORE)
-def _gather_mesh_core(g, ls, item_inst, item_key, item_local, pstart, ptri, parea, pnv, pb,
-                      n_samples, out, start, stop, stack, e, rad):
+def _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, stack, scratch):
     nb = out.shape[1]
+    e, rad = scratch[0], scratch[1]
     for it in range(start, stop):
         for b in range(nb):
             out[it, b] = 0.0
-        p0 = pstart[it]
-        p1 = pstart[it + 1]
-        total = 0.0
-        for p in range(p0, p1):
-            total += parea[p]
-        if not (total > 0.0):
+        pieces = mesh_texel_pieces(g, tx, it)
+        if not (pieces[2] > 0.0):
             continue
-        xf = g.inst_xf[item_inst[it]]
-        state = stream_state(item_key[it], item_local[it])
+        state = texel_stream(tx, it, NO_XOR)
         n = n_samples
         for batch in range(2):
             k = grid_side(n)
@@ -322,16 +368,15 @@ def _gather_mesh_core(g, ls, item_inst, item_key, item_local, pstart, ptri, pare
                 state, j1 = next_float(state)
                 state, j2 = next_float(state)
                 u1, u2 = jitter(s, k, j1, j2)
-                ok, px, py, pz, nx, ny, nz, _, _, _ = mesh_texel_point(g, xf, ptri, parea, pnv, pb,
-                                                                       p0, p1, total, u1, u2)
+                ok, px, py, pz, nx, ny, nz, _, _, _ = mesh_texel_sample(g, tx, pieces, u1, u2)
                 if not ok:
                     continue
                 before = 0.0
                 for b in range(nb):
                     before += e[b]
                 # both sides: photons from either side add into the one texel
-                state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e,
-                                                  light_stratum(s, k, shift), k, rad, 2)
+                state = direct_irradiance_stratum(g, ls, stack, (px, py, pz), (nx, ny, nz), state, e,
+                                                  (light_stratum(s, k, shift), k), rad, 2)
                 v = -before
                 for b in range(nb):
                     v += e[b]
@@ -347,43 +392,36 @@ def _gather_mesh_core(g, ls, item_inst, item_key, item_local, pstart, ptri, pare
 
 
 @njit(cache=True, nogil=True)
-def _gather_prim(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local,
-                 lm_kind, lm_params, lm_xf, lm_ncof, lm_res, lm_sides, n_samples, out, start, stop):
+def _gather_prim(g, ls, tx, n_samples, out, start, stop):
     """Direct light of primitive texels start..stop: the block's scratch, then the core."""
     nb = out.shape[1]
-    _gather_prim_core(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local, lm_kind, lm_params,
-                      lm_xf, lm_ncof, lm_res, lm_sides, n_samples, out, start, stop,
-                      np.empty(STACK_WORDS, np.int32), np.empty(nb), np.empty(nb), np.empty(nb))
+    _gather_prim_core(g, ls, tx, n_samples, out, start, stop, np.empty(STACK_WORDS, np.int32), np.empty((3, nb)))
 
 
 @njit(**CORE)
-def _gather_prim_core(g, ls, item_lm, item_face, item_x, item_y, item_key, item_local, lm_kind, lm_params,
-                      lm_xf, lm_ncof, lm_res, lm_sides, n_samples, out, start, stop, stack, e, ew, rad):
+def _gather_prim_core(g, ls, tx, n_samples, out, start, stop, stack, scratch):
     """_gather_prim without NRT (see _gather_mesh_core)."""
     nb = out.shape[1]
+    e, ew, rad = scratch[0], scratch[1], scratch[2]
     k = grid_side(n_samples)
     for it in range(start, stop):
         for b in range(nb):
             ew[b] = 0.0
-        l = item_lm[it]
-        inv_r = 1.0 / lm_res[l]
-        sides = lm_sides[l]
-        state = stream_state(item_key[it], item_local[it])
+        sides = tx.sides[tx.lm[it]]
+        state = texel_stream(tx, it, NO_XOR)
         state, shift = texel_shift(state, k)
         wsum = 0.0
         for s in range(n_samples):
             state, j1 = next_float(state)
             state, j2 = next_float(state)
             u1, u2 = jitter(s, k, j1, j2)
-            ok, jac, px, py, pz, nx, ny, nz, _, _ = prim_texel_point(
-                lm_kind[l], lm_params[l], lm_xf[l], lm_ncof[l], item_face[it], item_x[it], item_y[it],
-                inv_r, u1, u2)
+            ok, jac, px, py, pz, nx, ny, nz, _, _ = prim_texel_sample(tx, it, u1, u2)
             if not ok:
                 continue
             for b in range(nb):
                 e[b] = 0.0
-            state = direct_irradiance_stratum(g, ls, stack, px, py, pz, nx, ny, nz, state, e,
-                                              light_stratum(s, k, shift), k, rad, sides)
+            state = direct_irradiance_stratum(g, ls, stack, (px, py, pz), (nx, ny, nz), state, e,
+                                              (light_stratum(s, k, shift), k), rad, sides)
             for b in range(nb):
                 ew[b] += jac * e[b]
             wsum += jac
@@ -475,24 +513,23 @@ class _MeshTexels:
         self.n_pieces += int(sel.size)
 
     def packed(self):
-        """The columns as contiguous arrays, 'start' with its closing entry; None when empty."""
+        """The columns as a MeshTexels record, 'start' with its closing entry; None when empty."""
         if not self.cols["texel"]:
             return None
         cat = {k: np.ascontiguousarray(np.concatenate(v)) for k, v in self.cols.items()}
         cat["start"] = np.append(cat["start"], self.n_pieces).astype(np.int64)
         for k in ("tri", "nv"):
             cat[k] = cat[k].astype(np.int64)
-        return cat
+        return MeshTexels(**cat)
 
     def gather(self, cs, n):
         """(texel ids, E) of the collected texels; None when there are none."""
-        cat = self.packed()
-        if cat is None:
+        tx = self.packed()
+        if tx is None:
             return None
-        out = np.zeros((cat["texel"].size, cs.n_bands))
-        parallel.run(_gather_mesh, out.shape[0], cs.geometry, cs.lights, cat["inst"], cat["key"],
-                     cat["local"], cat["start"], cat["tri"], cat["area"], cat["nv"], cat["bary"], n, out)
-        return cat["texel"], out
+        out = np.zeros((tx.texel.size, cs.n_bands))
+        parallel.run(_gather_mesh, out.shape[0], cs.geometry, cs.lights, tx, n, out)
+        return tx.texel, out
 
 
 class _PrimTexels:
@@ -529,27 +566,25 @@ class _PrimTexels:
             self.pl[name].append(value)
 
     def packed(self):
-        """(item columns, per-lightmap arrays in _gather_prim's order) or None when empty."""
+        """The items and per-lightmap columns as a PrimTexels record; None when empty."""
         if not self.cols["texel"]:
             return None
         cat = {k: np.ascontiguousarray(np.concatenate(v)) for k, v in self.cols.items()}
         for k in ("face", "x", "y"):
             cat[k] = cat[k].astype(np.int64)
         pl = self.pl
-        per_lm = (np.asarray(pl["kind"], np.int64), np.stack(pl["params"]), np.stack(pl["xf"]),
-                  np.stack(pl["ncof"]), np.asarray(pl["res"], np.int64), np.asarray(pl["sides"], np.int64))
-        return cat, per_lm
+        return PrimTexels(kind=np.asarray(pl["kind"], np.int64), params=np.stack(pl["params"]), xf=np.stack(pl["xf"]),
+                          ncof=np.stack(pl["ncof"]), res=np.asarray(pl["res"], np.int64),
+                          sides=np.asarray(pl["sides"], np.int64), **cat)
 
     def gather(self, cs, n):
         """(texel ids, E) of the collected texels; None when there are none."""
-        got = self.packed()
-        if got is None:
+        tx = self.packed()
+        if tx is None:
             return None
-        cat, per_lm = got
-        out = np.zeros((cat["texel"].size, cs.n_bands))
-        parallel.run(_gather_prim, out.shape[0], cs.geometry, cs.lights, cat["lm"], cat["face"], cat["x"],
-                     cat["y"], cat["key"], cat["local"], *per_lm, n, out)
-        return cat["texel"], out
+        out = np.zeros((tx.texel.size, cs.n_bands))
+        parallel.run(_gather_prim, out.shape[0], cs.geometry, cs.lights, tx, n, out)
+        return tx.texel, out
 
 
 def collect_texels(cs, owners, lightmap_ids, seed, with_sides=False):
@@ -574,7 +609,7 @@ def collect_texels(cs, owners, lightmap_ids, seed, with_sides=False):
         xf = cs.geometry.inst_xf[inst]
         if skind == "mesh":
             if inst not in sides:
-                # mesh_texel_point's normal is the world edges' cross product: det(M) times the hit normal
+                # mesh_texel_sample's normal is the world edges' cross product: det(M) times the hit normal
                 det = np.linalg.det(xf[:, :3])
                 sides[inst] = lit_sides(cs, inst) * (1 if det >= 0.0 else -1) if with_sides else 0
             mesh.add(inst, lid, sides[inst], key, off, local, np.asarray(data, np.int64),

@@ -1,0 +1,48 @@
+"""The compiled scene as one record, as the transport kernels take it.
+
+pbrt's integrator owns its aggregate and its lights; here `KernelScene` is
+that owner: the photon pass, the render tiles and the gathers take it as one
+argument instead of the ten arrays-of-arrays it holds, and read what they need
+by name (`scene.geometry`, `scene.lights`, ...). It is a plain named tuple, so
+numba passes it by reference and a kernel compiled without the NRT reads its
+fields at no cost; a field's type is part of the kernel's signature, so a
+scene without caustic lightmaps or orientation lightmaps compiles the same
+kernels as one with them (the empty stand-ins have the same types).
+"""
+from collections import namedtuple
+
+import numpy as np
+
+from ..lightmaps import orientation_lightmap
+
+KernelScene = namedtuple("KernelScene", [
+    "geometry",       # geometry.assembly.Geometry
+    "materials",      # shading.materials.MaterialSet
+    "bsdf",           # shading.bsdf.BsdfTables
+    "textures",       # shading.texture.TextureSet
+    "lights",         # shading.lights.LightSet (aimed for a photon pass, shading/photon_aim.py)
+    "lightmaps",      # the photon lightmaps (lightmaps/lightmap.py)
+    "caustic_maps",   # the caustic lightmaps, or the photon lightmaps again when they are not read
+    "caustics",       # bool: caustic_maps are the caustic lightmaps
+    "orientation",    # orientation lightmaps (empty maps in a scene without them)
+    "environment",    # shading.environment.EnvMap
+    "inst_side",      # int64 per instance: the side a gather ray must meet it from (empty: no test)
+])
+
+
+def kernel_scene(cs, lights=None, caustics=None, inst_side=None):
+    """The record of compiled scene `cs`.
+
+    lights: a light set to use instead of cs.lights (a photon pass aims them);
+    caustics: read or write the caustic lightmaps (default: when the last photon
+    pass stored its caustics there); inst_side: the lit side of each instance
+    for gather rays (texel_gather.instance_sides; default: no test)."""
+    if caustics is None:
+        caustics = bool(getattr(cs, "caustics_traced", False))
+    caustics = bool(caustics) and cs.caustics is not None
+    ol = cs.orientation
+    if ol is None:
+        ol = orientation_lightmap.empty_maps(cs.geometry.inst_proto.shape[0])
+    return KernelScene(cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights if lights is None else lights,
+                       cs.lightmaps, cs.caustics if caustics else cs.lightmaps, caustics, ol, cs.environment,
+                       np.zeros(0, np.int64) if inst_side is None else np.ascontiguousarray(inst_side, np.int64))

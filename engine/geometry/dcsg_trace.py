@@ -2,6 +2,7 @@
 cyclic scene graph per ray, with the expansion cache's BVHs, the closest hit, its
 surface and OL stub address; and stand-alone tracing of one graph (tests, the CLI)."""
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -84,23 +85,35 @@ def alternative(i32, f64, o_alt0, o_nalt, o_cum, node, h):
     return k
 
 
+# The blob's tables (dcsg_blob.py): per node its alternatives, terminal primitive,
+# stub flag and box; per alternative its children and cumulative probability;
+# per child edge its node, index, inverse transform, rotation and box; per
+# terminal primitive its kind, parameters and inverse transform.
+BlobTables = namedtuple("BlobTables", "alt0 nalt prim stub ac0 anc chn chj pk box cum cinv crot cbox pp pinv")
+
+# The expansion cache's tables: per node its cache (-1: none); per cache its root
+# record; the 4-wide records; per item its terminal, chain of child indices,
+# innermost stub along the chain and inverse transform.
+CacheTables = namedtuple("CacheTables", "node root rec item_prim item_c0 item_nc chain item_inv item_stub")
+
+
 @njit(**INLINE)
 def blob_tables(i64, w, iw):
     """Start of each blob table in its view: int32 ones, then float64 ones."""
-    return (iw + i64[w + B_NODE_ALT0], iw + i64[w + B_NODE_NALT], iw + i64[w + B_NODE_PRIM],
-            iw + i64[w + B_NODE_STUB], iw + i64[w + B_ALT_C0], iw + i64[w + B_ALT_NC],
-            iw + i64[w + B_CH_NODE], iw + i64[w + B_CH_J], iw + i64[w + B_PRIM_KIND],
-            w + i64[w + B_NODE_BOX], w + i64[w + B_ALT_CUM], w + i64[w + B_CH_INV],
-            w + i64[w + B_CH_ROT], w + i64[w + B_CH_BOX], w + i64[w + B_PRIM_PARAMS],
-            w + i64[w + B_PRIM_INV])
+    return BlobTables(iw + i64[w + B_NODE_ALT0], iw + i64[w + B_NODE_NALT], iw + i64[w + B_NODE_PRIM],
+                      iw + i64[w + B_NODE_STUB], iw + i64[w + B_ALT_C0], iw + i64[w + B_ALT_NC],
+                      iw + i64[w + B_CH_NODE], iw + i64[w + B_CH_J], iw + i64[w + B_PRIM_KIND],
+                      w + i64[w + B_NODE_BOX], w + i64[w + B_ALT_CUM], w + i64[w + B_CH_INV],
+                      w + i64[w + B_CH_ROT], w + i64[w + B_CH_BOX], w + i64[w + B_PRIM_PARAMS],
+                      w + i64[w + B_PRIM_INV])
 
 
 @njit(**INLINE)
 def _cache_tables(i64, w, iw):
     """Start of each expansion-cache table in its view (the records: int32 / float32)."""
-    return (iw + i64[w + B_NODE_CACHE], iw + i64[w + B_CACHE_ROOT], iw + i64[w + B_CACHE_REC],
-            iw + i64[w + B_ITEM_PRIM], iw + i64[w + B_ITEM_C0], iw + i64[w + B_ITEM_NC],
-            iw + i64[w + B_CHAIN_J], w + i64[w + B_ITEM_INV])
+    return CacheTables(iw + i64[w + B_NODE_CACHE], iw + i64[w + B_CACHE_ROOT], iw + i64[w + B_CACHE_REC],
+                       iw + i64[w + B_ITEM_PRIM], iw + i64[w + B_ITEM_C0], iw + i64[w + B_ITEM_NC],
+                       iw + i64[w + B_CHAIN_J], w + i64[w + B_ITEM_INV], iw + i64[w + B_ITEM_STUB])
 
 
 @njit(**INLINE)
@@ -163,12 +176,12 @@ def organ_tables(i64, w, iw):
 
 
 @njit(**INLINE)
-def _terminal_hit(i32, f64, o_pk, o_pp, o_org, p, m, ox, oy, oz, dx, dy, dz, tmin, tbest):
-    """Nearest crossing in (tmin, tbest) of terminal primitive row p, the ray mapped
-    into its frame by the 3x4 at f64[m:]: (t, local normal, not unit); t = inf if
-    none. An organ is a triangle mesh (both sides; normal e1 x e2), any other kind
-    an analytic primitive."""
-    lx, ly, lz, ex, ey, ez = xform_ray(f64, m, ox, oy, oz, dx, dy, dz)
+def _terminal_hit(i32, f64, o_pk, o_pp, o_org, p, m, ray, tmin, tbest):
+    """Nearest crossing in (tmin, tbest) of terminal primitive row p, the ray
+    (origin, direction) mapped into its frame by the 3x4 at f64[m:]: (t, local
+    normal, not unit); t = inf if none. An organ is a triangle mesh (both sides;
+    normal e1 x e2), any other kind an analytic primitive."""
+    lx, ly, lz, ex, ey, ez = xform_ray(f64, m, ray[0], ray[1], ray[2], ray[3], ray[4], ray[5])
     pp = o_pp + 4 * p
     kind = i32[o_pk + p]
     if kind == ORGAN:
@@ -221,6 +234,23 @@ def _triangle(f64, q, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return t, nx, ny, nz
 
 
+# What a traversal reads of the blob: its typed views, its word offsets, and the
+# start of each table (blob_tables, _cache_tables, organ_tables).
+DcsgView = namedtuple("DcsgView", "i64 f32 i32 f64 w iw blob cache org")
+
+# The closest hit so far: distance, terminal primitive row, the address of its
+# innermost stub and its own, the depth of its node, and its normal in that node's frame.
+Best = namedtuple("Best", "t p stub addr depth nx ny nz")
+
+
+@njit(**INLINE)
+def _view(buf):
+    i64, f32, i32, f64 = buf[:4]
+    w, iw = dcsg_base(buf)
+    return DcsgView(i64, f32, i32, f64, w, iw, blob_tables(i64, w, iw), _cache_tables(i64, w, iw),
+                    organ_tables(i64, w, iw))
+
+
 @njit(**CORE)
 def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
     """Closest hit of a prototype-space ray with DCSG `graph`, expanded lazily:
@@ -232,171 +262,197 @@ def dcsg_closest_core(buf, stack, s0, graph, ox, oy, oz, dx, dy, dz, tmin, tmax,
     child is entered (its ray transformed, pushed) only when the ray meets its box;
     the nearest child is expanded first. Entries carry only the ray: the hit's
     normal is rotated to the object by the edge path, once per ray."""
-    i64, f32, i32, f64 = buf[:4]
-    w, iw = dcsg_base(buf)
-    (o_alt0, o_nalt, o_prim, o_stub, o_ac0, o_anc, o_chn, o_chj, o_pk,
-     o_box, o_cum, o_cinv, o_crot, o_cbox, o_pp, o_pinv) = blob_tables(i64, w, iw)
-    root = i32[iw + i64[w + B_GRAPH_ROOT] + graph]
+    v = _view(buf)
+    sb = _scratch(s0)
+    fb, hb, nb, eb, db, pb = sb[:6]
     fs = as_float64(stack)
     us = as_uint64(stack)
-    fb, hb, nb, eb, db, pb, bp, kb, kf, rb = _scratch(s0)
-    o_ncache, o_croot, o_crec, o_ip, o_ic0, o_inc, o_chain, o_iinv = _cache_tables(i64, w, iw)
-    o_istub = iw + i64[w + B_ITEM_STUB]
-    o_org = organ_tables(i64, w, iw)
-    f32s = as_float32(stack)
-    rf = rb // 2                       # result: normal (3 float64), stub (int32 at rb + 6), address
-    t_root = _slabs(f64, o_box + 6 * root, ox, oy, oz, _inverse_dir(dx), _inverse_dir(dy),
+    root = v.i32[v.iw + v.i64[v.w + B_GRAPH_ROOT] + graph]
+    t_root = _slabs(v.f64, v.blob.box + 6 * root, ox, oy, oz, _inverse_dir(dx), _inverse_dir(dy),
                     _inverse_dir(dz), tmin, tmax)
     if t_root == math.inf:
         return tmax, -1
     fs[fb], fs[fb + 1], fs[fb + 2], fs[fb + 3], fs[fb + 4], fs[fb + 5] = ox, oy, oz, dx, dy, dz
     fs[fb + 6] = t_root
-    us[hb] = _u64(i32, iw + i64[w + B_GRAPH_HASH] + 2 * graph)
+    us[hb] = _u64(v.i32, v.iw + v.i64[v.w + B_GRAPH_HASH] + 2 * graph)
     us[hb + 1] = np.uint64(0)
     stack[nb], stack[eb], stack[db] = root, -1, 0
     sp = 1
-    tbest = tmax
-    best_p = -1
-    best_d = 0
-    best_s = np.uint64(0)
-    best_h = np.uint64(0)
-    bnx, bny, bnz = 0.0, 0.0, 1.0
+    best = Best(tmax, np.int64(-1), np.uint64(0), np.uint64(0), np.int64(0), 0.0, 0.0, 1.0)
     while sp > 0:
         sp -= 1
         f = fb + ENTRY_F64 * sp
-        if fs[f + 6] >= tbest:
+        if fs[f + 6] >= best.t:
             continue
         node = stack[nb + sp]
         d = stack[db + sp]
         e = stack[eb + sp]
         stack[pb + d] = e                # ancestors' edges at 1..d-1 are still in place (DFS)
         h = us[hb + 2 * sp]
-        stub = h if i32[o_stub + node] else us[hb + 2 * sp + 1]
+        stub = h if v.i32[v.blob.stub + node] else us[hb + 2 * sp + 1]
         # copied out: the children are pushed over this very entry. Entries hold the
         # parent's ray; it enters the child's frame only now, past the tbest cull.
-        rox, roy, roz, rdx, rdy, rdz = fs[f], fs[f + 1], fs[f + 2], fs[f + 3], fs[f + 4], fs[f + 5]
+        ray = (fs[f], fs[f + 1], fs[f + 2], fs[f + 3], fs[f + 4], fs[f + 5])
         if e >= 0:
-            rox, roy, roz, rdx, rdy, rdz = xform_ray(f64, o_cinv + 12 * e, rox, roy, roz, rdx, rdy, rdz)
-        ix, iy, iz = _inverse_dir(rdx), _inverse_dir(rdy), _inverse_dir(rdz)
-        ci = i32[o_ncache + node]
+            ray = xform_ray(v.f64, v.blob.cinv + 12 * e, ray[0], ray[1], ray[2], ray[3], ray[4], ray[5])
+        entry = (node, h, stub, d)
+        ci = v.i32[v.cache.node + node]
+        p = v.i32[v.blob.prim + node]
         if ci >= 0:                      # an expanded subgraph: its BVH, in this node's frame
-            sx, sy, sz, nxo, nyo, nzo = ray_slabs(rdx, rdy, rdz)
-            rec = i32[o_croot + ci]
-            ks = kb
-            while True:
-                b = o_crec + 32 * rec
-                mk, lm, n0, n1, n2, n3 = slab4(f32, b, rox, roy, roz, sx, sy, sz, nxo, nyo, nzo,
-                                                tmin, tbest)
-                ml = mk & lm
-                mi = mk & ~lm
-                t_in = tbest
-                while ml != 0:
-                    k = ctz(ml)
-                    ml &= ml - 1
-                    a_ = i32[b + 24 + k]
-                    for it in range(a_, a_ + i32[b + 28 + k]):
-                        p = i32[o_ip + it]
-                        m = o_iinv + 12 * it
-                        ti, nx, ny, nz = _terminal_hit(i32, f64, o_pk, o_pp, o_org, p, m, rox, roy, roz,
-                                                       rdx, rdy, rdz, tmin, tbest)
-                        if ti < tbest:
-                            tbest = ti
-                            best_p = p
-                            best_s = stub
-                            hh = h               # the address: the chain of child indices
-                            at = i32[o_istub + it]       # and the innermost stub along it
-                            c0_ = i32[o_ic0 + it]
-                            for q in range(c0_, c0_ + i32[o_inc + it]):
-                                hh = child_hash(hh, i32[o_chain + q])
-                                if q - c0_ + 1 == at:
-                                    best_s = hh
-                            best_h = hh
-                            best_d = d
-                            _keep_path(stack, pb, bp, d)
-                            bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
-                if any_hit and best_p >= 0:
-                    break
-                if tbest < t_in:
-                    mi = drop_far(mi, n0, n1, n2, n3, tbest)
-                rec, ks = descend(stack, f32s, ks, i32, b, mi, n0, n1, n2, n3, tbest)
-                if rec < 0:
-                    rec, ks = pop_node(stack, f32s, ks, kb, tbest)
-                    if rec < 0:
-                        break
-            if any_hit and best_p >= 0:
-                break
-            continue
-        p = i32[o_prim + node]
-        if p >= 0:                       # a terminal root (terminal children are tested below)
-            t, nx, ny, nz = _terminal_hit(i32, f64, o_pk, o_pp, o_org, p, o_pinv + 12 * p,
-                                          rox, roy, roz, rdx, rdy, rdz, tmin, tbest)
-            if t < tbest:
-                tbest = t
-                best_p = p
-                best_s = stub
-                best_h = h
-                best_d = d
-                _keep_path(stack, pb, bp, d)
-                bnx, bny, bnz = normal_through(f64, o_pinv + 12 * p, nx, ny, nz)
-                if any_hit:
-                    break
-            continue
-        k = alternative(i32, f64, o_alt0, o_nalt, o_cum, node, h)
-        base = sp
-        c0 = i32[o_ac0 + k]
-        for c in range(c0, c0 + i32[o_anc + k]):
-            te = _slabs(f64, o_cbox + 6 * c, rox, roy, roz, ix, iy, iz, tmin, tbest)
-            if te == math.inf:
-                continue
-            child = i32[o_chn + c]
-            p = i32[o_prim + child]
-            if p >= 0:                   # a terminal: test it now, with no push
-                m = o_cinv + 12 * c
-                ti, nx, ny, nz = _terminal_hit(i32, f64, o_pk, o_pp, o_org, p, m, rox, roy, roz,
-                                               rdx, rdy, rdz, tmin, tbest)
-                if ti < tbest:
-                    tbest = ti
-                    best_p = p
-                    best_s = stub
-                    best_h = child_hash(h, i32[o_chj + c])
-                    best_d = d
-                    _keep_path(stack, pb, bp, d)
-                    bnx, bny, bnz = normal_through(f64, m, nx, ny, nz)
-                if any_hit and best_p >= 0:
-                    break
-                continue
-            g = fb + ENTRY_F64 * sp
-            fs[g], fs[g + 1], fs[g + 2], fs[g + 3], fs[g + 4], fs[g + 5] = rox, roy, roz, rdx, rdy, rdz
-            fs[g + 6] = te
-            stack[nb + sp], stack[eb + sp], stack[db + sp] = child, c, d + 1
-            us[hb + 2 * sp] = child_hash(h, i32[o_chj + c])
-            us[hb + 2 * sp + 1] = stub
-            sp += 1
-        if any_hit and best_p >= 0:
+            best = _cached_subgraph(v, stack, sb, ci, entry, ray, tmin, best, any_hit)
+        elif p >= 0:                     # a terminal root (terminal children are tested below)
+            m = v.blob.pinv + 12 * p
+            t, nx, ny, nz = _terminal_hit(v.i32, v.f64, v.blob.pk, v.blob.pp, v.org, p, m, ray, tmin, best.t)
+            if t < best.t:
+                best = _take(v, stack, sb, m, (t, p, stub, h, d), (nx, ny, nz))
+        else:
+            base = sp
+            sp, best = _expand(v, stack, sb, entry, ray, tmin, best, sp, any_hit)
+            if not (any_hit and best.p >= 0):
+                _sort_level(stack, sb, base, sp)
+        if any_hit and best.p >= 0:
             break
-        # nearest child on top: insertion sort of this level's entries, far first
-        for i in range(base + 1, sp):
-            j = i
-            while j > base and fs[fb + ENTRY_F64 * (j - 1) + 6] < fs[fb + ENTRY_F64 * j + 6]:
-                a_, b_ = fb + ENTRY_F64 * (j - 1), fb + ENTRY_F64 * j
-                for q in range(ENTRY_F64):
-                    fs[a_ + q], fs[b_ + q] = fs[b_ + q], fs[a_ + q]
-                for q in (nb, eb):
-                    stack[q + j - 1], stack[q + j] = stack[q + j], stack[q + j - 1]
-                for q in range(2):
-                    us[hb + 2 * (j - 1) + q], us[hb + 2 * j + q] = us[hb + 2 * j + q], us[hb + 2 * (j - 1) + q]
-                j -= 1
-    if best_p < 0:
-        return tmax, -1
-    for q in range(best_d, 0, -1):       # node -> object: R_c1 (R_c2 (... R_cd n))
-        r = o_crot + 9 * stack[bp + q]
+    return _finish(v, stack, sb, best, graph)
+
+
+@njit(**INLINE)
+def _take(v, stack, sb, m, hit, n):
+    """The hit (t, p, stub, address, depth) with local normal n, in the frame of the
+    3x4 at f64[m:], becomes the closest: its node's normal and edge path are kept."""
+    t, p, stub, addr, d = hit
+    _keep_path(stack, sb[5], sb[6], d)
+    nx, ny, nz = normal_through(v.f64, m, n[0], n[1], n[2])
+    return Best(t, np.int64(p), stub, addr, np.int64(d), nx, ny, nz)
+
+
+@njit(**INLINE)
+def _cached_subgraph(v, stack, sb, ci, entry, ray, tmin, best, any_hit):
+    """The closest hit, so far, after the items of expansion-cache BVH ci (in the
+    frame of the entry's node): each item a terminal with its transform and the
+    chain of child indices that makes its address."""
+    c = v.cache
+    i32, f64 = v.i32, v.f64
+    kb = sb[7]
+    f32s = as_float32(stack)
+    _, h, stub, d = entry
+    rox, roy, roz, rdx, rdy, rdz = ray
+    sx, sy, sz, nxo, nyo, nzo = ray_slabs(rdx, rdy, rdz)
+    rec = i32[c.root + ci]
+    ks = kb
+    while True:
+        b = c.rec + 32 * rec
+        mk, lm, n0, n1, n2, n3 = slab4(v.f32, b, rox, roy, roz, sx, sy, sz, nxo, nyo, nzo, tmin, best.t)
+        ml = mk & lm
+        mi = mk & ~lm
+        t_in = best.t
+        while ml != 0:
+            k = ctz(ml)
+            ml &= ml - 1
+            a_ = i32[b + 24 + k]
+            for it in range(a_, a_ + i32[b + 28 + k]):
+                p = i32[c.item_prim + it]
+                m = c.item_inv + 12 * it
+                ti, nx, ny, nz = _terminal_hit(i32, f64, v.blob.pk, v.blob.pp, v.org, p, m, ray, tmin, best.t)
+                if ti < best.t:
+                    hh = h               # the address: the chain of child indices
+                    s_ = stub
+                    at = i32[c.item_stub + it]   # and the innermost stub along it
+                    c0_ = i32[c.item_c0 + it]
+                    for q in range(c0_, c0_ + i32[c.item_nc + it]):
+                        hh = child_hash(hh, i32[c.chain + q])
+                        if q - c0_ + 1 == at:
+                            s_ = hh
+                    best = _take(v, stack, sb, m, (ti, p, s_, hh, d), (nx, ny, nz))
+        if any_hit and best.p >= 0:
+            return best
+        if best.t < t_in:
+            mi = drop_far(mi, n0, n1, n2, n3, best.t)
+        rec, ks = descend(stack, f32s, ks, i32, b, mi, n0, n1, n2, n3, best.t)
+        if rec < 0:
+            rec, ks = pop_node(stack, f32s, ks, kb, best.t)
+            if rec < 0:
+                return best
+
+
+@njit(**INLINE)
+def _expand(v, stack, sb, entry, ray, tmin, best, sp, any_hit):
+    """The entry's node takes its alternative: terminal children are tested at once,
+    the others whose box the ray meets are pushed -> (stack pointer, closest hit)."""
+    bt = v.blob
+    i32, f64 = v.i32, v.f64
+    fb, hb, nb, eb, db = sb[:5]
+    fs = as_float64(stack)
+    us = as_uint64(stack)
+    node, h, stub, d = entry
+    rox, roy, roz, rdx, rdy, rdz = ray
+    ix, iy, iz = _inverse_dir(rdx), _inverse_dir(rdy), _inverse_dir(rdz)
+    k = alternative(i32, f64, bt.alt0, bt.nalt, bt.cum, node, h)
+    c0 = i32[bt.ac0 + k]
+    for c in range(c0, c0 + i32[bt.anc + k]):
+        te = _slabs(f64, bt.cbox + 6 * c, rox, roy, roz, ix, iy, iz, tmin, best.t)
+        if te == math.inf:
+            continue
+        child = i32[bt.chn + c]
+        p = i32[bt.prim + child]
+        if p >= 0:                   # a terminal: test it now, with no push
+            m = bt.cinv + 12 * c
+            ti, nx, ny, nz = _terminal_hit(i32, f64, bt.pk, bt.pp, v.org, p, m, ray, tmin, best.t)
+            if ti < best.t:
+                best = _take(v, stack, sb, m, (ti, p, stub, child_hash(h, i32[bt.chj + c]), d), (nx, ny, nz))
+            if any_hit and best.p >= 0:
+                return sp, best
+            continue
+        g = fb + ENTRY_F64 * sp
+        fs[g], fs[g + 1], fs[g + 2], fs[g + 3], fs[g + 4], fs[g + 5] = rox, roy, roz, rdx, rdy, rdz
+        fs[g + 6] = te
+        stack[nb + sp], stack[eb + sp], stack[db + sp] = child, c, d + 1
+        us[hb + 2 * sp] = child_hash(h, i32[bt.chj + c])
+        us[hb + 2 * sp + 1] = stub
+        sp += 1
+    return sp, best
+
+
+@njit(**INLINE)
+def _sort_level(stack, sb, base, sp):
+    """Entries base..sp-1 (one node's children) sorted far first: the nearest child on top."""
+    fb, hb, nb, eb = sb[:4]
+    fs = as_float64(stack)
+    us = as_uint64(stack)
+    for i in range(base + 1, sp):
+        j = i
+        while j > base and fs[fb + ENTRY_F64 * (j - 1) + 6] < fs[fb + ENTRY_F64 * j + 6]:
+            a_, b_ = fb + ENTRY_F64 * (j - 1), fb + ENTRY_F64 * j
+            for q in range(ENTRY_F64):
+                fs[a_ + q], fs[b_ + q] = fs[b_ + q], fs[a_ + q]
+            for q in (nb, eb):
+                stack[q + j - 1], stack[q + j] = stack[q + j], stack[q + j - 1]
+            for q in range(2):
+                us[hb + 2 * (j - 1) + q], us[hb + 2 * j + q] = us[hb + 2 * j + q], us[hb + 2 * (j - 1) + q]
+            j -= 1
+
+
+@njit(**INLINE)
+def _finish(v, stack, sb, best, graph):
+    """-> (t, virtual shape) of the closest hit, (its tmax, -1) for none; a hit's
+    normal is rotated from its node to the object along the kept edge path, and
+    with its address and stub index left in the result words."""
+    if best.p < 0:
+        return best.t, -1
+    bp, rb = sb[6], sb[9]
+    f64 = v.f64
+    fs = as_float64(stack)
+    us = as_uint64(stack)
+    rf = rb // 2                       # result: normal (3 float64), stub (int32 at rb + 6), address
+    bnx, bny, bnz = best.nx, best.ny, best.nz
+    for q in range(best.depth, 0, -1):       # node -> object: R_c1 (R_c2 (... R_cd n))
+        r = v.blob.crot + 9 * stack[bp + q]
         bnx, bny, bnz = (f64[r] * bnx + f64[r + 1] * bny + f64[r + 2] * bnz,
                          f64[r + 3] * bnx + f64[r + 4] * bny + f64[r + 5] * bnz,
                          f64[r + 6] * bnx + f64[r + 7] * bny + f64[r + 8] * bnz)
     fs[rf], fs[rf + 1], fs[rf + 2] = unit(bnx, bny, bnz)
-    us[rf + 4] = best_h
-    stack[rb + 6] = _stub_index(i32, iw, i64[w + B_GRAPH_STUB], i64[w + B_STUB_ADDR], graph, best_s)
-    return tbest, i64[w + B_VS0] + best_p
+    us[rf + 4] = best.addr
+    stack[rb + 6] = _stub_index(v.i32, v.iw, v.i64[v.w + B_GRAPH_STUB], v.i64[v.w + B_STUB_ADDR], graph, best.stub)
+    return best.t, v.i64[v.w + B_VS0] + best.p
 
 
 @njit(**INLINE)

@@ -28,7 +28,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..core.jit import INLINE
+from ..core.jit import CORE, INLINE
 from ..core.sampling import concentric_disk, next_float, orthonormal_basis, to_world, uniform_cone
 
 AIMED = 0.75        # fraction of photons aimed: weights stay below 1 / (1 - AIMED) = 4
@@ -87,13 +87,13 @@ def _base_pdf(base, nx, ny, nz, cos_c, dx, dy, dz):
 
 
 @njit(**INLINE)
-def _levels(ls, limit):
+def _levels(aim, limit):
     """The nested spheres aimed at: radii r 2^k, the last one cut to `limit`
     (the one that holds the scene's bounding sphere, or less) -> (count, limit).
     A single sphere when the aim sphere is at the limit already."""
-    r = ls.aim_radius
-    ex, ey, ez = ls.aim_center[0] - ls.center[0], ls.aim_center[1] - ls.center[1], ls.aim_center[2] - ls.center[2]
-    limit = max(min(limit, math.sqrt(ex * ex + ey * ey + ez * ez) + ls.bound_radius), r)
+    _, aim_center, r, center, bound_radius = aim
+    ex, ey, ez = aim_center[0] - center[0], aim_center[1] - center[1], aim_center[2] - center[2]
+    limit = max(min(limit, math.sqrt(ex * ex + ey * ey + ez * ez) + bound_radius), r)
     n = 1
     while n < LEVELS and r * (1 << (n - 1)) < limit:
         n += 1
@@ -101,20 +101,45 @@ def _levels(ls, limit):
 
 
 @njit(**INLINE)
+def _aim(ls):
+    """What aiming reads of a light set: (fraction, aim centre, aim radius, scene
+    centre, scene radius)."""
+    return ls.aim_fraction, ls.aim_center, ls.aim_radius, ls.center, ls.bound_radius
+
+
+# aim_direction and aim_disk are façades over compiled bodies: emit_photon inlines
+# them at eight places, and numba copies an inlined function's IR with all that
+# was inlined into it, so inlined bodies made emit_photon cost 12 s to compile
+# into every kernel that emits photons. A call per photon passes a few words.
+@njit(**INLINE)
 def aim_direction(ls, state, ox, oy, oz, dx, dy, dz, base, nx, ny, nz, cos_c):
+    """_aim_direction with the light set's aim (see there)."""
+    return _aim_direction(_aim(ls), state, (ox, oy, oz), (dx, dy, dz), base, (nx, ny, nz), cos_c)
+
+
+@njit(**INLINE)
+def aim_disk(ls, state, dx, dy, dz, R, ox, oy, oz):
+    """_aim_disk with the light set's aim (see there)."""
+    return _aim_disk(_aim(ls), state, (dx, dy, dz), R, (ox, oy, oz))
+
+
+@njit(**CORE)
+def _aim_direction(aim, state, o, d, base, n, cos_c):
     """Mixes direction d (already drawn from the light's own distribution `base`
     about n, of cone cos_c for CONE) with the cones from o that hold the nested
     aim spheres -> (state, dx, dy, dz, weight). A light inside the aim sphere
-    keeps d and draws no random numbers."""
-    f = ls.aim_fraction
-    ax, ay, az = ls.aim_center[0] - ox, ls.aim_center[1] - oy, ls.aim_center[2] - oz
+    keeps d and draws no random numbers. aim: photon_aim._aim of the light set."""
+    f, aim_center, r, center, bound_radius = aim
+    ox, oy, oz = o
+    dx, dy, dz = d
+    nx, ny, nz = n
+    ax, ay, az = aim_center[0] - ox, aim_center[1] - oy, aim_center[2] - oz
     d2 = ax * ax + ay * ay + az * az
-    r = ls.aim_radius
     if not (f > 0.0) or d2 <= r * r:
         return state, dx, dy, dz, 1.0
     dist = math.sqrt(d2)
     ax, ay, az = ax / dist, ay / dist, az / dist
-    n_lv, limit = _levels(ls, dist * (1.0 - 1e-6))
+    n_lv, limit = _levels(aim, dist * (1.0 - 1e-6))
     state, uc = next_float(state)
     state, u1 = next_float(state)
     state, u2 = next_float(state)
@@ -135,22 +160,23 @@ def aim_direction(ls, state, ox, oy, oz, dx, dy, dz, base, nx, ny, nz, cos_c):
     return state, dx, dy, dz, (p / mix if mix > 0.0 else 0.0)
 
 
-@njit(**INLINE)
-def aim_disk(ls, state, dx, dy, dz, R, ox, oy, oz):
+@njit(**CORE)
+def _aim_disk(aim, state, d, R, o):
     """Parallel photons (sun, world) along d start on the disk of radius R about
     the scene's centre, facing d: origin o was drawn uniformly on it. Mixes it
     with the disks that cover the nested aim spheres -> (state, ox, oy, oz, weight)."""
-    f = ls.aim_fraction
-    r = ls.aim_radius
+    f, aim_center, r, center, bound_radius = aim
+    dx, dy, dz = d
+    ox, oy, oz = o
     if not (f > 0.0) or r >= R:
         return state, ox, oy, oz, 1.0
-    cx, cy, cz = ls.center[0], ls.center[1], ls.center[2]
-    ex, ey, ez = ls.aim_center[0] - cx, ls.aim_center[1] - cy, ls.aim_center[2] - cz
+    cx, cy, cz = center[0], center[1], center[2]
+    ex, ey, ez = aim_center[0] - cx, aim_center[1] - cy, aim_center[2] - cz
     # q: the aim sphere's centre moved along d into o's plane (the scene's centre + s d)
     s = (ox - cx) * dx + (oy - cy) * dy + (oz - cz) * dz
     t = ex * dx + ey * dy + ez * dz
     qx, qy, qz = cx + ex + (s - t) * dx, cy + ey + (s - t) * dy, cz + ez + (s - t) * dz
-    n_lv, limit = _levels(ls, R)
+    n_lv, limit = _levels(aim, R)
     state, uc = next_float(state)
     state, u1 = next_float(state)
     state, u2 = next_float(state)

@@ -62,8 +62,9 @@ def leave_surface(p, n, d):
 
 
 @njit(**INLINE)
-def surface_closure(scene, w, m, surf, n, d, foot):
-    """The closure of material m at a hit, met along d.
+def surface_closure(ms, ts, bt, g, w, m, surf, n, d, foot):
+    """The closure of material m at a hit, met along d (materials, textures, bsdf
+    tables and geometry: the KernelScene's parts it reads).
 
     surf = (instance, shape, face, u, v) and n, the outward face normal, as the
     ray query returns them; foot: the ray's width there (texture filtering; 0:
@@ -75,7 +76,6 @@ def surface_closure(scene, w, m, surf, n, d, foot):
     inst, shape, face, u, v = surf
     nx, ny, nz = n
     dx, dy, dz = d
-    ms, ts, g = scene.materials, scene.textures, scene.geometry
     rough, ior, _ = materials.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, foot, w.kd, w.ks, w.kt)
     snx, sny, snz = materials.shading_normal(ms, ts, g, inst, m, shape, face, u, v, foot, nx, ny, nz)
     cos_dn = dx * nx + dy * ny + dz * nz
@@ -87,6 +87,6 @@ def surface_closure(scene, w, m, surf, n, d, foot):
     if cos_o <= 1e-6:
         sx, sy, sz = fx, fy, fz
         cos_o = abs(cos_dn)
-    bsdf.closure_scalars(scene.bsdf, m, rough, ior, cos_dn < 0.0, cos_o, w.closure)
+    bsdf.closure_scalars(bt, m, rough, ior, cos_dn < 0.0, cos_o, w.closure)
     lobes = bsdf.lobe_probabilities(w.closure, w.kd, w.ks, w.kt, cos_o)
     return (fx, fy, fz), (sx, sy, sz), cos_dn, cos_o, lobes

@@ -94,10 +94,14 @@ def _trace_chunk(scene, job, out, start, stop):
 # scene tuples is an atomic incref and decref that the threads contend for.
 @njit(**CORE)
 def _trace_chunk_core(scene, job, out, start, stop, w):
-    g = scene.geometry
+    g, ls, ms, ts, bt = scene.geometry, scene.lights, scene.materials, scene.textures, scene.bsdf
+    maps = (scene.lightmaps, scene.caustic_maps, scene.orientation)
     power = w.tp            # the photon's power per band
     for i in range(start, stop):
-        state, ox, oy, oz, dx, dy, dz = _emit(scene, job, out, i, w)
+        # emit_photon is inlined here, not in a helper: numba copies a helper's IR
+        # at every inlining, with everything inlined into it (see docs/kernels.md)
+        state, li, ox, oy, oz, dx, dy, dz, wl = emit_photon(ls, g, stream_state(job.seed, job.first + i))
+        _start(ls, job, out, i, w, li, (dx, dy, dz), wl)
         n_rays = 0
         caustic = scene.caustics
         rec = 0
@@ -112,11 +116,14 @@ def _trace_chunk_core(scene, job, out, start, stop, w):
             p = (ox + t * dx, oy + t * dy, oz + t * dz)
             surf = (inst, shape, face, u, v)
             if depth >= job.record_from:
-                rec = _record_hit(scene, job, out, i, rec, depth, caustic, (surf, (nx, ny, nz)), p, power)
+                rec = _record_hit(g, maps, job, out, i, rec, depth, caustic, (surf, (nx, ny, nz), p), power)
             if depth >= job.max_bounces or (depth >= job.main_last and not caustic):
                 _book(out, i, TRUNCATED, power)
                 break
-            alive, o, d, caustic, state = _scatter(scene, w, out, i, (surf, (nx, ny, nz)), p, (dx, dy, dz),
+            # photons read textures at their finest level: the albedo at the hit itself
+            fn, sn, _, _, lobes = surface_closure(ms, ts, bt, g, w, g.shape_material[shape], surf, (nx, ny, nz),
+                                                  (dx, dy, dz), 0.0)
+            alive, o, d, caustic, state = _scatter(w, out, i, lobes, (fn, sn), ((nx, ny, nz), p), (dx, dy, dz),
                                                    caustic, state)
             if not alive:
                 break
@@ -138,10 +145,9 @@ def _book(out, i, column, power):
 
 
 @njit(**INLINE)
-def _emit(scene, job, out, i, w):
-    """Photon i leaves a light: its record row cleared, its power in w.tp and the
-    ledger -> (state, origin, direction)."""
-    ls = scene.lights
+def _start(ls, job, out, i, w, li, d, wl):
+    """Photon i has left light li along d with weight wl: its record row cleared,
+    its power in w.tp and in the ledger."""
     power, wt = w.tp, w.f
     nb = power.shape[0]
     for r in range(out.texel.shape[1]):
@@ -149,25 +155,23 @@ def _emit(scene, job, out, i, w):
     for k in range(4):
         for b in range(nb):
             out.ledger[i, k, b] = 0.0
-    state = stream_state(job.seed, job.first + i)
-    state, li, ox, oy, oz, dx, dy, dz, wl = emit_photon(ls, scene.geometry, state)
     p_light = ls.flux[li].mean()
-    photon_tint(ls, li, dx, dy, dz, wt)     # an environment map's colour along d
+    photon_tint(ls, li, d[0], d[1], d[2], wt)     # an environment map's colour along d
     scale = ls.total_power / job.n_total
     for b in range(nb):
         power[b] = wl * wt[b] * ls.flux[li, b] * scale / p_light if p_light > 0.0 else 0.0
         out.ledger[i, EMITTED, b] = power[b]
-    return state, ox, oy, oz, dx, dy, dz
 
 
 @njit(**INLINE)
-def _record_hit(scene, job, out, i, rec, depth, caustic, hit, p, power):
-    """Photon i's hit, hit = ((instance, shape, face, u, v), n), with `power`
-    recorded from row `rec` on: in the texel of its lightmap, or of its caustic
+def _record_hit(g, maps, job, out, i, rec, depth, caustic, hit, power):
+    """Photon i's hit, hit = ((instance, shape, face, u, v), n, point), with
+    `power` recorded from row `rec` on, into maps = (lightmaps, caustic
+    lightmaps, orientation lightmaps): in the texel of its lightmap, or of its caustic
     lightmap while only sharp mirrors and glass lie behind it, and in its
     normal's bin of its OL and every level above (thesis 6.2) -> the next free row."""
-    g, lm, lmc, ol = scene.geometry, scene.lightmaps, scene.caustic_maps, scene.orientation
-    (inst, shape, face, u, v), n = hit
+    lm, lmc, ol = maps
+    (inst, shape, face, u, v), n, p = hit
     n_rec = out.texel.shape[1]
     n_main = lm.area.shape[0]
     lid = -1
@@ -209,16 +213,15 @@ def _set_power(out, i, rec, power):
 
 
 @njit(**INLINE)
-def _scatter(scene, w, out, i, hit, p, d, caustic, state):
-    """Russian roulette on the closure at photon i's hit (thesis 3.4.3): a lobe
-    or absorption. A survivor keeps power k/p <= its power per band, the rest is
+def _scatter(w, out, i, lobes, frame, hit, d, caustic, state):
+    """Russian roulette on the closure in w, with its lobe probabilities `lobes`,
+    at photon i's hit = (n, point) (thesis 3.4.3): a lobe or absorption; frame:
+    the face and shading normals facing where the photon came from. A survivor keeps power k/p <= its power per band, the rest is
     booked absorbed here -> (alive, origin, direction, still a caustic path, state)."""
-    surf, n = hit
+    n, p = hit
+    fn, sn = frame
     power, wt = w.tp, w.f
     nb = power.shape[0]
-    m = scene.geometry.shape_material[surf[1]]
-    # photons read textures at their finest level: the albedo at the hit itself
-    fn, sn, _, _, lobes = surface_closure(scene, w, m, surf, n, d, 0.0)
     pd, ps, pm, pg = lobes
     state, ur = next_float(state)
     state, u1 = next_float(state)

@@ -212,104 +212,100 @@ def _ray_cone(cam):
 
 # The pixel loop compiles without NRT: with it, every read of a field of the
 # scene tuples is an atomic incref and decref that the threads contend for.
+# Its helpers take the scene's parts they read, and the camera path is written
+# out here rather than in a helper: numba copies an inlined helper's IR with all
+# that was inlined into it, per call site (docs/kernels.md).
 @njit(**CORE)
 def _render_tile_core(scene, cam, tile, rec, out, rays, start, stop, work):
     # Samples s0 <= s < s1 of the pixel's spp, each weighted 1/spp: the passes of a
     # progressive render add up to the one-pass image (the same streams).
+    g, ms, ls, ts, bt = scene.geometry, scene.materials, scene.lights, scene.textures, scene.bsdf
+    w, acc = work.camera, work.acc
+    tp = w.tp
     nb = out.shape[2]
-    acc, count = work.acc, work.camera.count
+    width0, spread = _ray_cone(cam)
+    env_li = light_hits.environment_light(ls)
     # A pixel's samples are stratified on a k x k grid, and so are their first
     # hits' light samples (shifted per pixel, texel_gather.light_stratum).
     k = grid_side(tile.spp)
     for idx in range(start, stop):
         for b in range(nb):
             acc[b] = 0.0
-        count[0] = 0
+        w.count[0] = 0
         px_i = tile.x0 + idx % tile.width
         py_i = tile.y0 + idx // tile.width
-        _, shift = texel_shift(stream_state(tile.seed ^ PIXEL_SHIFT_XOR, py_i * cam.width + px_i), k)
+        pixel = py_i * cam.width + px_i
+        _, shift = texel_shift(stream_state(tile.seed ^ PIXEL_SHIFT_XOR, pixel), k)
         for s in range(tile.s0, tile.s1):
-            _camera_path(scene, cam, tile, rec, work, px_i, py_i, s, (k, shift))
+            # a camera path through glossy lobes
+            state, jx, jy = _pixel_sample(tile.seed, pixel, tile.spp, s, k)
+            ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
+            for b in range(nb):
+                tp[b] = 1.0 / tile.spp
+            pdf_b = 0.0
+            delta = True
+            travelled = 0.0
+            n_gather = tile.gather
+            for depth in range(tile.max_depth + 1):
+                w.count[0] += 1
+                hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
+                    g, w.stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
+                if depth > 0:      # lights are invisible to the camera, as in Cycles
+                    light_hits.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf, pdf_b, delta,
+                                               tp, acc)
+                if not hit:
+                    mis = 1.0
+                    if not delta and env_li >= 0:
+                        mis = light_hits.power_heuristic(pdf_b, light_hits.selection_factor(ls, env_li) *
+                                                         light_hits.light_pdf(ls, env_li, ox, oy, oz, dx, dy, dz,
+                                                                              math.inf))
+                    environment.radiance(scene.environment, dx, dy, dz, w.rad)
+                    for b in range(nb):
+                        acc[b] += tp[b] * w.rad[b] * mis
+                    break
+                p = (ox + t * dx, oy + t * dy, oz + t * dz)
+                m = g.shape_material[shape]
+                for b in range(nb):
+                    acc[b] += tp[b] * ms.emission[m, b]
+                travelled += t
+                surf = (inst, shape, face, u, v)
+                fn, sn, _, _, lobes = surface_closure(ms, ts, bt, g, w, m, surf, (nx, ny, nz), (dx, dy, dz),
+                                                      width0 + spread * travelled)
+                wo = bsdf.to_local(-dx, -dy, -dz, sn[0], sn[1], sn[2])
+                stratum = light_stratum(s, k, shift) if depth == 0 else -1
+                state = _shade(scene, tile, rec, work, (surf, (nx, ny, nz), p), (fn, sn, wo), lobes,
+                               (stratum, n_gather), state)
+                if tile.gather > 0 and lobes[0] > 0.0:
+                    n_gather = max(1, n_gather // 4)
+                # Continue along the glossy lobes (the diffuse light came from the lightmaps).
+                if depth == tile.max_depth or lobes[1] + lobes[2] + lobes[3] <= 0.0:
+                    break
+                ok, o, d, pdf_b, delta, state = _scatter_glossy(w, lobes, (fn, sn, wo), (nx, ny, nz), p, state)
+                if not ok:
+                    break
+                ox, oy, oz = o
+                dx, dy, dz = d
         for b in range(nb):
             out[idx // tile.width, idx % tile.width, b] = acc[b]
-        rays[idx // tile.width, idx % tile.width] = count[0]
+        rays[idx // tile.width, idx % tile.width] = w.count[0]
 
 
 @njit(**INLINE)
-def _camera_path(scene, cam, tile, rec, work, px_i, py_i, s, strata):
-    """Sample s of pixel (px_i, py_i): a camera path through glossy lobes, its
-    radiance (weighted 1/spp) added to work.acc. strata: (k, shift) of the pixel's
-    first-hit light strata."""
-    g, ms, ls = scene.geometry, scene.materials, scene.lights
-    w, acc = work.camera, work.acc
-    tp = w.tp
-    nb = acc.shape[0]
-    k = strata[0]
-    width0, spread = _ray_cone(cam)
-    env_li = light_hits.environment_light(ls)
-    state, jx, jy = _pixel_sample(tile.seed, py_i * cam.width + px_i, tile.spp, s, k)
-    ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
-    for b in range(nb):
-        tp[b] = 1.0 / tile.spp
-    pdf_b = 0.0
-    delta = True
-    travelled = 0.0
-    n_gather = tile.gather
-    for depth in range(tile.max_depth + 1):
-        w.count[0] += 1
-        hit, t, inst, shape, face, u, v, nx, ny, nz = intersect_closest(
-            g, w.stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
-        if depth > 0:      # lights are invisible to the camera, as in Cycles
-            light_hits.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf, pdf_b, delta, tp, acc)
-        if not hit:
-            mis = 1.0
-            if not delta and env_li >= 0:
-                mis = light_hits.power_heuristic(pdf_b, light_hits.selection_factor(ls, env_li) *
-                                                 light_hits.light_pdf(ls, env_li, ox, oy, oz, dx, dy, dz, math.inf))
-            environment.radiance(scene.environment, dx, dy, dz, w.rad)
-            for b in range(nb):
-                acc[b] += tp[b] * w.rad[b] * mis
-            return
-        p = (ox + t * dx, oy + t * dy, oz + t * dz)
-        m = g.shape_material[shape]
-        for b in range(nb):
-            acc[b] += tp[b] * ms.emission[m, b]
-        travelled += t
-        surf = (inst, shape, face, u, v)
-        fn, sn, _, _, lobes = surface_closure(scene, w, m, surf, (nx, ny, nz), (dx, dy, dz),
-                                              width0 + spread * travelled)
-        wo = bsdf.to_local(-dx, -dy, -dz, sn[0], sn[1], sn[2])
-        stratum = light_stratum(s, k, strata[1]) if depth == 0 else -1
-        state = _shade(scene, tile, rec, work, surf, (nx, ny, nz), p, (fn, sn, wo), lobes, (stratum, n_gather),
-                       state)
-        if tile.gather > 0 and lobes[0] > 0.0:
-            n_gather = max(1, n_gather // 4)
-        # Continue along the glossy lobes (the diffuse light came from the lightmaps).
-        if depth == tile.max_depth or lobes[1] + lobes[2] + lobes[3] <= 0.0:
-            return
-        ok, o, d, pdf_b, delta, state = _scatter_glossy(w, lobes, (fn, sn, wo), (nx, ny, nz), p, state)
-        if not ok:
-            return
-        ox, oy, oz = o
-        dx, dy, dz = d
-
-
-@njit(**INLINE)
-def _shade(scene, tile, rec, work, surf, n, p, frame, lobes, strata, state):
+def _shade(scene, tile, rec, work, hit, frame, lobes, strata, state):
     """The light a camera-path vertex sends back along the path, times the
     throughput, added to work.acc: direct light from light samples (diffuse and
     glossy), and the diffuse part's indirect light from the irradiance-cache
     records, a final gather or the hit's own lightmap (or OL), plus its caustic
-    lightmap. frame: (face normal, shading normal, local direction back); strata:
-    (this vertex's light stratum or -1, its gather rays)."""
+    lightmap. hit: (instance, shape, face, u, v), outward normal, point; frame:
+    (face normal, shading normal, local direction back); strata: (this vertex's
+    light stratum or -1, its gather rays)."""
     w, gw, acc = work.camera, work.gather, work.acc
     e, ind = w.e, w.ind
     nb = e.shape[0]
     fn, sn, wo = frame
     stratum, n_gather = strata
     pd, ps, pm, pg = lobes
-    inst, shape, face, u, v = surf
-    nx, ny, nz = n
+    (inst, shape, face, u, v), (nx, ny, nz), p = hit
     for b in range(nb):
         e[b] = 0.0
         w.lg[b] = 0.0

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine.lsystem import grammar as LS
+from ..engine.lsystem.grammar import LSystemGrowthError
 from ..engine.lsystem import derivation
 from ..engine.core.scene import SceneError
 from ..engine.lsystem.turtle import TurtleState, to_primitives
@@ -303,7 +303,7 @@ def flat_preview(grammar, depth, limit=MAX_PREVIEW_PRIMITIVES):
                                f.material.copy(), d, "dcsg")
         try:
             der = derivation.derive(grammar, d, cap=max(limit, 1) * 20)
-        except LS.LSystemGrowthError:
+        except LSystemGrowthError:
             if d > 0:
                 continue
             raise

@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import messages
-from ..engine.lsystem import grammar as LS
+from ..engine.lsystem.grammar import LSystemError
 from ..engine.core.scene import SceneError
 from ..export import lsystems
 from . import lsystem_plan
@@ -429,9 +429,9 @@ def update_preview(ob, force=True):
             flat = flat_preview(grammar, depth)
         try:
             stats = lsystems.statistics(grammar, settings.steps, settings.cache_mb)
-        except (LS.LSystemError, SceneError) as exc:
+        except (LSystemError, SceneError) as exc:
             stats = {"error": messages.describe(exc)}
-    except (LS.LSystemError, SceneError) as exc:
+    except (LSystemError, SceneError) as exc:
         msg = messages.describe(exc)
         ob[lsystems.INFO_PROP] = meta
         _status(ob, msg)

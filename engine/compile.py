@@ -10,8 +10,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .geometry import csg as CSG
-from .shading import environment as ENV
+from .geometry.csg import check_not_emissive
+from .shading.environment import describe as describe_environment
 from .core import memory_budget
 from .lightmaps import lightmap
 from .lightmaps import texel_areas
@@ -561,7 +561,7 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
         raise SceneError(f"a shape uses material {bad}, but the scene has {len(scene.materials)} materials")
     csg = info.pop("csg_layout", None)
     if csg is not None:
-        CSG.check_not_emissive(csg, materials)
+        check_not_emissive(csg, materials)
     dcsg = info.pop("dcsg_layout", None)
     if dcsg is not None:
         lit = np.isin(geom.shape_material[geom.shape_kind == DCSG_KIND],
@@ -585,7 +585,7 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     lights = compile_lights(scene, geom, materials, bounds)
     camera = checked_camera(scene.camera, scene.n_bands)
     env = environment_map(lights)    # environment.EnvMap: radiance(), sample(), pdf() on it
-    env_info = ENV.describe(env)
+    env_info = describe_environment(env)
     if env_info is not None:
         env_info.update(name=str(getattr(scene.environment, "name", "world")),
                         bake_seconds=float(getattr(scene.environment, "bake_seconds", 0.0)))

@@ -11,7 +11,7 @@ the scene graph's box, which also holds the primitives' extents and is marked
 import time
 
 from .geometry import dcsg
-from .lsystem import grammar as LS
+from .lsystem.grammar import format_string
 from .lsystem import derivation
 from .lsystem import turtle
 
@@ -53,7 +53,7 @@ def summary(grammar, steps=None, with_string=False):
         out["bounds"] = {"min": geom.bounds[0].tolist(), "max": geom.bounds[1].tolist()}
         out["bounds_exact"] = True
         if with_string:
-            out["string"] = LS.format_string(der.modules)
+            out["string"] = format_string(der.modules)
         if graph is None:
             prims = turtle.to_primitives(geom)
             out["primitives"] = len(prims)

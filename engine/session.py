@@ -281,14 +281,14 @@ def render_records(cs, settings):
     made once per traced light and kept on cs: every frame of a camera animation
     that reuses the light reads the same records. Timed in cs.timings["records"]
     (0 when they were kept)."""
-    from .transport import irradiance_cache as IC
+    from .transport.irradiance_cache import scene_records
     key = (int(settings.seed), int(settings.bake_gather_rays))
     kept = cs.render_records
     if kept is not None and kept[0] == key:
         cs.timings["records"] = 0.0
         return kept[1]
     t0 = time.perf_counter()
-    records, info = IC.scene_records(cs, settings.bake_gather_rays, seed=int(settings.seed))
+    records, info = scene_records(cs, settings.bake_gather_rays, seed=int(settings.seed))
     cs.render_records = (key, records, info)
     cs.timings["records"] = time.perf_counter() - t0
     return records

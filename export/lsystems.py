@@ -31,7 +31,8 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from ..engine.lsystem import grammar as LS
+from ..engine.lsystem import grammar
+from ..engine.lsystem.grammar import LSystemError
 from ..engine.lsystem import derivation
 from ..engine.core.scene import LSystem, Prototype, SceneError
 from .context import PrototypeRecord
@@ -229,8 +230,8 @@ def effective_text(text, settings):
 def parse(text, name, settings):
     """(user's Grammar, effective Grammar): the user's text is parsed first, so a syntax
     error names its own line and column; the effective one carries the overrides."""
-    user = LS.parse(text, name=name)
-    eff = LS.parse(effective_text(text, settings), name=name) if settings.use_angle else user
+    user = grammar.parse(text, name=name)
+    eff = grammar.parse(effective_text(text, settings), name=name) if settings.use_angle else user
     if settings.seed_override is not None:
         eff = replace(eff, seed=settings.seed_override)
     return user, eff
@@ -245,7 +246,7 @@ def render_steps(grammar, settings):
         return grammar.derivation_length
     try:
         return derivation.check_termination(grammar)
-    except LS.LSystemError:
+    except LSystemError:
         return None
 
 
@@ -405,7 +406,7 @@ def lsystem_prototype(ctx, ob):
     src = text.as_string()
     try:
         parse(src, text.name, settings)
-    except LS.LSystemError as exc:
+    except LSystemError as exc:
         ctx.report("WARNING", f"L-system object '{name}': {' '.join(str(exc).split())}; it is not exported")
         return -1
     lsys = LSystem(grammar=effective_text(src, settings), name=name, steps=settings.steps,

@@ -23,7 +23,7 @@ from collections import namedtuple
 import numpy as np
 
 from .bvh import build_bvh, pack_bvh
-from . import dcsg as D
+from .dcsg import DCSG as SceneGraph, DCSGUnsupported
 from . import dcsg_areas
 from .dcsg_blob import H_DCSG, NO_VSHAPE, pack_blob as pack_dcsg_blob
 from ..core import features
@@ -427,9 +427,9 @@ def _lsystem_graphs(scene, n_materials, notes):
     that move what follows) is derived and its primitives instanced instead,
     with a note. -> (per prototype list, the scene with those primitives added)."""
     from dataclasses import replace
-    from ..lsystem import grammar as LS
+    from ..lsystem.grammar import parse
     from ..lsystem import derivation
-    from ..lsystem import turtle as T
+    from ..lsystem.turtle import interpret, to_primitives
     from ..core.scene import LSystem
     per_proto, graphs, prototypes = [], [], list(scene.prototypes)
     for pi_, proto in enumerate(scene.prototypes):
@@ -442,15 +442,15 @@ def _lsystem_graphs(scene, n_materials, notes):
             if any(not 0 <= m < max(n_materials, 1) for m in mats):
                 fail(what, f"material slots {mats} are not all scene materials (0..{n_materials - 1})")
             ls = replace(ls, materials=mats)
-            grammar = LS.parse(ls.grammar, name=ls.name)
+            grammar = parse(ls.grammar, name=ls.name)
             if ls.seed is not None:
                 grammar = replace(grammar, seed=int(ls.seed))
             organs = check_organs(ls, what, n_materials)
             try:
-                graph = D.DCSG(grammar, ls.steps, cache_mb=ls.cache_mb, organs=organs)
-            except D.DCSGUnsupported as exc:
+                graph = SceneGraph(grammar, ls.steps, cache_mb=ls.cache_mb, organs=organs)
+            except DCSGUnsupported as exc:
                 der = derivation.derive(grammar, ls.steps)
-                prims = T.to_primitives(T.interpret(der.modules, grammar.angle, grammar.width),
+                prims = to_primitives(interpret(der.modules, grammar.angle, grammar.width),
                                         name=ls.name)
                 extra += [replace(p, material=mats[min(int(p.material), len(mats) - 1)]) for p in prims]
                 notes.append(f"{what}: {exc}; {len(prims):,} primitives instanced")

@@ -47,7 +47,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..lsystem import grammar as LS
+from ..lsystem.grammar import MASK, child_hash, draw, splitmix64
 from ..lsystem import derivation
 from .primitives import KIND_IDS
 from ..core.scene import SceneError
@@ -172,7 +172,7 @@ class DCSG:
         # the axiom is the successor of a virtual root of hash splitmix64(seed), so
         # axiom module i gets lsystem.root_hash(seed, i) as in derive()
         self.root = self._rule(None, self.steps + 1, (self.width, None, 0), [list(grammar.axiom)])
-        self.root_hash = LS.splitmix64(grammar.seed & LS.MASK)
+        self.root_hash = splitmix64(grammar.seed & MASK)
         self._tighten_boxes()
         self.cache_bytes = int(max(float(cache_mb), 0.0) * 2 ** 20)
 
@@ -577,7 +577,7 @@ class DCSG:
                 out.append((kind, params, (m @ full)[:3], mat, h, stub))
                 return
             for c, to_parent, j in chosen_children(n, h):
-                walk(c, m @ to_parent, LS.child_hash(h, j), stub)
+                walk(c, m @ to_parent, child_hash(h, j), stub)
 
         walk(self.root, np.eye(4), self.root_hash, 0)
         cols = list(zip(*out)) if out else [()] * 6
@@ -595,7 +595,7 @@ def chosen_children(n, h):
         return ()
     k = 0
     if len(n.alts) > 1:
-        u = LS.draw(h)
+        u = draw(h)
         while k < len(n.alts) - 1 and not n.alts[k][0] > u:
             k += 1
     return n.alts[k][1]

@@ -5,7 +5,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..lsystem import grammar as LS
+from ..lsystem.grammar import child_hash
 from ..core.scene import SceneError
 from .dcsg import ORGAN, chosen_children
 
@@ -69,7 +69,7 @@ def stub_records(graph, limit=1_000_000):
             parent = h
         for c, to_parent, j in chosen_children(n, h):
             if has_stub(c):
-                walk(c, LS.child_hash(h, j), rot @ to_parent[:3, :3], parent)
+                walk(c, child_hash(h, j), rot @ to_parent[:3, :3], parent)
 
     if has_stub(graph.root):
         walk(graph.root, graph.root_hash, np.eye(3), 0)

@@ -45,8 +45,8 @@ FAILURE_CLASSES = ("crash", "timeout", "exception", "nonfinite_lightmap", "nonfi
 
 
 def _engine():
-    from photon_lightmaps.engine.core import scene as S
-    return S
+    from photon_lightmaps.engine.core import scene as scene_model
+    return scene_model
 
 
 # --------------------------------------------------------------------------------------
@@ -109,7 +109,7 @@ def _near_degenerate(rng, a, b):
 
 def random_mesh(rng, tags, n_max=60):
     """Triangle soup / grid with degenerate, duplicate, non-manifold and inverted faces."""
-    S = _engine()
+    scene_model = _engine()
     kind = rng.choice(["soup", "grid", "box", "fan"])
     if kind == "grid":
         n = int(rng.integers(1, 5))
@@ -177,7 +177,7 @@ def random_mesh(rng, tags, n_max=60):
         v = v * 1e-200 if rng.random() < 0.5 else v * 1e150   # extreme coordinates
         tags.append("extreme_coords")
     uvs = random_uvs(rng, t.shape[0], tags, allow_none=t.shape[0] <= 24)
-    return S.TriangleMesh(v, t, uvs=uvs, name=f"mesh_{kind}")
+    return scene_model.TriangleMesh(v, t, uvs=uvs, name=f"mesh_{kind}")
 
 
 def random_uvs(rng, T, tags, allow_none=True):
@@ -225,8 +225,8 @@ def box_mesh_arrays(inward=False):
 
 
 def random_primitive(rng, tags, solid=False):
-    S = _engine()
-    kinds = S.PRIMITIVE_KINDS[:6] + ("frustum",) if solid else S.PRIMITIVE_KINDS
+    scene_model = _engine()
+    kinds = scene_model.PRIMITIVE_KINDS[:6] + ("frustum",) if solid else scene_model.PRIMITIVE_KINDS
     kind = str(rng.choice(kinds))
     params = ()
     if kind == "torus":
@@ -242,23 +242,23 @@ def random_primitive(rng, tags, solid=False):
     elif rng.random() < 0.05:
         params = tuple(rng.normal(size=int(rng.integers(1, 6))))
         tags.append("odd_params")
-    xf = random_transform(rng, tags, spread=0.5) if rng.random() < 0.5 else S.identity()
-    return S.Primitive(kind, transform=xf, params=params, name=f"prim_{kind}")
+    xf = random_transform(rng, tags, spread=0.5) if rng.random() < 0.5 else scene_model.identity()
+    return scene_model.Primitive(kind, transform=xf, params=params, name=f"prim_{kind}")
 
 
 def random_csg(rng, tags, depth):
-    S = _engine()
-    ops = S.CSG_OPS
+    scene_model = _engine()
+    ops = scene_model.CSG_OPS
     if depth <= 0 or rng.random() < 0.25:
         if rng.random() < 0.2:
             v, t = box_mesh_arrays()
             v = v * rng.uniform(0.3, 1.0) + rng.uniform(-0.5, 0.5, 3)
             tags.append("csg_mesh")
-            return S.TriangleMesh(v, t, uvs=random_uvs(rng, 12, tags, allow_none=rng.random() < 0.3),
+            return scene_model.TriangleMesh(v, t, uvs=random_uvs(rng, 12, tags, allow_none=rng.random() < 0.3),
                                   name="csg_box_mesh")
         if rng.random() < 0.02:
             tags.append("csg_open_leaf")
-            return S.Primitive("quad", name="open_leaf")
+            return scene_model.Primitive("quad", name="open_leaf")
         return random_primitive(rng, tags, solid=True)
     op = str(rng.choice(ops))
     r = rng.random()
@@ -266,12 +266,12 @@ def random_csg(rng, tags, depth):
     if r < 0.12:
         right = left                                     # self-union / self-intersection
         tags.append("csg_self")
-    elif r < 0.22 and isinstance(left, S.Primitive):
+    elif r < 0.22 and isinstance(left, scene_model.Primitive):
         # coincident: same kind, same or touching placement
         xf = np.array(left.transform, float).copy()
         if rng.random() < 0.5:
             xf[:, 3] += xf[:, 0] * 2.0   # shares a face
-        right = S.Primitive(left.kind, transform=xf, params=left.params, name="coincident")
+        right = scene_model.Primitive(left.kind, transform=xf, params=left.params, name="coincident")
         tags.append("csg_coincident")
     elif r < 0.3:
         right = random_primitive(rng, tags, solid=True)
@@ -283,11 +283,11 @@ def random_csg(rng, tags, depth):
     if rng.random() < 0.01:
         right = None
         tags.append("csg_missing_operand")
-    return S.CSGNode(op, left, right, name=f"csg_{op}")
+    return scene_model.CSGNode(op, left, right, name=f"csg_{op}")
 
 
 def random_material(rng, tags, i):
-    S = _engine()
+    scene_model = _engine()
     nb = 3
     d = rng.uniform(0, 1, nb) * rng.uniform(0, 1)
     sp = rng.uniform(0, 1, nb) * rng.uniform(0, 1) if rng.random() < 0.4 else 0.0
@@ -304,13 +304,13 @@ def random_material(rng, tags, i):
     if rng.random() < 0.1:
         em = rng.uniform(0, 1, nb) * _loguniform(rng, 1e-30, 1e30)
         tags.append("emissive")
-    return S.Material(f"mat{i}", diffuse=d, specular=sp, roughness=float(rng.choice([0.0, rng.uniform(0, 1), 1.0])),
+    return scene_model.Material(f"mat{i}", diffuse=d, specular=sp, roughness=float(rng.choice([0.0, rng.uniform(0, 1), 1.0])),
                       transmission=tr, ior=float(rng.choice([1.5, 1.0, 1.0001, rng.uniform(1, 3)])), emission=em)
 
 
 def random_light(rng, tags, centers):
-    S = _engine()
-    kind = str(rng.choice(S.LIGHT_KINDS))
+    scene_model = _engine()
+    kind = str(rng.choice(scene_model.LIGHT_KINDS))
     r = rng.random()
     if r < 0.08:
         power = 0.0
@@ -336,20 +336,20 @@ def random_light(rng, tags, centers):
         kw["spot_size"] = float(rng.choice([math.radians(45), 1e-6, math.pi, rng.uniform(0, math.pi)]))
         kw["spot_blend"] = float(rng.choice([0.0, 0.15, 1.0]))
     if kind == "area":
-        kw["shape"] = str(rng.choice(S.AREA_SHAPES))
+        kw["shape"] = str(rng.choice(scene_model.AREA_SHAPES))
         kw["size"] = float(rng.choice([1.0, rng.uniform(0, 2), 1e-9]))
         kw["size_y"] = float(rng.choice([1.0, rng.uniform(0, 2), 1e-9]))
     if kind == "sun":
         kw["angle"] = float(rng.choice([0.0, 0.01, rng.uniform(0, math.pi)]))
-    return S.Light(kind, color=col, power=power, transform=xf, name=f"light_{kind}", **kw)
+    return scene_model.Light(kind, color=col, power=power, transform=xf, name=f"light_{kind}", **kw)
 
 
 def make_case(i):
     """(scene, tags, run settings) of case i, from seed i only."""
-    S = _engine()
+    scene_model = _engine()
     rng = np.random.default_rng([0xF0220, int(i)])
     tags = []
-    scene = S.Scene(n_bands=3, name=f"fuzz{i}")
+    scene = scene_model.Scene(n_bands=3, name=f"fuzz{i}")
     n_mat = int(rng.integers(1, 4))
     for m in range(n_mat):
         scene.materials.append(random_material(rng, tags, m))
@@ -358,7 +358,7 @@ def make_case(i):
     if n_obj == 0:
         tags.append("no_geometry")
     for k in range(n_obj):
-        proto = S.Prototype(name=f"proto{k}")
+        proto = scene_model.Prototype(name=f"proto{k}")
         r = rng.random()
         if r < 0.4:
             proto.meshes.append(random_mesh(rng, tags))
@@ -381,7 +381,7 @@ def make_case(i):
         for _ in range(1 if rng.random() < 0.8 else int(rng.integers(2, 4))):
             xf = random_transform(rng, tags)
             res = int(rng.choice([0, 2, 3, 4, 8, 16]))
-            scene.instances.append(S.Instance(len(scene.prototypes) - 1, xf, name=f"inst{len(scene.instances)}",
+            scene.instances.append(scene_model.Instance(len(scene.prototypes) - 1, xf, name=f"inst{len(scene.instances)}",
                                               lightmap=bool(rng.random() < 0.9), lightmap_resolution=res))
             centers.append(xf[:, 3].copy())
     if rng.random() < 0.15:
@@ -392,7 +392,7 @@ def make_case(i):
         for k in range(int(rng.integers(1, 3))):
             members = [j for j in range(n_inst) if rng.random() < 0.5 and j not in taken]
             taken.update(members)
-            scene.orientation_lightmaps.append(S.OrientationLightmap(
+            scene.orientation_lightmaps.append(scene_model.OrientationLightmap(
                 name=f"ol{k}", instances=members, parent=k - 1 if (k and rng.random() < 0.5) else -1,
                 resolution=res, samples=int(rng.integers(20, 400)), min_hits=int(rng.integers(1, 20)),
                 backup=bool(rng.random() < 0.3), seed=k))
@@ -420,7 +420,7 @@ def make_case(i):
     cam_xf = np.hstack([np.stack([x, y, -fwd], 1), eye[:, None]])
     kind = "orthographic" if rng.random() < 0.2 else "perspective"
     fov = float(rng.choice([math.radians(39.6), 1e-3, math.pi - 1e-3, rng.uniform(0.1, 2.5)]))
-    scene.camera = S.Camera(transform=cam_xf, kind=kind, fov=fov, ortho_scale=float(rng.uniform(0.1, 20)),
+    scene.camera = scene_model.Camera(transform=cam_xf, kind=kind, fov=fov, ortho_scale=float(rng.uniform(0.1, 20)),
                             width=w, height=h)
     scene.texel_density = float(rng.choice([1.0, 4.0, 16.0]))
     settings = dict(max_bounces=int(rng.integers(0, 9)), record_direct=bool(rng.random() < 0.5),
@@ -430,7 +430,7 @@ def make_case(i):
 
 
 def _set_csg_materials(nodes, rng, n_mat):
-    S = _engine()
+    scene_model = _engine()
     seen = set()
     stack = list(nodes)
     while stack:
@@ -438,7 +438,7 @@ def _set_csg_materials(nodes, rng, n_mat):
         if n is None or id(n) in seen:
             continue
         seen.add(id(n))
-        if isinstance(n, S.CSGNode):
+        if isinstance(n, scene_model.CSGNode):
             stack += [n.left, n.right]
         else:
             n.material = int(rng.integers(n_mat))
@@ -455,13 +455,13 @@ def _finite(a):
 def run_case(i):
     """Runs case i in this process; returns a result dict (exceptions inside the
     engine become 'exception' failures, SceneError an accepted refusal)."""
-    S = _engine()
+    scene_model = _engine()
     t0 = time.perf_counter()
     scene, tags, st = make_case(i)
     res = dict(id=int(i), tags=tags, outcome="ok", failures=[], message="")
     try:
         _check_case(scene, st, res)
-    except S.SceneError as e:
+    except scene_model.SceneError as e:
         res["outcome"] = "scene_error"
         res["message"] = str(e)[:300]
     except Exception as e:  # noqa: BLE001  any other exception is a bug
@@ -615,20 +615,20 @@ def _warm_up():
     from photon_lightmaps.engine.compile import compile_scene
     from photon_lightmaps.engine.transport.photon_tracer import trace_photons
     from photon_lightmaps.engine.transport.renderer import render
-    S = _engine()
+    scene_model = _engine()
     s = demo_scenes.cornell_box(width=8, height=8)
-    s.lights += [S.Light("point", power=5.0, transform=S.translate(0, 0, 1)),
-                 S.Light("spot", power=5.0, transform=S.translate(0, 0, 1.5)),
-                 S.Light("sun", power=1.0)]
-    em = s.add_material(S.Material("em", diffuse=0.0, emission=1.0))
-    s.add_object(S.Primitive("disk", material=em), S.translate(0, 0.5, 1.9))
-    s.prototypes.append(S.Prototype("csg", csg=[S.CSGNode("difference", S.Primitive("box"),
-                                                          S.Primitive("sphere", transform=S.scale(1.2)))]))
-    s.instances.append(S.Instance(len(s.prototypes) - 1, S.compose(S.translate(0.5, 0.5, 0.3), S.scale(0.2))))
-    s.orientation_lightmaps.append(S.OrientationLightmap("ol", instances=[len(s.instances) - 1], samples=50,
+    s.lights += [scene_model.Light("point", power=5.0, transform=scene_model.translate(0, 0, 1)),
+                 scene_model.Light("spot", power=5.0, transform=scene_model.translate(0, 0, 1.5)),
+                 scene_model.Light("sun", power=1.0)]
+    em = s.add_material(scene_model.Material("em", diffuse=0.0, emission=1.0))
+    s.add_object(scene_model.Primitive("disk", material=em), scene_model.translate(0, 0.5, 1.9))
+    s.prototypes.append(scene_model.Prototype("csg", csg=[scene_model.CSGNode("difference", scene_model.Primitive("box"),
+                                                          scene_model.Primitive("sphere", transform=scene_model.scale(1.2)))]))
+    s.instances.append(scene_model.Instance(len(s.prototypes) - 1, scene_model.compose(scene_model.translate(0.5, 0.5, 0.3), scene_model.scale(0.2))))
+    s.orientation_lightmaps.append(scene_model.OrientationLightmap("ol", instances=[len(s.instances) - 1], samples=50,
                                                          resolution=4))
     # a CSG solid with its own, split texels (most cases have one: 76 s of kernels otherwise)
-    s.instances.append(S.Instance(len(s.prototypes) - 1, S.compose(S.translate(-0.5, 0.5, 0.3), S.scale(0.2))))
+    s.instances.append(scene_model.Instance(len(s.prototypes) - 1, scene_model.compose(scene_model.translate(-0.5, 0.5, 0.3), scene_model.scale(0.2))))
     cs = compile_scene(s, max_resolution=32, csg_split=True)
     trace_photons(cs, 500, max_bounces=3, keep_points=True)
     for mode in (0, 1):

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from photon_lightmaps.engine.core import scene as S
+from photon_lightmaps.engine.core import scene as scene_model
 
 SCENES = ("torus", "sphereflake", "menger", "cube")
 METHODS = {"torus": ("lightmaps", "ol"), "sphereflake": ("lightmaps", "ol", "ol9"),
@@ -130,7 +130,7 @@ def _xf(R, t):
 
 def _euler(rx, ry, rz):
     """Blender's XYZ Euler (degrees): R = Rz @ Ry @ Rx."""
-    return S.compose(S.rotate("z", rz), S.rotate("y", ry), S.rotate("x", rx))[:, :3]
+    return scene_model.compose(scene_model.rotate("z", rz), scene_model.rotate("y", ry), scene_model.rotate("x", rx))[:, :3]
 
 
 def spec(name, width=128, height=128):
@@ -178,11 +178,11 @@ def spec(name, width=128, height=128):
 # --------------------------------------------------------------------------------------
 
 def _camera_xf(cam):
-    return S.compose(S.translate(*cam["location"]), _euler4(*cam["rotation"]))
+    return scene_model.compose(scene_model.translate(*cam["location"]), _euler4(*cam["rotation"]))
 
 
 def _euler4(rx, ry, rz):
-    return S.compose(S.rotate("z", rz), S.rotate("y", ry), S.rotate("x", rx))
+    return scene_model.compose(scene_model.rotate("z", rz), scene_model.rotate("y", ry), scene_model.rotate("x", rx))
 
 
 def engine_scene(sp, method="lightmaps", ol_resolution=OL_RESOLUTION, ol_samples=OL_SAMPLES, seed=0):
@@ -191,36 +191,36 @@ def engine_scene(sp, method="lightmaps", ol_resolution=OL_RESOLUTION, ol_samples
     method: "lightmaps" (per-object lightmaps), "ol" (one OL over all objects),
     "ol9" (sphereflake: root OL holding the root sphere, and one OL per
     first-generation child holding its subtree, each with the root OL as parent)."""
-    sc = S.Scene(n_bands=3, name=f"{sp.name}_{method}")
-    m_floor = sc.add_material(S.Material("floor", diffuse=FLOOR_ALBEDO))
-    m_obj = sc.add_material(S.Material("object", diffuse=OBJECT_ALBEDO))
-    sc.add_object(S.Primitive("quad", transform=S.scale(FLOOR_HALF, FLOOR_HALF, 1.0), material=m_floor),
+    sc = scene_model.Scene(n_bands=3, name=f"{sp.name}_{method}")
+    m_floor = sc.add_material(scene_model.Material("floor", diffuse=FLOOR_ALBEDO))
+    m_obj = sc.add_material(scene_model.Material("object", diffuse=OBJECT_ALBEDO))
+    sc.add_object(scene_model.Primitive("quad", transform=scene_model.scale(FLOOR_HALF, FLOOR_HALF, 1.0), material=m_floor),
                   name="floor")
-    sc.prototypes.append(S.Prototype(name=sp.kind, primitives=[
-        S.Primitive(sp.kind, material=m_obj, params=tuple(sp.params))]))
+    sc.prototypes.append(scene_model.Prototype(name=sp.kind, primitives=[
+        scene_model.Primitive(sp.kind, material=m_obj, params=tuple(sp.params))]))
     proto = len(sc.prototypes) - 1
     first = len(sc.instances)
     for i, xf in enumerate(sp.transforms):
-        sc.instances.append(S.Instance(proto, xf, name=f"{sp.kind}{i}"))
+        sc.instances.append(scene_model.Instance(proto, xf, name=f"{sp.kind}{i}"))
     ids = np.arange(first, first + sp.transforms.shape[0])
     L = sp.light
-    sc.lights.append(S.Light("area", power=L["power"], shape="square", size=L["size"], size_y=L["size"],
-                             transform=S.compose(S.translate(*L["location"]), _euler4(*L["rotation"])),
+    sc.lights.append(scene_model.Light("area", power=L["power"], shape="square", size=L["size"], size_y=L["size"],
+                             transform=scene_model.compose(scene_model.translate(*L["location"]), _euler4(*L["rotation"])),
                              name="light"))
     C = sp.camera
-    sc.camera = S.Camera(transform=_camera_xf(C), fov=2.0 * math.atan(0.5 * 36.0 / C["lens"]),
+    sc.camera = scene_model.Camera(transform=_camera_xf(C), fov=2.0 * math.atan(0.5 * 36.0 / C["lens"]),
                          width=sp.width, height=sp.height)
     sc.environment = 0.0
     kw = dict(resolution=ol_resolution, samples=ol_samples, seed=seed)
     if method == "ol":
-        sc.orientation_lightmaps.append(S.OrientationLightmap(f"{sp.name} OL", instances=ids.tolist(), **kw))
+        sc.orientation_lightmaps.append(scene_model.OrientationLightmap(f"{sp.name} OL", instances=ids.tolist(), **kw))
     elif method == "ol9":
         if not (sp.branch >= 0).any():
             raise ValueError(f"'{sp.name}' has no first-generation branches")
-        sc.orientation_lightmaps.append(S.OrientationLightmap(
+        sc.orientation_lightmaps.append(scene_model.OrientationLightmap(
             f"{sp.name} root OL", instances=ids[sp.branch < 0].tolist(), **kw))
         for b in range(int(sp.branch.max()) + 1):
-            sc.orientation_lightmaps.append(S.OrientationLightmap(
+            sc.orientation_lightmaps.append(scene_model.OrientationLightmap(
                 f"{sp.name} branch {b} OL", instances=ids[sp.branch == b].tolist(), parent=0,
                 **dict(kw, seed=seed + 1 + b)))
     elif method != "lightmaps":

@@ -243,15 +243,15 @@ def test_unwrap_failure_falls_back_to_the_fast_layout(monkeypatch):
     box-projection layout and keeps its own lightmap; the warning names the
     mesh. Only where that layout cannot fit either is the object lit through
     an automatic OL."""
-    from photon_lightmaps.engine.lightmaps import fast_layout as FL
-    from photon_lightmaps.engine.lightmaps import uv_atlas as UA
+    from photon_lightmaps.engine.lightmaps import fast_layout
+    from photon_lightmaps.engine.lightmaps import uv_atlas
     s = small_scene()
     s.add_object(demo_scenes.uv_sphere_mesh(0.3, 8, 16), translate(0, 0, 0.5), name="ball")
     s.prototypes[-1].meshes[0].name = "ball"
 
     def fail_all(jobs, progress=None, should_stop=None):
-        return [UA.UnwrapError("xatlas crashed (SIGSEGV)", 224) for _ in jobs]
-    monkeypatch.setattr(UA, "unwrap_many", fail_all)
+        return [uv_atlas.UnwrapError("xatlas crashed (SIGSEGV)", 224) for _ in jobs]
+    monkeypatch.setattr(uv_atlas, "unwrap_many", fail_all)
     cs, stats, img = run_all(s, photons=20000)
     assert any("'ball'" in w and "SIGSEGV" in w and "fast box-projection layout" in w
                for w in cs.info["warnings"])
@@ -262,8 +262,8 @@ def test_unwrap_failure_falls_back_to_the_fast_layout(monkeypatch):
     assert cs.lightmaps.hits[lightmap.texel_slice(cs.lightmaps, lid)].sum() > 0
 
     def no_fit(*args, **kw):
-        raise FL.LayoutError("224 separate charts do not fit a 1024×1024 lightmap 3 texels apart")
-    monkeypatch.setattr(FL, "layout", no_fit)
+        raise fast_layout.LayoutError("224 separate charts do not fit a 1024×1024 lightmap 3 texels apart")
+    monkeypatch.setattr(fast_layout, "layout", no_fit)
     cs, stats, img = run_all(s, photons=20000)
     assert any("'ball'" in w and "SIGSEGV" in w and "do not fit" in w and "orientation lightmap" in w
                for w in cs.info["warnings"])

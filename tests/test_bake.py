@@ -238,7 +238,7 @@ def test_unwraps_run_first_on_a_worker_thread_and_the_bake_tells_its_phases():
     thread, with an estimate) run on a worker thread into the unwrap cache; the
     export then starts no xatlas worker; the bake tells each phase as it starts."""
     import threading
-    from photon_lightmaps.engine.lightmaps import uv_atlas as UA
+    from photon_lightmaps.engine.lightmaps import uv_atlas
     demo_blend.build_cornell_blend()
     floor, box = bpy.data.objects["floor"], bpy.data.objects["tall_box"]
     box.data.vertices[0].co.z += 0.0123          # geometry no other test has unwrapped
@@ -250,10 +250,10 @@ def test_unwraps_run_first_on_a_worker_thread_and_the_bake_tells_its_phases():
     worker.start()
     worker.join()
     assert seen[-1] == (1, 1)
-    before = UA.worker_launches
+    before = uv_atlas.worker_launches
     job = bake.prepare_bake(bpy.context, [floor, box], photons=50_000, seed=0, resolution=16)
     try:
-        assert UA.worker_launches == before and job.result.uv_layers["tall_box"] == uv_layers.CREATED
+        assert uv_atlas.worker_launches == before and job.result.uv_layers["tall_box"] == uv_layers.CREATED
         assert bake.unwrap_plan(bpy.context, [floor, box], resolution=16) == []
         phases = []
         bake.compute_bake(job, phase=lambda name, detail: phases.append((name, detail)))

@@ -15,7 +15,7 @@ import bpy  # noqa: E402  (a missing bpy fails the suite, it is in requirements.
 from photon_lightmaps import bake  # noqa: E402
 from photon_lightmaps.engine.session import Settings  # noqa: E402
 
-import bias_scenes as BS  # noqa: E402
+import bias_scenes  # noqa: E402
 from blender_session import addon, bake_uv_cache  # noqa: E402,F401  (session-wide registration)
 
 LOOKUP_PHOTONS = 8_000_000
@@ -32,11 +32,11 @@ def uv_cache(bake_uv_cache):
 
 
 def reference():
-    meta = json.loads(BS.PROVENANCE.read_text())
-    assert meta["scene_hash"] == BS.scene_hash(), (
+    meta = json.loads(bias_scenes.PROVENANCE.read_text())
+    assert meta["scene_hash"] == bias_scenes.scene_hash(), (
         "tests/bias_scenes.py or Blender changed since the Cycles references were made: "
         "run .venv/bin/python scripts/make_test_references.py")
-    with np.load(BS.REFERENCE) as z:
+    with np.load(bias_scenes.REFERENCE) as z:
         return {k: z[k].astype(np.float64) for k in z.files}, meta
 
 
@@ -61,16 +61,16 @@ def object_means(maps, ref, scene):
     return out
 
 
-@pytest.mark.parametrize("scene", BS.SCENES)
+@pytest.mark.parametrize("scene", bias_scenes.SCENES)
 def test_gathered_bake_is_unbiased(scene):
     ref, meta = reference()
-    BS.build(scene)
-    objs = BS.bake_objects()
-    gathered = bake.bake_objects(bpy.context, objs, seed=3, resolution=BS.RES, irradiance_cache=False)
+    bias_scenes.build(scene)
+    objs = bias_scenes.bake_objects()
+    gathered = bake.bake_objects(bpy.context, objs, seed=3, resolution=bias_scenes.RES, irradiance_cache=False)
     assert gathered.gathered and not gathered.skipped and not gathered.irradiance_cache
-    lookup = bake.bake_objects(bpy.context, objs, photons=LOOKUP_PHOTONS, seed=4, resolution=BS.RES,
+    lookup = bake.bake_objects(bpy.context, objs, photons=LOOKUP_PHOTONS, seed=4, resolution=bias_scenes.RES,
                             indirect="LOOKUP")
-    cached = bake.bake_objects(bpy.context, objs, seed=3, resolution=BS.RES)     # the default: through the cache
+    cached = bake.bake_objects(bpy.context, objs, seed=3, resolution=bias_scenes.RES)     # the default: through the cache
     assert cached.irradiance_cache["records"] > 0
     g = object_means(gathered.maps, ref, scene)
     lk = object_means(lookup.maps, ref, scene)
@@ -94,4 +94,4 @@ def test_references_are_converged():
     ref, meta = reference()
     for key, (a, b) in meta["half_means"].items():
         assert abs(a / b - 1) < 0.25 * TOLERANCE, key
-        assert key in ref and ref[key].shape == (BS.RES, BS.RES, 3)
+        assert key in ref and ref[key].shape == (bias_scenes.RES, bias_scenes.RES, 3)

@@ -15,7 +15,7 @@ from photon_lightmaps import bake  # noqa: E402
 from photon_lightmaps.bake import boolean_meshes  # noqa: E402
 from photon_lightmaps.export import uv_layers  # noqa: E402
 
-import boolean_scene as BOOL  # noqa: E402
+import boolean_scene  # noqa: E402
 from blender_session import addon, bake_uv_cache  # noqa: E402,F401  (session-wide registration)
 from test_bake_bias import erode  # noqa: E402
 
@@ -28,11 +28,11 @@ def uv_cache(bake_uv_cache):
 
 
 def reference():
-    meta = json.loads(BOOL.PROVENANCE.read_text())
-    assert meta["scene_hash"] == BOOL.scene_hash(), (
+    meta = json.loads(boolean_scene.PROVENANCE.read_text())
+    assert meta["scene_hash"] == boolean_scene.scene_hash(), (
         "tests/boolean_scene.py or Blender changed since the Cycles reference was made: "
         "run .venv/bin/python scripts/make_test_references.py --only boolean")
-    with np.load(BOOL.REFERENCE) as z:
+    with np.load(boolean_scene.REFERENCE) as z:
         return z["cube"].astype(np.float64), meta
 
 
@@ -48,13 +48,13 @@ def result_uvs():
 
 def test_a_mesh_boolean_bakes_like_cycles_bakes_its_result():
     ref, meta = reference()
-    BOOL.build(user_uvs=True)
+    boolean_scene.build(user_uvs=True)
     cube, cyl = bpy.data.objects["cube"], bpy.data.objects["cylinder"]
     before = {ob.name: layers(ob) for ob in (cube, cyl)}
     # 1 M photons, not the gathered default's 300 k: the cube's mean inherits the
     # photon noise of the few lightmaps its gather rays read, +-0.4 % at 300 k
     # (measured over seeds), which this Boolean check should not have to absorb
-    res = bake.bake_objects(bpy.context, [cube], seed=3, resolution=BOOL.RES, photons=1_000_000)
+    res = bake.bake_objects(bpy.context, [cube], seed=3, resolution=boolean_scene.RES, photons=1_000_000)
     assert not res.skipped and set(res.maps) == {"cube"}, (res.skipped, res.warnings)
     rgba = res.maps["cube"].rgba
     inner = erode(rgba[..., 3] >= 1.0 - 1e-6)
@@ -62,7 +62,7 @@ def test_a_mesh_boolean_bakes_like_cycles_bakes_its_result():
     ours, theirs = float(rgba[..., :3][inner].mean()), float(ref[inner].mean())
     # the cylinder's wall in the cube (right half) is lit: the hole is baked, not dropped
     wall = inner.copy()
-    wall[:, :BOOL.RES // 2] = False
+    wall[:, :boolean_scene.RES // 2] = False
     print(f"\nmesh Boolean, interior texels: ours {ours:.4f}, Cycles {theirs:.4f} "
           f"({ours / theirs - 1:+.4f}; Cycles {2 * meta['samples_per_half']} spp); "
           f"hole wall {rgba[..., :3][wall].mean():.4f} vs {ref[wall].mean():.4f}")
@@ -82,7 +82,7 @@ def _rects(*obs):
 
 
 def test_without_layers_the_bake_lays_the_operands_out_as_one_atlas():
-    BOOL.build(user_uvs=False)
+    boolean_scene.build(user_uvs=False)
     cube, cyl = bpy.data.objects["cube"], bpy.data.objects["cylinder"]
     uvmap = layers(cube)["UVMap"]
     res = bake.bake_objects(bpy.context, [cube], seed=3)
@@ -111,7 +111,7 @@ def test_without_layers_the_bake_lays_the_operands_out_as_one_atlas():
 
 
 def test_a_mix_of_user_and_generated_layers_is_refused_by_name():
-    BOOL.build(user_uvs=False)
+    boolean_scene.build(user_uvs=False)
     cube, cyl = bpy.data.objects["cube"], bpy.data.objects["cylinder"]
     lay = cyl.data.uv_layers.new(name=uv_layers.LAYER_NAME)
     before = layers(cyl)[uv_layers.LAYER_NAME].copy()

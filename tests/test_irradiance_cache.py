@@ -77,11 +77,11 @@ def test_records_trace_far_fewer_rays(cornell):
 
 def test_records_are_densest_near_walls(cornell):
     """Records on the floor's outer ring of texels (next to a wall) against its middle."""
-    from photon_lightmaps.engine.transport import irradiance_cache as IC
+    from photon_lightmaps.engine.transport import irradiance_cache
     cs, _, _, _ = cornell
     ids = sorted({int(l) for lids in cs.instance_lightmaps for l in lids})
     tex = bake_gather.Texels(cs, ids, (), POINTS, 0, 1)
-    cache = _records_of(cs, tex, IC)
+    cache = _records_of(cs, tex, irradiance_cache)
     floor = (np.abs(cache.pos[:, 2]) < 1e-6) & (cache.nrm[:, 2] > 0.5)
     x, y = cache.pos[floor, 0], cache.pos[floor, 1]
     edge = np.maximum(np.abs(x), np.abs(y)) > 0.8        # within 0.2 m of a wall: 36 % of the floor
@@ -91,19 +91,19 @@ def test_records_are_densest_near_walls(cornell):
     assert per_m2_edge > 1.5 * per_m2_mid
 
 
-def _records_of(cs, tex, IC):
+def _records_of(cs, tex, irradiance_cache):
     """The cache a cached gather of tex's mesh texels builds (its records)."""
     made = {}
-    original = IC.Cache.add
+    original = irradiance_cache.Cache.add
 
     def spy(self, *args, **kw):
         original(self, *args, **kw)
         made["cache"] = self
-    IC.Cache.add = spy
+    irradiance_cache.Cache.add = spy
     try:
-        IC.cached_mesh_gather(cs, tex.scene, tex.mode, tex.mesh, POINTS, POINTS * RAYS, bake_gather.STREAM_XOR)
+        irradiance_cache.cached_mesh_gather(cs, tex.scene, tex.mode, tex.mesh, POINTS, POINTS * RAYS, bake_gather.STREAM_XOR)
     finally:
-        IC.Cache.add = original
+        irradiance_cache.Cache.add = original
     return made["cache"]
 
 
@@ -189,9 +189,9 @@ def test_render_reads_the_records_and_keeps_the_mean():
 def test_no_lattice_texel_still_gets_records(cornell, monkeypatch):
     """Where no texel of a lightmap sits on the first records' lattice (a small
     mesh), the rounds place every record; nothing is left without light."""
-    from photon_lightmaps.engine.transport import irradiance_cache as IC
+    from photon_lightmaps.engine.transport import irradiance_cache
     cs, full, _, _ = cornell
-    monkeypatch.setattr(IC, "_first_sites", lambda cs, cat: np.zeros(0, np.int64))
+    monkeypatch.setattr(irradiance_cache, "_first_sites", lambda cs, cat: np.zeros(0, np.int64))
     info = {}
     got = gather(cs, True, info)
     assert info["records"] > 0 and np.all(np.isfinite(got.E))
@@ -205,14 +205,14 @@ def test_gradients_match_finite_differences(cornell):
     place, so the differences' own noise is about 0.004): the translational
     ones within 30 % (measured: 1-23 %, largest toward the open front), the
     rotational one (the normal tilted 0.15 rad) within 10 % (measured: 4-8 %)."""
-    from photon_lightmaps.engine.transport import irradiance_cache as IC
+    from photon_lightmaps.engine.transport import irradiance_cache
     cs = cornell[0]
     ids = sorted({int(l) for lids in cs.instance_lightmaps for l in lids})
     tex = bake_gather.Texels(cs, ids, (), POINTS, 0, 1)
     S = 96
 
     def records(points, normals):
-        c = IC.Cache(cs.n_bands)
+        c = irradiance_cache.Cache(cs.n_bands)
         P = np.repeat(np.asarray(points, float), S, axis=0)
         N = np.repeat(np.asarray(normals, float), S, axis=0)
         c.add(tex.scene, tex.mode, P, N, np.full(len(P), 7, np.uint64), np.full(len(P), 0.05), 1024, 0)

@@ -17,7 +17,7 @@ import pytest
 
 from photon_lightmaps.engine.geometry import dcsg
 from photon_lightmaps.engine.geometry import dcsg_trace
-from photon_lightmaps.engine.lsystem import grammar as LS
+from photon_lightmaps.engine.lsystem import grammar as lsystem_grammar
 from photon_lightmaps.engine.lsystem import derivation
 from photon_lightmaps.engine.lsystem import presets
 from photon_lightmaps.engine.lsystem import turtle
@@ -68,9 +68,9 @@ def test_every_file_is_a_preset_with_a_header():
 
 
 def test_unknown_preset_is_an_lsystem_error():
-    with pytest.raises(LS.LSystemError, match="unknown.*sphereflake"):
+    with pytest.raises(lsystem_grammar.LSystemError, match="unknown.*sphereflake"):
         presets.load_preset("no_such_preset")
-    with pytest.raises(LS.LSystemError):
+    with pytest.raises(lsystem_grammar.LSystemError):
         presets.preset_text("../__init__")
 
 
@@ -139,7 +139,7 @@ def test_known_counts():
                                         ("abop_1_24d", "X"), ("abop_1_24e", "X"), ("abop_1_24f", "X")])
 def test_abop_1_24_axioms_and_counts(name, axiom):
     g = presets.load_preset(name)
-    assert LS.format_string(g.axiom) == axiom
+    assert lsystem_grammar.format_string(g.axiom) == axiom
     n = g.derivation_length
     # F --> F... with k F in the successor: k^n; X-plants: F doubles, X adds its own
     k = {"abop_1_24a": 5, "abop_1_24b": 5, "abop_1_24c": 8}.get(name)
@@ -315,7 +315,7 @@ angle: 35
 production:
 A --> F(0.5) !(0.3) [ + ;(2) @B ] / [ - @B(0.2) A ]
 """
-    g = LS.parse(text)
+    g = lsystem_grammar.parse(text)
     graph = dcsg.DCSG(g)
     flat = graph.flatten()
     der, prims, addresses = derived_primitives(g)

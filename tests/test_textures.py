@@ -9,7 +9,7 @@ import pytest
 from numba import njit
 
 from photon_lightmaps.engine.shading import materials
-from photon_lightmaps.engine.shading import texture as TX
+from photon_lightmaps.engine.shading import texture as texture_lookup
 from photon_lightmaps.engine.compile import compile_scene
 from photon_lightmaps.engine.geometry.raycast import intersect_closest, new_stack
 from photon_lightmaps.engine.core.scene import (
@@ -21,7 +21,7 @@ from photon_lightmaps.engine.core.scene import (
 @njit(cache=True)
 def _sample_many(ts, tid, s, t, lod, out):
     for i in range(s.shape[0]):
-        TX.sample(ts, tid, s[i], t[i], lod[i], out[i])
+        texture_lookup.sample(ts, tid, s[i], t[i], lod[i], out[i])
 
 
 def sample(ts, tid, s, t, lod=0.0):
@@ -33,7 +33,7 @@ def sample(ts, tid, s, t, lod=0.0):
 
 
 def one_texture(pixels):
-    return TX.compile_textures(Scene(textures=[Texture(np.asarray(pixels, np.float32))]))
+    return texture_lookup.compile_textures(Scene(textures=[Texture(np.asarray(pixels, np.float32))]))
 
 
 def test_bilinear_texel_centres_and_midpoints():
@@ -87,20 +87,20 @@ def test_srgb_textures_interpolate_encoded_and_keep_linear_means():
     """8-bit sRGB images as Cycles reads them: encoded values interpolated, then decoded;
     the coarse levels hold the decoded mean, so a minified texture is not darkened."""
     enc = np.array([[[0.1, 0.5, 0.9], [0.9, 0.5, 0.1]]], np.float32)      # 1 x 2 texels
-    ts = TX.compile_textures(Scene(textures=[Texture(enc, encoding="srgb"), Texture(enc)]))
+    ts = texture_lookup.compile_textures(Scene(textures=[Texture(enc, encoding="srgb"), Texture(enc)]))
     assert list(ts.tex_srgb) == [1, 0]
-    lin = TX.srgb_to_linear(enc)
+    lin = texture_lookup.srgb_to_linear(enc)
     # texel centres decode exactly; the midpoint decodes the mean of the codes
     np.testing.assert_allclose(sample(ts, 0, 0.25, 0.5)[0, :3], lin[0, 0], rtol=1e-5)
     mid = sample(ts, 0, 0.5, 0.5)[0, :3]
-    np.testing.assert_allclose(mid, TX.srgb_to_linear(enc.mean(1))[0], rtol=1e-5)
+    np.testing.assert_allclose(mid, texture_lookup.srgb_to_linear(enc.mean(1))[0], rtol=1e-5)
     assert np.all(mid[[0, 2]] < lin[0, :, [0, 2]].mean(1) * 0.8)            # darker than linear
     np.testing.assert_allclose(sample(ts, 0, 0.5, 0.5, lod=1e9)[0, :3], lin[0].mean(0), rtol=1e-5)
     # the linear texture is read as it is
     np.testing.assert_allclose(sample(ts, 1, 0.5, 0.5)[0, :3], enc.mean(1)[0], rtol=1e-6)
-    assert np.allclose(TX.linear_to_srgb(TX.srgb_to_linear(enc)), enc, atol=1e-6)
+    assert np.allclose(texture_lookup.linear_to_srgb(texture_lookup.srgb_to_linear(enc)), enc, atol=1e-6)
     with pytest.raises(SceneError, match="encoding"):
-        TX.compile_textures(Scene(textures=[Texture(enc, encoding="gamma")]))
+        texture_lookup.compile_textures(Scene(textures=[Texture(enc, encoding="gamma")]))
 
 
 def test_odd_sizes_and_grey():
@@ -114,7 +114,7 @@ def test_odd_sizes_and_grey():
 
 @njit(cache=True)
 def _lod(ts, tid, f):
-    return TX.lod_for(ts, tid, f)
+    return texture_lookup.lod_for(ts, tid, f)
 
 
 def test_lod_selection():
@@ -131,7 +131,7 @@ def test_bad_textures_refused():
     with pytest.raises(SceneError, match="NaN"):
         one_texture(np.full((2, 2, 3), np.nan))
     with pytest.raises(SceneError, match="bands"):
-        TX.compile_textures(Scene(n_bands=4, textures=[Texture(np.zeros((2, 2, 3)))]))
+        texture_lookup.compile_textures(Scene(n_bands=4, textures=[Texture(np.zeros((2, 2, 3)))]))
     with pytest.raises(SceneError, match="unknown texture input"):
         materials.compile_materials(Scene(materials=[Material(textures={"albedo": 0})],
                                     textures=[Texture(np.zeros((2, 2, 3)))]))
@@ -280,23 +280,23 @@ def _bpy():
 @pytest.fixture
 def blender(monkeypatch):
     bpy = _bpy()
-    from photon_lightmaps.export import textures as ET
+    from photon_lightmaps.export import textures as export_textures
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    ET.clear_cache()
-    monkeypatch.setattr(ET, "TEXEL_DENSITY", 64.0)      # a 2 m plane: 128 texels, a fast bake
+    export_textures.clear_cache()
+    monkeypatch.setattr(export_textures, "TEXEL_DENSITY", 64.0)      # a 2 m plane: 128 texels, a fast bake
     calls = []
-    real = ET._cycles_bake
+    real = export_textures._cycles_bake
 
     def counting(**kw):
         calls.append(kw["type"])
         return real(**kw)
 
-    monkeypatch.setattr(ET, "_cycles_bake", counting)
-    yield bpy, ET, calls
-    ET.clear_cache()
+    monkeypatch.setattr(export_textures, "_cycles_bake", counting)
+    yield bpy, export_textures, calls
+    export_textures.clear_cache()
 
 
-srgb_to_linear = TX.srgb_to_linear
+srgb_to_linear = texture_lookup.srgb_to_linear
 
 
 def make_plane(bpy, name="plane", size=2.0):
@@ -353,7 +353,7 @@ def blender_checker_image(bpy, n=16):
 
 
 def test_image_texture_bakes_to_blender_values(blender):
-    bpy, ET, calls = blender
+    bpy, export_textures, calls = blender
     ob, mat, tree, bsdf = make_plane(bpy)
     img, node = image_texture(bpy, tree, blender_checker_image(bpy), "checker16")
     tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
@@ -363,7 +363,7 @@ def test_image_texture_bakes_to_blender_values(blender):
     texture = scene.textures[m.textures["base_color"]]
     # an 8-bit sRGB image read directly: kept encoded, as Cycles interpolates it
     assert texture.encoding == "srgb"
-    tex = TX.srgb_to_linear(texture.pixels)
+    tex = texture_lookup.srgb_to_linear(texture.pixels)
     assert tex.shape == (16, 16, 3)                      # capped at the image's own size
     # what Blender holds: sRGB bytes, which Cycles decodes to scene linear
     want = srgb_to_linear(image_pixels(img)[..., :3].astype(np.float64))
@@ -392,7 +392,7 @@ def cycles_checker(p):
 
 
 def test_procedural_checker_bakes_to_its_pattern(blender):
-    bpy, ET, calls = blender
+    bpy, export_textures, calls = blender
     ob, mat, tree, bsdf = make_plane(bpy)
     chk = tree.nodes.new("ShaderNodeTexChecker")
     chk.inputs["Scale"].default_value = 4.0
@@ -421,7 +421,7 @@ def test_procedural_checker_bakes_to_its_pattern(blender):
 
 
 def test_normal_map_through_blender(blender):
-    bpy, ET, calls = blender
+    bpy, export_textures, calls = blender
     ob, mat, tree, bsdf = make_plane(bpy)
     a = math.radians(30)
     px = np.ones((8, 8, 4), np.float32)
@@ -444,7 +444,7 @@ def test_normal_map_through_blender(blender):
 
 
 def test_cache_reuses_bakes_and_image_edits_invalidate(blender):
-    bpy, ET, calls = blender
+    bpy, export_textures, calls = blender
     ob, mat, tree, bsdf = make_plane(bpy)
     img, node = image_texture(bpy, tree, blender_checker_image(bpy), "checker16")
     tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
@@ -470,7 +470,7 @@ def test_cache_reuses_bakes_and_image_edits_invalidate(blender):
 
 
 def test_missing_image_warns_once_and_uses_the_socket_value(blender):
-    bpy, ET, calls = blender
+    bpy, export_textures, calls = blender
     ob, mat, tree, bsdf = make_plane(bpy)
     img = bpy.data.images.new("gone", 4, 4)
     img.source = "FILE"
@@ -519,7 +519,7 @@ def _user_state(bpy):
 
 
 def test_user_data_untouched(blender):
-    bpy, ET, calls = blender
+    bpy, export_textures, calls = blender
     ob, mat, tree, bsdf = make_plane(bpy)
     img, node = image_texture(bpy, tree, blender_checker_image(bpy), "checker16")
     tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
@@ -595,12 +595,12 @@ def build_textured_plane_scene(bpy, kind="image", resolution=64, size=2.0):
 
 def test_textured_plane_scene_builds():
     bpy = _bpy()
-    from photon_lightmaps.export import textures as ET
-    ET.clear_cache()
+    from photon_lightmaps.export import textures as export_textures
+    export_textures.clear_cache()
     for kind in ("image", "checker", "normal"):
         build_textured_plane_scene(bpy, kind)
         scene, _, msgs = export(bpy)
         (m,) = textured_materials(scene)
         assert set(m.textures) == ({"base_color"} if kind != "normal" else {"base_color", "normal"})
         assert not [t for lvl, t in msgs if lvl == "WARNING" and "texture" in t]
-    ET.clear_cache()
+    export_textures.clear_cache()

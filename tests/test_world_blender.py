@@ -19,7 +19,7 @@ from photon_lightmaps.engine.shading import environment  # noqa: E402
 from photon_lightmaps.engine import session  # noqa: E402
 from photon_lightmaps.engine.core.scene import EnvironmentMap  # noqa: E402
 from photon_lightmaps.export import export_scene  # noqa: E402
-from photon_lightmaps.export import world as W  # noqa: E402
+from photon_lightmaps.export import world as world_export  # noqa: E402
 
 from blender_session import addon, bake_uv_cache, cycles_diffuse_bake  # noqa: E402,F401  (session-wide registration)
 
@@ -27,11 +27,11 @@ from blender_session import addon, bake_uv_cache, cycles_diffuse_bake  # noqa: E
 @pytest.fixture(autouse=True)
 def fresh(bake_uv_cache, monkeypatch):
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    W.clear_cache()
-    monkeypatch.setattr(W, "ENV_RESOLUTION", (64, 32))
-    monkeypatch.setattr(W, "ENV_SAMPLES", 16)
+    world_export.clear_cache()
+    monkeypatch.setattr(world_export, "ENV_RESOLUTION", (64, 32))
+    monkeypatch.setattr(world_export, "ENV_SAMPLES", 16)
     yield
-    W.clear_cache()
+    world_export.clear_cache()
 
 
 def new_world(name="World"):
@@ -58,7 +58,7 @@ def exported_world():
 
 
 def write_exr(path, rgb):
-    """(H, W, 3) float, row 0 at the bottom, as a float EXR."""
+    """(H, world_export, 3) float, row 0 at the bottom, as a float EXR."""
     h, w = rgb.shape[:2]
     img = bpy.data.images.new("tmp_exr", w, h, float_buffer=True, alpha=True)
     px = np.ones((h, w, 4), np.float32)
@@ -184,7 +184,7 @@ def test_failed_bake_warns_once_and_averages(monkeypatch):
     def fail(*a, **k):
         raise RuntimeError("no Cycles here")
 
-    monkeypatch.setattr(W, "render_world", fail)
+    monkeypatch.setattr(world_export, "render_world", fail)
     env, emap = exported_world()
     np.testing.assert_allclose(env, 0.3, rtol=1e-6)
     world_lines = [m for m in emap.warnings if "Broken" in m]
@@ -194,10 +194,10 @@ def test_failed_bake_warns_once_and_averages(monkeypatch):
 def test_subprocess_bake_matches_the_in_process_one(monkeypatch):
     """The path for render threads (a background Blender) gives the same map."""
     direction_world()
-    a, _ = W.baked_map(bpy.context.scene.world)
-    W.clear_cache()
-    monkeypatch.setattr(W, "BAKE_MODE", "subprocess")
-    b, _ = W.baked_map(bpy.context.scene.world)
+    a, _ = world_export.baked_map(bpy.context.scene.world)
+    world_export.clear_cache()
+    monkeypatch.setattr(world_export, "BAKE_MODE", "subprocess")
+    b, _ = world_export.baked_map(bpy.context.scene.world)
     np.testing.assert_allclose(a, b, atol=1e-6)
 
 
@@ -308,7 +308,7 @@ def compare_with_cycles(label, max_block=0.10, mean_block=0.04, max_bias=0.02):
 def test_hdri_lit_slab_matches_cycles(tmp_path, monkeypatch):
     """A synthetic HDRI (dim sky, darker ground, a bright patch at 40 degrees) lighting a
     slab with a block: the block's shadow and the patch's direction must match."""
-    monkeypatch.setattr(W, "ENV_RESOLUTION", (256, 128))
+    monkeypatch.setattr(world_export, "ENV_RESOLUTION", (256, 128))
     h, w = 128, 256
     img = np.zeros((h, w, 3), np.float32)
     img[h // 2:] = (0.3, 0.4, 0.6)          # sky
@@ -322,8 +322,8 @@ def test_hdri_lit_slab_matches_cycles(tmp_path, monkeypatch):
 def test_sky_lit_slab_matches_cycles(monkeypatch):
     """Blender's default daylight: a Sky Texture with its sun disc (no Sun lamp: the disc
     is the sun, as in Cycles). The sun is widened to 2 degrees so a 512 x 256 map resolves it."""
-    monkeypatch.setattr(W, "ENV_RESOLUTION", (512, 256))
-    monkeypatch.setattr(W, "ENV_SAMPLES", 32)
+    monkeypatch.setattr(world_export, "ENV_RESOLUTION", (512, 256))
+    monkeypatch.setattr(world_export, "ENV_SAMPLES", 32)
     w, nt, bg = new_world("Sky")
     sky = nt.nodes.new("ShaderNodeTexSky")
     sky.sun_elevation = math.radians(35)

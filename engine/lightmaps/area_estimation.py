@@ -75,8 +75,17 @@ def _csg_side(buf, cb, roots, leaf, px, py, pz, bits):
 
 
 @njit(cache=True, nogil=True)
-def _sample_kernel(g, insts, inst_cum, part_start, parts, part_acc, csg_roots_start, csg_roots,
-                   vs0, res, n_s, seed, out_bin, out_val, out_pn, start, stop):
+def _sample_kernel(g, pick, solids, job, out, start, stop):
+    """Samples start..stop-1: each picks an instance, a part of it and a point on
+    that part, and writes its normal's bin, its area value and the point.
+    pick = (instances, their cumulative size, per prototype its first part,
+    parts, parts' cumulative area); solids = (per prototype its first CSG root,
+    roots, first CSG virtual shape); job = (bins per side, samples, seed);
+    out = (bin, value, point and normal) per sample."""
+    insts, inst_cum, part_start, parts, part_acc = pick
+    csg_roots_start, csg_roots, vs0 = solids
+    res, n_s, seed = job
+    out_bin, out_val, out_pn = out
     total = inst_cum[inst_cum.shape[0] - 1]
     buf = (g.trace_i64, g.trace_f32, g.trace_i32, g.trace_f64, g.trace_features)
     has_csg = csg_roots.shape[0] > 0
@@ -269,8 +278,8 @@ def estimate_areas(g, instances, resolution, samples, seed=0, member=None, tmax=
     out_bin = np.empty(s, np.int64)
     out_val = np.empty(s)
     out_pn = np.zeros((s, 6))
-    parallel.run(_sample_kernel, s, g, insts, inst_cum, part_start, parts, np.ascontiguousarray(part_acc),
-                 roots_start, roots, int(vs0), R, s, np.uint64(seed), out_bin, out_val, out_pn, min_block=256)
+    parallel.run(_sample_kernel, s, g, (insts, inst_cum, part_start, parts, np.ascontiguousarray(part_acc)),
+                 (roots_start, roots, int(vs0)), (R, s, np.uint64(seed)), (out_bin, out_val, out_pn), min_block=256)
     ok = out_bin >= 0
     b = out_bin[ok]
     v = out_val[ok]

@@ -27,8 +27,10 @@ FULL_MASK = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
 @njit(cache=True, parallel=True)
-def _visibility_kernel(buf, root, leaf, kind, params, xf, inv, n_faces, R, eps, span, out, ties):
-    """out[f*R*R + y*R + x]: bit j*SUB+i set if the centre of sampling cell
+def _visibility_kernel(buf, tree, prim, grid, out, ties):
+    """tree = (root, leaf) of the solid, prim = (kind, parameters, transform,
+    inverse) of leaf L, grid = (faces, texels per side R, eps, span).
+    out[f*R*R + y*R + x]: bit j*SUB+i set if the centre of sampling cell
     (i, j) of texel (x, y) of face f lies on the solid's boundary as part of
     leaf L = `leaf`. ties[same index]: coincident-boundary events (the ray
     kernel's tie rule, module docstring) on the ray segments (-span, span)
@@ -41,6 +43,9 @@ def _visibility_kernel(buf, root, leaf, kind, params, xf, inv, n_faces, R, eps, 
     The first test covers every operator, covered and subtracted parts alike;
     the second gives a face that coincides with another operand's face to the
     operand the ray kernel gives it (a ray through the face sees the same)."""
+    root, leaf = tree
+    kind, params, xf, inv = prim
+    n_faces, R, eps, span = grid
     cb = csg_base(buf)
     S = SPLIT_SUB
     h = 1.0 / (R * S)
@@ -190,8 +195,9 @@ def leaf_visibility(table_trace, root, flat, leaf, R):
     eps = 1e-7 * size
     mask = np.zeros(nf * R * R, np.uint64)
     ties = np.zeros(nf * R * R, np.int64)
-    _visibility_kernel(table_trace, int(root), int(leaf), np.int32(kind), flat.leaf_params[leaf],
-                       flat.leaf_xf[leaf], flat.leaf_inv[leaf], nf, int(R), eps, 1e-3 * size, mask, ties)
+    _visibility_kernel(table_trace, (int(root), int(leaf)),
+                       (np.int32(kind), flat.leaf_params[leaf], flat.leaf_xf[leaf], flat.leaf_inv[leaf]),
+                       (nf, int(R), eps, 1e-3 * size), mask, ties)
     mixed = np.nonzero((mask != 0) & (mask != FULL_MASK))[0].astype(np.int64)
     labels = np.empty((mixed.size, SPLIT_SUB * SPLIT_SUB), np.int8)
     n_comp = np.zeros(mixed.size, np.int64)

@@ -255,7 +255,7 @@ def random_csg(rng, tags, depth):
             v = v * rng.uniform(0.3, 1.0) + rng.uniform(-0.5, 0.5, 3)
             tags.append("csg_mesh")
             return scene_model.TriangleMesh(v, t, uvs=random_uvs(rng, 12, tags, allow_none=rng.random() < 0.3),
-                                  name="csg_box_mesh")
+                                            name="csg_box_mesh")
         if rng.random() < 0.02:
             tags.append("csg_open_leaf")
             return scene_model.Primitive("quad", name="open_leaf")
@@ -304,8 +304,9 @@ def random_material(rng, tags, i):
     if rng.random() < 0.1:
         em = rng.uniform(0, 1, nb) * _loguniform(rng, 1e-30, 1e30)
         tags.append("emissive")
-    return scene_model.Material(f"mat{i}", diffuse=d, specular=sp, roughness=float(rng.choice([0.0, rng.uniform(0, 1), 1.0])),
-                      transmission=tr, ior=float(rng.choice([1.5, 1.0, 1.0001, rng.uniform(1, 3)])), emission=em)
+    return scene_model.Material(f"mat{i}", diffuse=d, specular=sp,
+                                roughness=float(rng.choice([0.0, rng.uniform(0, 1), 1.0])), transmission=tr,
+                                ior=float(rng.choice([1.5, 1.0, 1.0001, rng.uniform(1, 3)])), emission=em)
 
 
 def random_light(rng, tags, centers):
@@ -381,8 +382,9 @@ def make_case(i):
         for _ in range(1 if rng.random() < 0.8 else int(rng.integers(2, 4))):
             xf = random_transform(rng, tags)
             res = int(rng.choice([0, 2, 3, 4, 8, 16]))
-            scene.instances.append(scene_model.Instance(len(scene.prototypes) - 1, xf, name=f"inst{len(scene.instances)}",
-                                              lightmap=bool(rng.random() < 0.9), lightmap_resolution=res))
+            scene.instances.append(scene_model.Instance(len(scene.prototypes) - 1, xf,
+                                                        name=f"inst{len(scene.instances)}",
+                                                        lightmap=bool(rng.random() < 0.9), lightmap_resolution=res))
             centers.append(xf[:, 3].copy())
     if rng.random() < 0.15:
         # orientation lightmaps: random members (possibly none), maybe a parent
@@ -421,7 +423,7 @@ def make_case(i):
     kind = "orthographic" if rng.random() < 0.2 else "perspective"
     fov = float(rng.choice([math.radians(39.6), 1e-3, math.pi - 1e-3, rng.uniform(0.1, 2.5)]))
     scene.camera = scene_model.Camera(transform=cam_xf, kind=kind, fov=fov, ortho_scale=float(rng.uniform(0.1, 20)),
-                            width=w, height=h)
+                                      width=w, height=h)
     scene.texel_density = float(rng.choice([1.0, 4.0, 16.0]))
     settings = dict(max_bounces=int(rng.integers(0, 9)), record_direct=bool(rng.random() < 0.5),
                     photons=PHOTONS, mode=int(rng.integers(0, 2)), gather=bool(rng.random() < 0.7),
@@ -622,13 +624,16 @@ def _warm_up():
                  scene_model.Light("sun", power=1.0)]
     em = s.add_material(scene_model.Material("em", diffuse=0.0, emission=1.0))
     s.add_object(scene_model.Primitive("disk", material=em), scene_model.translate(0, 0.5, 1.9))
-    s.prototypes.append(scene_model.Prototype("csg", csg=[scene_model.CSGNode("difference", scene_model.Primitive("box"),
-                                                          scene_model.Primitive("sphere", transform=scene_model.scale(1.2)))]))
-    s.instances.append(scene_model.Instance(len(s.prototypes) - 1, scene_model.compose(scene_model.translate(0.5, 0.5, 0.3), scene_model.scale(0.2))))
-    s.orientation_lightmaps.append(scene_model.OrientationLightmap("ol", instances=[len(s.instances) - 1], samples=50,
-                                                         resolution=4))
+    solid = scene_model.CSGNode("difference", scene_model.Primitive("box"),
+                                scene_model.Primitive("sphere", transform=scene_model.scale(1.2)))
+    s.prototypes.append(scene_model.Prototype("csg", csg=[solid]))
+    s.instances.append(scene_model.Instance(len(s.prototypes) - 1, scene_model.compose(
+        scene_model.translate(0.5, 0.5, 0.3), scene_model.scale(0.2))))
+    s.orientation_lightmaps.append(scene_model.OrientationLightmap("ol", instances=[len(s.instances) - 1],
+                                                                   samples=50, resolution=4))
     # a CSG solid with its own, split texels (most cases have one: 76 s of kernels otherwise)
-    s.instances.append(scene_model.Instance(len(s.prototypes) - 1, scene_model.compose(scene_model.translate(-0.5, 0.5, 0.3), scene_model.scale(0.2))))
+    s.instances.append(scene_model.Instance(len(s.prototypes) - 1, scene_model.compose(
+        scene_model.translate(-0.5, 0.5, 0.3), scene_model.scale(0.2))))
     cs = compile_scene(s, max_resolution=32, csg_split=True)
     trace_photons(cs, 500, max_bounces=3, keep_points=True)
     for mode in (0, 1):

@@ -130,7 +130,8 @@ def _xf(R, t):
 
 def _euler(rx, ry, rz):
     """Blender's XYZ Euler (degrees): R = Rz @ Ry @ Rx."""
-    return scene_model.compose(scene_model.rotate("z", rz), scene_model.rotate("y", ry), scene_model.rotate("x", rx))[:, :3]
+    rot = scene_model.rotate
+    return scene_model.compose(rot("z", rz), rot("y", ry), rot("x", rx))[:, :3]
 
 
 def spec(name, width=128, height=128):
@@ -194,8 +195,8 @@ def engine_scene(sp, method="lightmaps", ol_resolution=OL_RESOLUTION, ol_samples
     sc = scene_model.Scene(n_bands=3, name=f"{sp.name}_{method}")
     m_floor = sc.add_material(scene_model.Material("floor", diffuse=FLOOR_ALBEDO))
     m_obj = sc.add_material(scene_model.Material("object", diffuse=OBJECT_ALBEDO))
-    sc.add_object(scene_model.Primitive("quad", transform=scene_model.scale(FLOOR_HALF, FLOOR_HALF, 1.0), material=m_floor),
-                  name="floor")
+    sc.add_object(scene_model.Primitive("quad", transform=scene_model.scale(FLOOR_HALF, FLOOR_HALF, 1.0),
+                                        material=m_floor), name="floor")
     sc.prototypes.append(scene_model.Prototype(name=sp.kind, primitives=[
         scene_model.Primitive(sp.kind, material=m_obj, params=tuple(sp.params))]))
     proto = len(sc.prototypes) - 1
@@ -204,12 +205,12 @@ def engine_scene(sp, method="lightmaps", ol_resolution=OL_RESOLUTION, ol_samples
         sc.instances.append(scene_model.Instance(proto, xf, name=f"{sp.kind}{i}"))
     ids = np.arange(first, first + sp.transforms.shape[0])
     L = sp.light
-    sc.lights.append(scene_model.Light("area", power=L["power"], shape="square", size=L["size"], size_y=L["size"],
-                             transform=scene_model.compose(scene_model.translate(*L["location"]), _euler4(*L["rotation"])),
-                             name="light"))
+    sc.lights.append(scene_model.Light(
+        "area", power=L["power"], shape="square", size=L["size"], size_y=L["size"],
+        transform=scene_model.compose(scene_model.translate(*L["location"]), _euler4(*L["rotation"])), name="light"))
     C = sp.camera
     sc.camera = scene_model.Camera(transform=_camera_xf(C), fov=2.0 * math.atan(0.5 * 36.0 / C["lens"]),
-                         width=sp.width, height=sp.height)
+                                   width=sp.width, height=sp.height)
     sc.environment = 0.0
     kw = dict(resolution=ol_resolution, samples=ol_samples, seed=seed)
     if method == "ol":

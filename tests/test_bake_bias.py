@@ -69,8 +69,9 @@ def test_gathered_bake_is_unbiased(scene):
     gathered = bake.bake_objects(bpy.context, objs, seed=3, resolution=bias_scenes.RES, irradiance_cache=False)
     assert gathered.gathered and not gathered.skipped and not gathered.irradiance_cache
     lookup = bake.bake_objects(bpy.context, objs, photons=LOOKUP_PHOTONS, seed=4, resolution=bias_scenes.RES,
-                            indirect="LOOKUP")
-    cached = bake.bake_objects(bpy.context, objs, seed=3, resolution=bias_scenes.RES)     # the default: through the cache
+                               indirect="LOOKUP")
+    # the default: through the cache
+    cached = bake.bake_objects(bpy.context, objs, seed=3, resolution=bias_scenes.RES)
     assert cached.irradiance_cache["records"] > 0
     g = object_means(gathered.maps, ref, scene)
     lk = object_means(lookup.maps, ref, scene)

@@ -101,7 +101,8 @@ def _records_of(cs, tex, irradiance_cache):
         made["cache"] = self
     irradiance_cache.Cache.add = spy
     try:
-        irradiance_cache.cached_mesh_gather(cs, tex.scene, tex.mode, tex.mesh, POINTS, POINTS * RAYS, bake_gather.STREAM_XOR)
+        irradiance_cache.cached_mesh_gather(cs, tex.scene, tex.mode, tex.mesh, POINTS, POINTS * RAYS,
+                                            bake_gather.STREAM_XOR)
     finally:
         irradiance_cache.Cache.add = original
     return made["cache"]

@@ -204,7 +204,7 @@ def test_xatlas_crash_is_contained_and_the_batch_goes_on(cache, torus):
     calls = []
     launches = uv_atlas.worker_launches
     bad, good = uv_atlas.unwrap_many([(*sphere, 64), dict(vertices=v, triangles=tri, resolution=64)],
-                               progress=lambda done, total: calls.append((done, total)))
+                                     progress=lambda done, total: calls.append((done, total)))
     assert uv_atlas.worker_launches == launches + 2       # restarted once, after the crash
     assert isinstance(bad, uv_atlas.UnwrapError) and isinstance(bad, SceneError)
     assert bad.reason == "xatlas crashed (SIGSEGV)" and bad.triangles == 261_120

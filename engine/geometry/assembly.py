@@ -450,8 +450,7 @@ def _lsystem_graphs(scene, n_materials, notes):
                 graph = SceneGraph(grammar, ls.steps, cache_mb=ls.cache_mb, organs=organs)
             except DCSGUnsupported as exc:
                 der = derivation.derive(grammar, ls.steps)
-                prims = to_primitives(interpret(der.modules, grammar.angle, grammar.width),
-                                        name=ls.name)
+                prims = to_primitives(interpret(der.modules, grammar.angle, grammar.width), name=ls.name)
                 extra += [replace(p, material=mats[min(int(p.material), len(mats) - 1)]) for p in prims]
                 notes.append(f"{what}: {exc}; {len(prims):,} primitives instanced")
                 continue

@@ -165,11 +165,11 @@ def _start(ls, job, out, i, w, li, d, wl):
 
 @njit(**INLINE)
 def _record_hit(g, maps, job, out, i, rec, depth, caustic, hit, power):
-    """Photon i's hit, hit = ((instance, shape, face, u, v), n, point), with
-    `power` recorded from row `rec` on, into maps = (lightmaps, caustic
-    lightmaps, orientation lightmaps): in the texel of its lightmap, or of its caustic
-    lightmap while only sharp mirrors and glass lie behind it, and in its
-    normal's bin of its OL and every level above (thesis 6.2) -> the next free row."""
+    """Photon i's hit = ((instance, shape, face, u, v), n, point) with `power`,
+    recorded from row `rec` on into maps = (lightmaps, caustic lightmaps, OLs):
+    in the texel of its lightmap, or of its caustic lightmap while only sharp
+    mirrors and glass lie behind it, and in its normal's bin of its OL and every
+    level above (thesis 6.2) -> the next free row."""
     lm, lmc, ol = maps
     (inst, shape, face, u, v), n, p = hit
     n_rec = out.texel.shape[1]
@@ -208,16 +208,18 @@ def _record_hit(g, maps, job, out, i, rec, depth, caustic, hit, power):
 
 @njit(**INLINE)
 def _set_power(out, i, rec, power):
+    """Record rec of photon i carries `power`."""
     for b in range(power.shape[0]):
         out.power[i, rec, b] = power[b]
 
 
 @njit(**INLINE)
 def _scatter(w, out, i, lobes, frame, hit, d, caustic, state):
-    """Russian roulette on the closure in w, with its lobe probabilities `lobes`,
-    at photon i's hit = (n, point) (thesis 3.4.3): a lobe or absorption; frame:
-    the face and shading normals facing where the photon came from. A survivor keeps power k/p <= its power per band, the rest is
-    booked absorbed here -> (alive, origin, direction, still a caustic path, state)."""
+    """Russian roulette on the closure in w (lobe probabilities `lobes`) at photon
+    i's hit = (n, point), thesis 3.4.3: a lobe or absorption. frame: the face and
+    shading normals facing where the photon came from. A survivor keeps power
+    k/p <= its power per band, the rest is booked absorbed here
+    -> (alive, origin, direction, still a caustic path, state)."""
     n, p = hit
     fn, sn = frame
     power, wt = w.tp, w.f

@@ -162,6 +162,9 @@ def build_parser():
     b.add_argument("--irradiance-cache", action=argparse.BooleanOptionalAction, default=None,
                    help="gather mesh texels through a sparse irradiance cache (fewer rays, lower "
                         "error; default: the scene's Bake Irradiance Cache, on)")
+    b.add_argument("--gather-lights", action=argparse.BooleanOptionalAction, default=None,
+                   help="gather rays sample point, spot and sun lights where they land, so light one "
+                        "bounce away is as sharp as the light (default: the scene's Bake Gather Lights)")
     b.add_argument("--error-images", action="store_true",
                    help="also write DIR/<object>_error.exr: each texel's estimated relative error "
                         "(gathered bakes)")
@@ -418,7 +421,8 @@ def bake_main(args):
                              indirect=args.indirect.upper() if args.indirect else None,
                              bake_gather_rays=args.bake_gather_rays,
                              bake_target_error=args.target_error, bake_time=args.time,
-                             bake_irradiance_cache=args.irradiance_cache)
+                             bake_irradiance_cache=args.irradiance_cache,
+                             bake_gather_lights=args.gather_lights)
     photons = settings.photons if args.photons is not None else settings.bake_photon_count
     seed = settings.seed
     objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
@@ -433,7 +437,8 @@ def bake_main(args):
                        bake_gather_rays=settings.bake_gather_rays,
                        bake_target_error=settings.bake_target_error, bake_time=settings.bake_time,
                        error_images=args.error_images or None,
-                       irradiance_cache=settings.bake_irradiance_cache)
+                       irradiance_cache=settings.bake_irradiance_cache,
+                       gather_lights=settings.bake_gather_lights)
     print(file=sys.stderr)
     stats = res.stats
     report = {

@@ -197,7 +197,8 @@ def run_unwraps(plan, progress=None, should_stop=None):
 
 def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None,
-                 bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None):
+                 bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
+                 gather_lights=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
@@ -229,7 +230,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      indirect_only=indirect_only, denoise=denoise, indirect=indirect,
                                      bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error,
                                      bake_time=bake_time, bake_error_images=error_images,
-                                     bake_irradiance_cache=irradiance_cache)
+                                     bake_irradiance_cache=irradiance_cache, bake_gather_lights=gather_lights)
     if photons is None:
         # the scene's count for this kind of bake: Bake Photons when it gathers
         job.settings.photons = job.settings.bake_photon_count
@@ -574,7 +575,8 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
 def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, progress=None, overwrite=False, save_dir=None, pack=False,
                  hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None,
-                 bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None):
+                 bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
+                 gather_lights=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
@@ -583,8 +585,10 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     `bake_gather_rays` per texel, more where a texel's error is above
     `bake_target_error` or in the time left of `bake_time` seconds; None: the
     scene's settings; `irradiance_cache` gathers mesh texels through the sparse
-    irradiance cache (None: the scene's Bake Irradiance Cache); `error_images` also writes each texel's estimated relative
-    error as an image, BakeResult.error_maps). `resolution` forces
+    irradiance cache (None: the scene's Bake Irradiance Cache); `gather_lights`
+    samples point, spot and sun lights where gather rays land (None: the scene's
+    Bake Gather Lights); `error_images` also writes each texel's estimated
+    relative error as an image, BakeResult.error_maps). `resolution` forces
     R x R texels per object; otherwise the object's own setting or the scene's
     texel density decides. `denoise` (None: the scene's setting) runs OIDN over
     each map (engine/transport/denoise.py). `progress(done, total)`
@@ -595,7 +599,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                        resolution=resolution, indirect_only=indirect_only, denoise=denoise,
                        indirect=indirect, bake_gather_rays=bake_gather_rays,
                        bake_target_error=bake_target_error, bake_time=bake_time,
-                       error_images=error_images, irradiance_cache=irradiance_cache)
+                       error_images=error_images, irradiance_cache=irradiance_cache, gather_lights=gather_lights)
     try:
         compute_bake(job, progress)
     except BaseException:

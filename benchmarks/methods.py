@@ -139,15 +139,18 @@ def read_rgb(path):
 # Photon lightmaps (this engine)
 # --------------------------------------------------------------------------------------
 
-def ours_bake(objs, photons, seed, res, indirect="LOOKUP", irradiance_cache=False, gather_rays=None):
+def ours_bake(objs, photons, seed, res, indirect="LOOKUP", irradiance_cache=False, gather_rays=None,
+              gather_lights=None):
     """bake_objects without writing images -> (maps {name: (res, res, 4) E/pi + coverage},
     seconds (export + photon pass + texels + extract), lightmap bytes, photon stats, job).
     indirect: "LOOKUP" (each texel's own photons, the thesis's bake) or "GATHER"
     (final gather over the photon lightmaps, the add-on's default); irradiance_cache:
-    the gather through the sparse cache; gather_rays: per texel side (None: 256)."""
+    the gather through the sparse cache; gather_rays: per texel side (None: 256);
+    gather_lights: gather rays sample point, spot and sun lights where they land (None: the default)."""
     t0 = time.perf_counter()
     job = bake.prepare_bake(bpy.context, objs, photons=photons, seed=seed, resolution=res, indirect=indirect,
-                         irradiance_cache=irradiance_cache, bake_gather_rays=gather_rays)
+                         irradiance_cache=irradiance_cache, bake_gather_rays=gather_rays,
+                         gather_lights=gather_lights)
     bake.compute_bake(job)
     seconds = time.perf_counter() - t0
     maps = {n: m.rgba for n, m in job.result.maps.items()}

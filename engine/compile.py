@@ -51,6 +51,7 @@ class CompiledScene:
     caustics: object = None
     caustics_traced: bool = False   # the last photon pass stored its caustics there
     lightmaps_hold_direct: bool = False   # ... and recorded first hits (final gather, bakes of OLs)
+    gather_light_set: object = None       # lights.LightSet a final gather samples at its hits (None: none)
     bsdf: object = None             # bsdf.BsdfTables: albedo tables, layer and Fresnel per material
     # material textures (engine/shading/texture.py TextureSet; empty when the scene has none)
     textures: object = None

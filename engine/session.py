@@ -42,6 +42,10 @@ class Settings:
     # Cycles at equal error, benchmarks/README.md); a render's diffuse hits too, where it is
     # off by default: its error stops near a texel's scale, above the per-pixel gather's
     bake_irradiance_cache: bool = True
+    # a gathered bake's rays sample the lights where they land, and the photon
+    # lightmaps hold indirect light only: a sun patch one bounce away is as sharp as
+    # its light, not as coarse as the texels it falls on
+    bake_gather_lights: bool = False
     irradiance_cache: bool = False
     denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/transport/denoise.py)
 
@@ -114,7 +118,7 @@ def _kernels_done(cs, pass_):
 
 
 def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=None, caustics=False,
-                gather=False, aim=None):
+                gather=False, aim=None, gather_lights=False):
     """Traces the photons into cs.lightmaps -> PhotonStats. Raises Cancelled.
 
     record_direct=False keeps first hits out (the direct part is gathered per
@@ -122,6 +126,8 @@ def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=Non
     caustics=True (renders): caustic photons go to the finer cs.caustics.
     gather=True: final-gather rays read the lightmaps, so they keep one bounce
     less (trace_photons). aim: the sphere photons are aimed at (photon_aim.py).
+    gather_lights=True: gather rays sample the point, spot and sun lights where
+    they land, and those lights' first hits stay out of the lightmaps.
     The texels' open areas are estimated first, once per compiled scene
     (open_area.py): finalize() divides by them.
     """
@@ -131,7 +137,7 @@ def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=Non
     n = settings.photons if photons is None else photons
     return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
                          record_direct=record_direct, progress=progress, caustics=caustics, gather=gather,
-                         aim=aim)
+                         aim=aim, gather_lights=gather_lights)
 
 
 def render_photon_pass(cs, settings, *, progress=None):
@@ -169,7 +175,7 @@ def compile_and_trace_bake(scene, settings, *, progress=None, aim_at=None):
         return compile_and_trace(scene, settings, progress=progress, aim_at=aim_at)
     cs = compile(replace(scene, caustic_resolution=1.0), ahead=("bake",))
     return cs, photon_pass(cs, settings, record_direct=True, progress=progress, caustics=True, gather=True,
-                           aim=_aim(cs, aim_at))
+                           aim=_aim(cs, aim_at), gather_lights=settings.bake_gather_lights)
 
 
 def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline=None, phase=None):

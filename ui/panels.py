@@ -83,6 +83,7 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         sub.prop(s, "bake_photons")
         sub.prop(s, "bake_gather_rays")
         sub.prop(s, "bake_irradiance_cache")
+        sub.prop(s, "bake_gather_lights")
         sub.prop(s, "irradiance_cache")
         sub.prop(s, "bake_target_error")
         row = sub.row()

@@ -123,6 +123,11 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         description="Bakes gather from a sparse set of points placed densest where light changes "
                     "(contact, corners), interpolated at every texel: several times fewer gather "
                     "rays and lower error than gathering at every texel, no seams")
+    bake_gather_lights: BoolProperty(
+        name="Bake Gather Lights", default=_D.bake_gather_lights,
+        description="Bake gather rays sample the lights where they land, and the photon lightmaps "
+                    "keep indirect light only: light one bounce away is as sharp as its lights, "
+                    "not as coarse as the texels it falls on (a shadow ray per gather ray)")
     irradiance_cache: BoolProperty(
         name="Render Irradiance Cache", default=_D.irradiance_cache,
         description="Renders gather from the same sparse, interpolated points instead of at every "

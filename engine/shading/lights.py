@@ -172,6 +172,33 @@ def compile_lights(scene, geom, materials, bounds):
         **{"env_" + f: v for f, v in zip(environment.FIELDS, ev)})
 
 
+# Lights a final gather samples where its rays land rather than reading their light
+# from the lightmaps: small sources, whose shadows and patches are sharper than a
+# texel (a sun patch through a window read off 0.3 m floor texels is smeared by
+# as much). Area lights, glowing surfaces and the world give soft light that the
+# texels hold well, and sampling them at every gather hit only adds noise.
+GATHER_SAMPLED = (POINT, SPOT, SUN)
+
+
+def gather_sampled(ls):
+    """bool per light of `ls`: the lights a final gather samples at its hits."""
+    return np.isin(ls.kind, GATHER_SAMPLED)
+
+
+def light_subset(ls, keep):
+    """The LightSet of the lights where `keep` (bool per light) is set, picked by
+    power among themselves; the same types as `ls`, so kernels compile once."""
+    keep = np.asarray(keep, bool)
+    per_light = {"kind", "pos", "axis_u", "axis_v", "normal", "shape", "radius", "soft", "cos_half", "smooth",
+                 "radiance", "flux", "area", "two_sided", "inst", "shape_id", "cell_start", "cell_count"}
+    sub = {f: (np.ascontiguousarray(getattr(ls, f)[keep]) if f in per_light else getattr(ls, f))
+           for f in LightSet._fields}
+    cdf = np.cumsum(sub["flux"].mean(axis=1)) if keep.any() else np.zeros(0)
+    sub["power_cdf"] = cdf.astype(np.float64)
+    sub["total_power"] = float(cdf[-1]) if cdf.size else 0.0
+    return LightSet(**sub)
+
+
 def environment_map(ls):
     """The world of a LightSet as an environment.EnvMap (Python side)."""
     return environment.EnvMap(*(getattr(ls, "env_" + f) for f in environment.FIELDS))

@@ -20,6 +20,14 @@ are stored in both maps, so q still sees them). The gather is a consistent
 estimator of the integral the lookup estimates, so both agree in the mean
 (tests/test_final_gather.py).
 
+Sampled lights (scene.gather_lights, a bake's *Gather Lights*): a lightmap holds
+q's direct light averaged over q's texel, so a sun patch or a shadow's edge one
+bounce away reaches p smeared over a texel, a bias no number of rays removes
+(the window room's thin walls: relRMSE 0.036 at 300 k photons, 0.030 at 3 M
+photons and 4096 rays). For the lights named there (small sources:
+lights.gather_sampled) the photon pass leaves first hits out, and q takes their
+direct light by a light sample and a shadow ray instead, as sharp as the light.
+
 Approximations: glossy lobes met by gather rays see lights only by hitting them
 (no light sampling there), and the gather uses q's face normal (no normal map).
 """
@@ -37,6 +45,7 @@ from .path_vertex import leave_surface
 from ..core.jit import CORE, typed
 from ..geometry.raycast import intersect_closest
 from ..core.sampling import cosine_hemisphere, next_float, to_world
+from .texel_gather import direct_irradiance_at
 
 GOLDEN = 0.6180339887498949
 CHAIN = 3          # vertices a gather ray follows through glossy lobes
@@ -136,6 +145,15 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
             ds = bsdf.diffuse_scale(pc)
             if pd > 0.0 and ds > 0.0 and orientation_lightmap.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
                                                                                  nx, ny, nz, mode, ind):
+                if scene.gather_lights.kind.shape[0] > 0:
+                    # these lights' first hits are not in the lightmap: sampled here, as sharp as they are
+                    sg = -1.0 if cos_dn > 0.0 else 1.0
+                    for b in range(nb):
+                        w.e[b] = 0.0
+                    state = direct_irradiance_at(g, scene.gather_lights, w.stack, (qx, qy, qz),
+                                                 (sg * nx, sg * ny, sg * nz), state, w.e, w.lg)
+                    for b in range(nb):
+                        ind[b] += w.e[b]
                 for b in range(nb):
                     dst[b] += tp[b] * kd[b] * ds * ind[b]
             if ps + pm + pg <= 0.0 or k == CHAIN - 1:

@@ -14,6 +14,7 @@ from collections import namedtuple
 import numpy as np
 
 from ..lightmaps import orientation_lightmap
+from ..shading.lights import light_subset
 
 KernelScene = namedtuple("KernelScene", [
     "geometry",       # geometry.assembly.Geometry
@@ -27,6 +28,7 @@ KernelScene = namedtuple("KernelScene", [
     "orientation",    # orientation lightmaps (empty maps in a scene without them)
     "environment",    # shading.environment.EnvMap
     "inst_side",      # int64 per instance: the side a gather ray must meet it from (empty: no test)
+    "gather_lights",  # shading.lights.LightSet: the lights gather rays sample where they land (empty: none)
 ])
 
 
@@ -36,7 +38,9 @@ def kernel_scene(cs, lights=None, caustics=None, inst_side=None):
     lights: a light set to use instead of cs.lights (a photon pass aims them);
     caustics: read or write the caustic lightmaps (default: when the last photon
     pass stored its caustics there); inst_side: the lit side of each instance
-    for gather rays (texel_gather.instance_sides; default: no test)."""
+    for gather rays (texel_gather.instance_sides; default: no test). Gather rays
+    sample the lights whose first hits the last photon pass kept out of the
+    lightmaps (trace_photons(gather_lights=True))."""
     if caustics is None:
         caustics = bool(getattr(cs, "caustics_traced", False))
     caustics = bool(caustics) and cs.caustics is not None
@@ -45,4 +49,10 @@ def kernel_scene(cs, lights=None, caustics=None, inst_side=None):
         ol = orientation_lightmap.empty_maps(cs.geometry.inst_proto.shape[0])
     return KernelScene(cs.geometry, cs.materials, cs.bsdf, cs.textures, cs.lights if lights is None else lights,
                        cs.lightmaps, cs.caustics if caustics else cs.lightmaps, caustics, ol, cs.environment,
-                       np.zeros(0, np.int64) if inst_side is None else np.ascontiguousarray(inst_side, np.int64))
+                       np.zeros(0, np.int64) if inst_side is None else np.ascontiguousarray(inst_side, np.int64),
+                       _gather_lights(cs))
+
+
+def _gather_lights(cs):
+    ls = getattr(cs, "gather_light_set", None)
+    return ls if ls is not None else light_subset(cs.lights, np.zeros(cs.lights.kind.shape[0], bool))

@@ -27,6 +27,7 @@ from ..core import memory_budget
 from ..core import parallel
 from ..shading import photon_aim
 from ..lightmaps import orientation_lightmap
+from ..shading import lights as lights_module
 from ..shading.lights import emit_photon, photon_tint
 from ..shading import bsdf
 from ..geometry.raycast import intersect_closest
@@ -73,8 +74,9 @@ PhotonPass = namedtuple("PhotonPass", [
     "seed", "first",          # the pass's random streams, and the chunk's first photon in them
     "n_total",                # photons in the whole pass (each carries 1/n_total of the lights' power)
     "max_bounces",
-    "record_from",            # the first bounce recorded (1: renders sample direct light themselves)
+    "record_from",            # int64 per light: the first bounce its photons record (1: direct light is sampled)
     "main_last",              # the last bounce the main lightmaps and OLs keep (one less under a final gather)
+    "caustics_twice",         # a caustic hit goes to the main lightmaps too: gather rays read them there
 ])
 
 # A chunk's output, one row per photon: the texel rows it recorded into (-1: none)
@@ -102,6 +104,7 @@ def _trace_chunk_core(scene, job, out, start, stop, w):
         # at every inlining, with everything inlined into it (see docs/kernels.md)
         state, li, ox, oy, oz, dx, dy, dz, wl = emit_photon(ls, g, stream_state(job.seed, job.first + i))
         _start(ls, job, out, i, w, li, (dx, dy, dz), wl)
+        first = job.record_from[li]
         n_rays = 0
         caustic = scene.caustics
         rec = 0
@@ -115,7 +118,7 @@ def _trace_chunk_core(scene, job, out, start, stop, w):
                 break
             p = (ox + t * dx, oy + t * dy, oz + t * dz)
             surf = (inst, shape, face, u, v)
-            if depth >= job.record_from:
+            if depth >= first:
                 rec = _record_hit(g, maps, job, out, i, rec, depth, caustic, (surf, (nx, ny, nz), p), power)
             if depth >= job.max_bounces or (depth >= job.main_last and not caustic):
                 _book(out, i, TRUNCATED, power)
@@ -180,8 +183,8 @@ def _record_hit(g, maps, job, out, i, rec, depth, caustic, hit, power):
         lid, f, s, tt = lightmap.record_slot(g, lmc, inst, shape, face, u, v)
         if lid >= 0 and rec < n_rec:
             out.texel[i, rec] = n_main + lightmap.record_index(lmc, lid, f, s, tt)
-            if job.record_from == 0 and depth <= job.main_last and rec + 1 < n_rec:
-                # total irradiance for the final gather: in the main lightmap too
+            if job.caustics_twice and depth <= job.main_last and rec + 1 < n_rec:
+                # gather rays read the main lightmap and cannot find caustics: there too
                 _set_power(out, i, rec, power)
                 rec += 1
                 lid = -1
@@ -265,7 +268,8 @@ def _scatter(w, out, i, lobes, frame, hit, d, caustic, state):
 
 
 def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
-                  progress=None, chunk=None, keep_points=False, caustics=False, gather=False, aim=None):
+                  progress=None, chunk=None, keep_points=False, caustics=False, gather=False, aim=None,
+                  gather_lights=False):
     """Runs the photon pass on a compiled scene `cs`, adding into cs.lightmaps.
 
     record_direct: True when the lightmaps must hold direct light too (baking,
@@ -285,6 +289,9 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     setting (+0.6 % per object in a closed white room at 8 bounces).
     aim: (centre, radius) of a sphere around what is baked: photons go toward it
     by importance emission (photon_aim.py); None aims at the scene's bounds.
+    gather_lights (with gather and record_direct): the gather samples the point,
+    spot and sun lights where its rays land (lights.gather_sampled; kept as
+    cs.gather_light_set), so their photons' first hits stay out of the lightmaps.
     """
     if not 0 <= int(max_bounces) <= MAX_BOUNCES_LIMIT:
         raise ValueError(f"max_bounces must be in [0, {MAX_BOUNCES_LIMIT}], got {max_bounces}")
@@ -296,6 +303,13 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
         cs.render_records = None      # made over the light this pass adds to
     stats = PhotonStats(emitted=np.zeros(nb), absorbed=np.zeros(nb), escaped=np.zeros(nb),
                         truncated=np.zeros(nb))
+    record_from = np.full(cs.lights.kind.shape[0], 0 if record_direct else 1, np.int64)
+    cs.gather_light_set = None
+    if gather and record_direct and gather_lights:
+        sampled = lights_module.gather_sampled(cs.lights)
+        record_from[sampled] = 1
+        if sampled.any():
+            cs.gather_light_set = lights_module.light_subset(cs.lights, sampled)
     if n_photons == 0 or cs.lights.total_power <= 0.0:
         return stats
     t0 = time.perf_counter()
@@ -325,8 +339,8 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     done = 0
     while done < n_photons:
         c = min(chunk, n_photons - done)
-        job = PhotonPass(np.uint64(seed), done, n_photons, int(max_bounces), 0 if record_direct else 1,
-                         int(max_bounces) - 1 if gather else int(max_bounces))
+        job = PhotonPass(np.uint64(seed), done, n_photons, int(max_bounces), record_from,
+                         int(max_bounces) - 1 if gather else int(max_bounces), bool(record_direct))
         parallel.run(_trace_chunk, c, scene, job, out, min_block=64)
         # the threads wait for this serial step: one pass, no masked copies
         stats.records += lightmap.accumulate_records(lm, lmc, rec_texel, rec_power, c, n_main)

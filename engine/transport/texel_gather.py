@@ -69,6 +69,13 @@ def direct_irradiance(g, ls, stack, p, n, state, out):
     return direct_irradiance_stratum(g, ls, stack, p, n, state, out, (-1, 0), np.empty(out.shape[0]), 1)
 
 
+@njit(**CORE)
+def direct_irradiance_at(g, ls, stack, p, n, state, out, rad):
+    """direct_irradiance without allocating (rad[bands]: scratch), compiled once
+    as a function of its own: what a gather ray's landing point calls."""
+    return direct_irradiance_stratum(g, ls, stack, p, n, state, out, (-1, 0), rad, 1)
+
+
 # A texel whose direct-light samples disagree (a shadow's edge or a spot's rim
 # crosses it, where a few dozen samples leave the most error) is sampled again,
 # REFINE_FACTOR times as many, and only that second batch counts: the choice to

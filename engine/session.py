@@ -42,10 +42,10 @@ class Settings:
     # Cycles at equal error, benchmarks/README.md); a render's diffuse hits too, where it is
     # off by default: its error stops near a texel's scale, above the per-pixel gather's
     bake_irradiance_cache: bool = True
-    # a gathered bake's rays sample the lights where they land, and the photon
-    # lightmaps hold indirect light only: a sun patch one bounce away is as sharp as
-    # its light, not as coarse as the texels it falls on
-    bake_gather_lights: bool = False
+    # a gathered bake's rays sample point, spot and sun lights where they land, whose
+    # first hits then stay out of the lightmaps: a sun patch one bounce away is as
+    # sharp as the sun, not as coarse as the texels it falls on
+    bake_gather_lights: bool = True
     irradiance_cache: bool = False
     denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/transport/denoise.py)
 

@@ -125,9 +125,10 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
                     "rays and lower error than gathering at every texel, no seams")
     bake_gather_lights: BoolProperty(
         name="Bake Gather Lights", default=_D.bake_gather_lights,
-        description="Bake gather rays sample the lights where they land, and the photon lightmaps "
-                    "keep indirect light only: light one bounce away is as sharp as its lights, "
-                    "not as coarse as the texels it falls on (a shadow ray per gather ray)")
+        description="Bake gather rays sample point, spot and sun lights where they land, and the "
+                    "photon lightmaps leave those lights' first hits out: a sun patch one bounce away "
+                    "is as sharp as the sun, not as coarse as the texels it falls on (a shadow ray "
+                    "per gather ray; area lights and the world stay in the lightmaps)")
     irradiance_cache: BoolProperty(
         name="Render Irradiance Cache", default=_D.irradiance_cache,
         description="Renders gather from the same sparse, interpolated points instead of at every "

@@ -107,6 +107,9 @@ def _add_denoise(p):
     # --denoise / --no-denoise; neither keeps the scene's setting.
     p.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=None,
                    help="OIDN denoising pass (needs the pyoidn package; default: scene setting)")
+    p.add_argument("--spectral", action=argparse.BooleanOptionalAction, default=None,
+                   help="trace 16 wavelength bands instead of RGB; results come back as RGB "
+                        "(default: scene setting)")
 
 
 def build_parser():
@@ -339,7 +342,7 @@ def render_main(args):
         raise InputError(f"scene '{scene.name}': no camera; add one and set it as the scene camera "
                          "(Scene Properties > Camera)")
     settings = scene.photon_lightmaps
-    for name in ("photons", "samples", "seed", "gather_rays", "denoise", "irradiance_cache"):
+    for name in ("photons", "samples", "seed", "gather_rays", "denoise", "irradiance_cache", "spectral"):
         value = getattr(args, name, None)
         if value is not None:
             setattr(settings, name, value)
@@ -348,7 +351,7 @@ def render_main(args):
     t_load = time.perf_counter()
     used = {k: getattr(settings, k) for k in ("photons", "max_bounces", "texel_density", "reconstruction",
                                               "samples", "seed", "indirect", "gather_rays", "denoise",
-                                              "irradiance_cache")}
+                                              "irradiance_cache", "spectral")}
     if args.frames is not None:
         report = _render_frames(scene, out, args.frames)
     else:
@@ -417,12 +420,14 @@ def bake_main(args):
     blend = open_blend(args.blend)
     context = bpy.context
     settings = Settings.read(context.scene.photon_lightmaps, photons=args.photons, seed=args.seed,
-                             denoise=getattr(args, "denoise", None),
+                             denoise=getattr(args, "denoise", None), spectral=getattr(args, "spectral", None),
                              indirect=args.indirect.upper() if args.indirect else None,
                              bake_gather_rays=args.bake_gather_rays,
                              bake_target_error=args.target_error, bake_time=args.time,
                              bake_irradiance_cache=args.irradiance_cache,
                              bake_gather_lights=args.gather_lights)
+    if args.spectral is not None:
+        context.scene.photon_lightmaps.spectral = bool(args.spectral)   # the bake reads the scene's setting
     photons = settings.photons if args.photons is not None else settings.bake_photon_count
     seed = settings.seed
     objects = [ob for ob in context.scene.objects if ob.type == "MESH"]

@@ -100,7 +100,8 @@ def _leaf_blocks(cs, inst, leaves, values):
     out = []
     for d in leaves:
         full = csg_bake.full_primitive_areas(cs, inst, d["row"], int(values.height[d["lightmap"]]))
-        out.append((csg_bake.leaf_rgba(values, d["lightmap"], full), full))
+        bands = getattr(cs, "spectral", None) if values is cs.lightmaps else None   # error maps stay grey
+        out.append((csg_bake.leaf_rgba(values, d["lightmap"], full, bands), full))
     return out
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..engine.lightmaps import lightmap
 from ..engine.transport import open_area
+from ..engine.shading import spectrum
 from ..engine.shading.texture import srgb_to_linear
 from ..messages import InputError
 
@@ -58,14 +59,19 @@ class BakedMap:
         return [float((self.rgba[..., c] * a).sum() / a.sum()) for c in range(3)]
 
 
-def lightmap_rgba(lm, lm_id):
-    """Lightmap `lm_id` as float32 (height, width, 4): RGB = E/pi, A = coverage."""
+def lightmap_rgba(lm, lm_id, bands=None):
+    """Lightmap `lm_id` as float32 (height, width, 4): RGB = E/pi, A = coverage.
+    bands: the spectrum.Bands of a spectral scene, whose band values go to Rec.709."""
     sl = lightmap.texel_slice(lm, lm_id)
     w, h = int(lm.width[lm_id]), int(lm.height[lm_id])
     e = open_area.baked(lm, np.arange(sl.start, sl.stop))
     rgba = np.zeros((h * w, 4), np.float32)
     nb = e.shape[1]
-    rgba[:, :3] = (e if nb == 3 else np.repeat(e.mean(axis=1, keepdims=True), 3, axis=1)) / math.pi
+    if bands is not None:
+        e = spectrum.to_rgb(e, bands)
+    elif nb != 3:
+        e = np.repeat(e.mean(axis=1, keepdims=True), 3, axis=1)
+    rgba[:, :3] = e / math.pi
     rgba[:, 3] = lm.coverage[sl]
     return rgba.reshape(h, w, 4)
 

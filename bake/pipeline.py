@@ -13,6 +13,7 @@ import numpy as np
 
 from ..engine.lightmaps import lightmap
 from ..engine import session
+from ..engine import spectral
 from ..engine.lightmaps import texel_areas
 from ..engine.core.scene import SceneError
 from ..export import csg as csg_export
@@ -231,6 +232,12 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error,
                                      bake_time=bake_time, bake_error_images=error_images,
                                      bake_irradiance_cache=irradiance_cache, bake_gather_lights=gather_lights)
+    if job.settings.spectral:
+        try:
+            job.scene = spectral.spectral_scene(job.scene)
+        except BaseException:
+            _uv_restore(uv_undo)
+            raise
     if photons is None:
         # the scene's count for this kind of bake: Bake Photons when it gathers
         job.settings.photons = job.settings.bake_photon_count
@@ -503,7 +510,7 @@ def compute_bake(job, progress=None, phase=None):
                 result.maps[name] = bm
             continue
         lm_id = cs.instance_lightmaps[i][0]
-        result.maps[name] = BakedMap(name, images.lightmap_rgba(cs.lightmaps, lm_id), lm_id)
+        result.maps[name] = BakedMap(name, images.lightmap_rgba(cs.lightmaps, lm_id, cs.spectral), lm_id)
     if job.settings.bake_error_images and getattr(cs, "bake_error", None) is not None:
         result.error_maps = _error_maps(cs, job, solids)
     result.seconds["extract"] = time.perf_counter() - t1

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine import light_reuse, session
+from ..engine import light_reuse, session, spectral
 from ..engine.lightmaps import uv_atlas
 from ..engine.core.errors import Cancelled
 from ..export import export_scene
@@ -266,6 +266,8 @@ def _run_render(depsgraph, *, report=None, stats=None, progress=None, on_tile=No
 
     stats("Exporting scene")
     scene = _export(depsgraph, run, report, camera_override, resolution)
+    if settings.spectral:
+        scene = spectral.spectral_scene(scene)
     key = light_reuse.light_key(scene, settings)
     t_export = time.perf_counter()
     try:

@@ -10,6 +10,7 @@ import time
 from dataclasses import dataclass, fields, replace
 
 from .lightmaps import lightmap
+from . import spectral
 
 # Light-sampled points per texel for the direct part of a bake; one unstratified
 # light sample per point, so this sets the direct term's noise (~1/sqrt(n)).
@@ -48,6 +49,8 @@ class Settings:
     bake_gather_lights: bool = True
     irradiance_cache: bool = False
     denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/transport/denoise.py)
+    # trace 16 wavelength bands instead of RGB (engine/spectral.py); results come back as Rec.709
+    spectral: bool = False
 
     @classmethod
     def read(cls, props, **overrides):
@@ -258,7 +261,8 @@ def add_direct(lightmaps, gathered):
 
 
 def render(cs, settings, *, tile=64, progress=None, passes=None, waiting=None):
-    """The render pass over a traced compiled scene -> (H, W, n_bands) radiance.
+    """The render pass over a traced compiled scene -> (H, W, n_bands) radiance,
+    in Rec.709 (H, W, 3) when the scene is spectral (its tiles too, as progress sees them).
 
     passes: samples per progressive pass (renderer.render; None: one pass).
     waiting(seconds): called while the render waits for a helper process
@@ -271,10 +275,16 @@ def render(cs, settings, *, tile=64, progress=None, passes=None, waiting=None):
         denoise.require()
     cs.timings.pop("records", None)
     records = render_records(cs, settings) if gather and settings.irradiance_cache else None
+    if cs.spectral is not None and progress is not None:
+        shown = progress
+
+        def progress(x0, y0, tile_image, image):
+            return shown(x0, y0, spectral.to_rgb(cs, tile_image), image)
     img = render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
                        max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress,
                        passes=passes, records=records)
     _kernels_done(cs, "render")
+    img = spectral.to_rgb(cs, img)
     if settings.denoise:
         t0 = time.perf_counter()
         img = denoise_render(cs, img, settings)
@@ -308,6 +318,8 @@ def denoise_render(cs, img, settings):
     from .transport import denoise
     from .transport.renderer import render_aux
     albedo, normal = render_aux(cs, samples=int(settings.samples), seed=int(settings.seed))
+    if cs.spectral is not None:
+        albedo = albedo @ cs.spectral.reflectance_matrix      # a reflectance's colour under white light
     nb = img.shape[2]
     if nb == 3:
         return denoise.denoise_image(img, albedo, normal).astype(img.dtype)

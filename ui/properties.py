@@ -151,6 +151,11 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         description="Run Intel Open Image Denoise (the pyoidn package) over renders, guided by "
                     "albedo and normal, and over baked lightmaps, chart by chart. Removes noise "
                     "at the cost of some bias")
+    spectral: BoolProperty(
+        name="Spectral", default=_D.spectral,
+        description="Trace 16 wavelength bands over 380-780 nm instead of RGB; renders and bakes come "
+                    "back as RGB. Colours become smooth spectra (Jakob & Hanika). Colour textures "
+                    "and world image maps are not spectral yet")
     seed: IntProperty(
         name="Seed", default=_D.seed, min=0,
         description="Random seed; the same seed gives the same image")

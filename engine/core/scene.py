@@ -279,6 +279,9 @@ class Scene:
     name: str = "scene"
     orientation_lightmaps: list = field(default_factory=list)  # OrientationLightmap
     textures: list = field(default_factory=list)   # Texture, indexed by Material.textures
+    # spectral mode (engine/spectral.py): the bands' spectrum.Bands, whose
+    # wavelengths the n_bands colours are; None: colours are RGB (or grey)
+    spectral: object = None
 
     # convenience builders -------------------------------------------------
     def add_material(self, material):

@@ -30,6 +30,7 @@ from ..core.affine import apply_linear, apply_point, apply_transposed, cross
 from ..geometry import csg
 from ..geometry import csg_trace
 from ..lightmaps import lightmap
+from ..shading import spectrum
 from ..lightmaps import texel_areas
 from ..geometry import primitives
 from ..geometry.assembly import prototype_surfaces
@@ -100,8 +101,9 @@ def split_regions(lm, texel):
     return np.concatenate([[texel], int(lm.split_first[k]) + np.arange(n_extra)]).astype(np.int64)
 
 
-def leaf_rgba(lm, lm_id, full_area):
+def leaf_rgba(lm, lm_id, full_area, bands=None):
     """A leaf lightmap as float32 (h, w, 4): RGB = E/pi, A = visible fraction of the texel.
+    bands: the spectrum.Bands of a spectral scene, whose band values go to Rec.709.
 
     full_area: the texels' areas before CSG (lightmap row layout), for A. A split
     texel shows its dominant region (largest visible area), unless that region
@@ -121,7 +123,11 @@ def leaf_rgba(lm, lm_id, full_area):
             src[j] = best
     e = lm.irradiance[src]
     rgba = np.zeros((h * w, 4), np.float32)
-    rgba[:, :3] = (e if e.shape[1] == 3 else np.repeat(e.mean(axis=1, keepdims=True), 3, axis=1)) / math.pi
+    if bands is not None:
+        e = spectrum.to_rgb(e, bands)
+    elif e.shape[1] != 3:
+        e = np.repeat(e.mean(axis=1, keepdims=True), 3, axis=1)
+    rgba[:, :3] = e / math.pi
     full = np.asarray(full_area, np.float64).reshape(-1)
     cov = np.where(full > 0.0, visible / np.where(full > 0.0, full, 1.0), 0.0)
     rgba[:, 3] = np.clip(cov, 0.0, 1.0)

@@ -1,0 +1,93 @@
+"""Spectral mode: an RGB scene made spectral before it is compiled.
+
+The tracer carries colour as (..., n_bands) arrays whatever the bands mean, so
+spectral mode is a change of scene, not of kernels: every colour of the scene
+becomes a band spectrum (engine/shading/spectrum.py) and the compiled scene
+remembers its bands, so renders and bakes can be turned back into Rec.709 at
+the end (`to_rgb`). No kernel is compiled for it: the kernels' types do not
+depend on the number of bands.
+
+* Reflectances (diffuse, specular, transmission and base colours) become Jakob &
+  Hanika spectra. Each lobe is fitted on its own; where the lobes of a material
+  would then sum above 1 in some band, they are scaled down there, so no
+  surface makes light.
+* Emitted colours (lights, glowing surfaces, a constant world) become their
+  brightest channel times a reflectance times the white light.
+* A grey (a scalar, or equal channels) stays flat: a grey is a grey in every band.
+
+Not yet spectral: colour textures (their RGB is read per hit, band by band) and
+world maps. A scene with either is refused with the material or world named,
+rather than rendered in wrong colours.
+"""
+from dataclasses import replace
+
+import numpy as np
+
+from .core.scene import EnvironmentMap, SceneError
+from .shading import spectrum
+
+COLOUR_TEXTURES = ("base_color",)
+
+
+def spectral_scene(scene, bands=None):
+    """A copy of RGB `scene` (n_bands 3) with every colour a spectrum over `bands`
+    (spectrum.Bands; None: the default 16) -> Scene with n_bands = bands.n."""
+    bands = bands or spectrum.Bands()
+    if int(scene.n_bands) != 3:
+        raise SceneError(f"spectral mode: the scene must be RGB (3 bands), it has {scene.n_bands}")
+    if isinstance(scene.environment, EnvironmentMap):
+        raise SceneError(f"world '{scene.environment.name}': spectral mode does not take world image maps yet; "
+                         "use a world colour or turn Spectral off")
+    mats = []
+    for m in scene.materials:
+        for key in COLOUR_TEXTURES:
+            if key in (m.textures or {}):
+                raise SceneError(f"material '{m.name}': spectral mode does not take a texture on its "
+                                 f"{key.replace('_', ' ')} yet; remove it or turn Spectral off")
+        d, s, t = (_reflectance(getattr(m, k), bands) for k in ("diffuse", "specular", "transmission"))
+        total = _as_array(d, bands) + _as_array(s, bands) + _as_array(t, bands)
+        over = np.maximum(total, 1.0)
+        if np.any(over > 1.0):
+            d, s, t = (_as_array(x, bands) / over for x in (d, s, t))
+        mats.append(replace(m, diffuse=d, specular=s, transmission=t, base_color=_reflectance(m.base_color, bands),
+                            emission=_emission(m.emission, bands)))
+    lights = [replace(lt, color=_emission(lt.color, bands)) for lt in scene.lights]
+    return replace(scene, n_bands=int(bands.n), materials=mats, lights=lights,
+                   environment=_emission(scene.environment, bands), spectral=bands)
+
+
+def to_rgb(cs, image):
+    """An (..., n_bands) result of compiled scene `cs` in Rec.709: converted when
+    `cs` is spectral, as it is otherwise."""
+    bands = getattr(cs, "spectral", None)
+    return image if bands is None else spectrum.to_rgb(image, bands)
+
+
+def _rgb(value):
+    """value as an RGB triple, or None when it is a grey (stays a scalar)."""
+    a = np.asarray(value, np.float64).reshape(-1)
+    if a.size == 1 or np.all(a == a[0]):
+        return None
+    if a.size != 3:
+        raise SceneError(f"spectral mode: a colour must have 3 channels, got {a.size}")
+    return a
+
+
+def _reflectance(value, bands):
+    rgb = _rgb(value)
+    if rgb is None:
+        return float(np.asarray(value, np.float64).reshape(-1)[0])
+    return spectrum.reflectance_spectrum(np.clip(rgb, 0.0, 1.0), bands)
+
+
+def _emission(value, bands):
+    rgb = _rgb(value)
+    if rgb is None:
+        grey = float(np.asarray(value, np.float64).reshape(-1)[0])
+        # a grey light is white light of that brightness (D65), not a flat spectrum
+        return grey * bands.white / float(spectrum.to_rgb(bands.white, bands)[0]) if grey else 0.0
+    return spectrum.emission_spectrum(np.maximum(rgb, 0.0), bands)
+
+
+def _as_array(x, bands):
+    return np.broadcast_to(np.asarray(x, np.float64), (int(bands.n),)).astype(np.float64)

@@ -11,6 +11,8 @@ depend on the number of bands.
   Hanika spectra. Each lobe is fitted on its own; where the lobes of a material
   would then sum above 1 in some band, they are scaled down there, so no
   surface makes light.
+* A blackbody light (Blender's light temperature) emits Planck's spectrum
+  times its tint, at its colour's luminance.
 * Emitted colours (lights, glowing surfaces, a constant world) become their
   brightest channel times a reflectance times the white light.
 * A grey (a scalar, or equal channels) stays flat: a grey is a grey in every band.
@@ -51,7 +53,7 @@ def spectral_scene(scene, bands=None):
             d, s, t = (_as_array(x, bands) / over for x in (d, s, t))
         mats.append(replace(m, diffuse=d, specular=s, transmission=t, base_color=_reflectance(m.base_color, bands),
                             emission=_emission(m.emission, bands)))
-    lights = [replace(lt, color=_emission(lt.color, bands)) for lt in scene.lights]
+    lights = [replace(lt, color=_light(lt, bands)) for lt in scene.lights]
     return replace(scene, n_bands=int(bands.n), materials=mats, lights=lights,
                    environment=_emission(scene.environment, bands), spectral=bands)
 
@@ -87,6 +89,23 @@ def _emission(value, bands):
         # a grey light is white light of that brightness (D65), not a flat spectrum
         return grey * bands.white / float(spectrum.to_rgb(bands.white, bands)[0]) if grey else 0.0
     return spectrum.emission_spectrum(np.maximum(rgb, 0.0), bands)
+
+
+def _light(light, bands):
+    """A light's spectrum: its colour's, or for a blackbody light Planck's spectrum
+    times its tint (the colour over the blackbody's own RGB), at the colour's luminance."""
+    kelvin = float(getattr(light, "temperature", 0.0) or 0.0)
+    if kelvin <= 0.0:
+        return _emission(light.color, bands)
+    rgb = np.broadcast_to(np.asarray(light.color, np.float64), (3,))
+    planck = spectrum.blackbody_spectrum(kelvin, bands)
+    tint = rgb / np.maximum(spectrum.to_rgb(planck, bands), 1e-12)
+    peak = tint.max()
+    if not peak > 0.0:
+        return 0.0
+    s = planck * spectrum.reflectance_spectrum(np.clip(tint / peak, 0.0, 1.0), bands)
+    y = float(np.linalg.inv(bands.xyz_to_rgb)[1] @ rgb)      # the colour's luminance
+    return s * (y / max(float(spectrum.luminance(s, bands)), 1e-300))
 
 
 def _as_array(x, bands):

@@ -19,7 +19,8 @@ def light(ctx, ob, xf):
         return
     if lt.use_nodes and lt.node_tree is not None:
         ctx.report("WARNING", f"{owner}: light shader nodes are ignored")
-    kw = dict(name=name, color=ctx.bands(color), power=power, transform=xf)
+    kw = dict(name=name, color=ctx.bands(color), power=power, transform=xf,
+              temperature=float(lt.temperature) if lt.use_temperature else 0.0)
     scale = np.linalg.norm(xf[:, :3], axis=0)
     # normalize=False (measured against Cycles 5.0): the power is per unit of the
     # light's area, 4 pi r² for point/spot (4 when r = 0), the shape's area for area

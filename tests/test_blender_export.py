@@ -355,6 +355,16 @@ def test_light_units():
     assert L["sun"].angle == pytest.approx(math.radians(3.0))
     np.testing.assert_allclose(L["sun"].color, np.array(sun.data.temperature_color), rtol=1e-6)
     assert L["sun"].color[0] > L["sun"].color[2]  # 4000 K is warm
+    assert L["sun"].temperature == pytest.approx(4000.0) and L["point"].temperature == 0.0
+    # spectral mode emits Planck's spectrum: back in RGB within 2 % of Blender's own
+    # temperature colour (measured 0.4 % at 4000 K, 1.5 % at 2700 K), its luminance kept
+    from photon_lightmaps.engine import spectral
+    from photon_lightmaps.engine.shading import spectrum
+    bands = spectrum.Bands()
+    sun_spectrum = {lt.name: lt for lt in spectral.spectral_scene(scene).lights}["sun"].color
+    np.testing.assert_allclose(spectrum.to_rgb(sun_spectrum, bands), L["sun"].color, rtol=0.02)
+    y = np.linalg.inv(bands.xyz_to_rgb)[1]
+    assert spectrum.luminance(sun_spectrum, bands) == pytest.approx(float(y @ L["sun"].color), rel=1e-9)
     for shape, ob in areas.items():
         l = L[ob.name]
         assert l.kind == "area" and l.shape == shape.lower() and l.power == pytest.approx(30.0)

@@ -107,3 +107,21 @@ def test_no_material_makes_light_in_any_band():
     m = spectral.spectral_scene(s).materials[0]
     total = np.asarray(m.diffuse) + np.asarray(m.specular) + np.asarray(m.transmission)
     assert np.all(total <= 1.0 + 1e-12)
+
+
+def test_a_blackbody_light_emits_plancks_spectrum():
+    """A light at 3000 K whose colour is that blackbody's RGB (no tint) emits Planck's
+    spectrum at the colour's luminance, so it comes back as its colour; a tint
+    multiplies the spectrum and keeps the luminance."""
+    from photon_lightmaps.engine.core.scene import Light, Scene
+    bands = spectrum.Bands()
+    planck_rgb = spectrum.to_rgb(spectrum.blackbody_spectrum(3000.0, bands), bands)
+    s = Scene(n_bands=3)
+    s.lights += [Light("point", color=2.0 * planck_rgb, temperature=3000.0, name="plain"),
+                 Light("point", color=planck_rgb * np.array([0.5, 1.0, 0.8]), temperature=3000.0, name="tinted")]
+    plain, tinted = (lt.color for lt in spectral.spectral_scene(s).lights)
+    ratio = plain / spectrum.blackbody_spectrum(3000.0, bands)
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-3)          # Planck's shape
+    np.testing.assert_allclose(spectrum.to_rgb(plain, bands), 2.0 * planck_rgb, rtol=1e-3)
+    y = np.linalg.inv(bands.xyz_to_rgb)[1]
+    assert spectrum.luminance(tinted, bands) == pytest.approx(float(y @ (planck_rgb * [0.5, 1.0, 0.8])), rel=1e-9)

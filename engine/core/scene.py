@@ -246,6 +246,9 @@ class Light:
     size: float = 1.0               # area size x (diameter for disk/ellipse)
     size_y: float = 1.0
     angle: float = 0.0              # sun angular diameter (radians)
+    # > 0: a blackbody at this many kelvin (Blender's light temperature); `color` then
+    # holds its RGB times the tint, and spectral mode emits Planck's spectrum instead
+    temperature: float = 0.0
     name: str = "light"
 
 

@@ -10,9 +10,12 @@ from photon_lightmaps.engine.shading import dispersion as D
 
 @pytest.mark.parametrize("name", sorted(D.PRESETS))
 def test_presets_give_the_catalogue_n_d_and_abbe_number(name):
+    """n_d within 1e-5 of the catalogue (diamond's is catalogued to four decimals:
+    within half of its last digit), V_d within half of its last digit."""
     g = D.PRESETS[name]
-    assert abs(float(D.sellmeier_index(g, D.LINE_D)) - g.n_d) < 1e-5
-    assert abs(D.abbe_number(lambda wl: float(D.sellmeier_index(g, wl))) - g.abbe) < 0.01
+    assert abs(float(D.sellmeier_index(g, D.LINE_D)) - g.n_d) < (5e-5 if name == "diamond" else 1e-5)
+    assert abs(D.abbe_number(lambda wl: float(D.sellmeier_index(g, wl))) - g.abbe) < (0.05 if name == "diamond"
+                                                                                       else 0.005)
 
 
 def test_a_60_degree_bk7_prism_deviates_the_f_d_c_lines_as_catalogued():

@@ -9,9 +9,9 @@ its index at the d line and its Abbe number V_d = (n_d - 1) / (n_F - n_C), as
 Blender users and glass tables often quote them, gets Cauchy's two-term fit
 n(λ) = A + B / λ² through n_d with that V_d.
 
-The presets are catalogue data (Schott for N-BK7 and N-SF11; Malitson 1965 for
-fused silica), with the catalogue's own n_d and V_d beside them, which the
-tests hold the Sellmeier terms to.
+The presets are catalogue data (Schott for N-BK7, N-SF11 and SF6; Malitson 1965
+for fused silica; Peter 1923 for diamond), with the catalogue's own n_d and V_d
+beside them, which the tests hold the Sellmeier terms to.
 """
 import math
 from collections import namedtuple
@@ -28,8 +28,12 @@ PRESETS = {g.name: g for g in (
           1.51680, 64.17),
     Glass("N-SF11", (1.73759695, 0.313747346, 1.89878101), (0.013188707, 0.0623068142, 155.23629),
           1.78472, 25.68),
+    Glass("SF6", (1.72448482, 0.390104889, 1.04572858), (0.0134871947, 0.0569318095, 118.557185),
+          1.80518, 25.43),
     Glass("fused silica", (0.6961663, 0.4079426, 0.8974794), (0.0684043 ** 2, 0.1162414 ** 2, 9.896161 ** 2),
           1.45846, 67.82),
+    # two terms (Peter 1923); its n_d is catalogued to four decimals only
+    Glass("diamond", (0.3306, 4.3356, 0.0), (0.1750 ** 2, 0.1060 ** 2, 1.0), 2.4175, 55.3),
 )}
 
 

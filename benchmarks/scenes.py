@@ -111,6 +111,18 @@ def mesh_objects(scene=None):
     return sorted((ob for ob in scene.objects if ob.type == "MESH"), key=lambda o: o.name)
 
 
+# Fields the engine's scene gained after the stored references were made: left
+# out of the key at these values, where they change nothing, so a new option
+# does not orphan the references of the scenes that do not use it.
+KEY_NEUTRAL = {("Light", "temperature"): 0.0, ("Scene", "spectral"): None}
+
+
+def _neutral(value, neutral):
+    if value is None or neutral is None:
+        return value is neutral
+    return isinstance(value, (int, float)) and float(value) == float(neutral)
+
+
 def scene_hash(extra=()):
     """Hash of what the engine sees (geometry, UVs, materials, lights, camera) plus `extra`.
 
@@ -129,9 +141,13 @@ def scene_hash(extra=()):
             for y in x:
                 add(y)
         elif hasattr(x, "__dataclass_fields__"):
-            h.update(type(x).__name__.encode())
+            name = type(x).__name__
+            h.update(name.encode())
             for k in x.__dataclass_fields__:
-                add(getattr(x, k))
+                v = getattr(x, k)
+                if (name, k) in KEY_NEUTRAL and _neutral(v, KEY_NEUTRAL[name, k]):
+                    continue
+                add(v)
         elif isinstance(x, float):
             h.update(repr(round(x, 6)).encode())
         else:

@@ -85,3 +85,27 @@ def test_headlines_and_charts(quick_run):
     charts = {p.name for p in (out / "charts").glob("*.png")}
     assert {"cornell_error_vs_time.png", "cornell_error_map.png", "memory_vs_error.png",
             "error_vs_photons.png", "failure_cases.png"} <= charts
+
+
+def test_the_stored_references_match_the_scene_builders():
+    """Each room's committed Cycles reference (benchmarks/references/) is found under
+    the key of the scene its builder makes now. A scene field added to the engine
+    changes that key unless benchmarks/scenes.KEY_NEUTRAL leaves it out; then
+    run_all would regenerate every reference (many minutes) instead of reading it."""
+    code = ("import photon_lightmaps\n"
+            "from photon_lightmaps import registration\n"
+            "from benchmarks import references, run_all, scenes\n"
+            "registration.is_registered() or photon_lightmaps.register()\n"
+            "for name in ('cornell', 'window', 'baffle'):\n"
+            "    scenes.build(name, 128, 128)\n"
+            "    ref, src = references.load_or_make(name, run_all.FULL['ref'], print, allow_make=False)\n"
+            "    print(name, src)\n")
+    env = dict(os.environ)
+    env.setdefault("PHOTON_LIGHTMAPS_NUMBA_CACHE", str(ROOT / ".numba_cache"))
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    found = dict(line.split(" ", 1) for line in proc.stdout.splitlines() if line.split(" ")[0] in
+                 ("cornell", "window", "baffle"))
+    assert set(found) == {"cornell", "window", "baffle"}, proc.stdout
+    assert all(src.startswith(("committed:", "cache:")) for src in found.values()), found

@@ -66,12 +66,7 @@ def lightmap_rgba(lm, lm_id, bands=None):
     w, h = int(lm.width[lm_id]), int(lm.height[lm_id])
     e = open_area.baked(lm, np.arange(sl.start, sl.stop))
     rgba = np.zeros((h * w, 4), np.float32)
-    nb = e.shape[1]
-    if bands is not None:
-        e = spectrum.to_rgb(e, bands)
-    elif nb != 3:
-        e = np.repeat(e.mean(axis=1, keepdims=True), 3, axis=1)
-    rgba[:, :3] = e / math.pi
+    rgba[:, :3] = spectrum.as_rgb(e, bands) / math.pi
     rgba[:, 3] = lm.coverage[sl]
     return rgba.reshape(h, w, 4)
 

@@ -87,7 +87,7 @@ def _emission(value, bands):
     if rgb is None:
         grey = float(np.asarray(value, np.float64).reshape(-1)[0])
         # a grey light is white light of that brightness (D65), not a flat spectrum
-        return grey * bands.white / float(spectrum.to_rgb(bands.white, bands)[0]) if grey else 0.0
+        return grey * bands.white if grey else 0.0
     return spectrum.emission_spectrum(np.maximum(rgb, 0.0), bands)
 
 

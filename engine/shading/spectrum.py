@@ -126,6 +126,16 @@ def to_rgb(spectrum, bands):
     return np.asarray(spectrum, np.float64) @ bands.to_rgb_matrix
 
 
+def as_rgb(values, bands=None):
+    """Band values (..., n) as Rec.709 (..., 3): through `bands` when they are
+    spectral, as they are when RGB, and as a grey of their mean otherwise."""
+    if bands is not None:
+        return to_rgb(values, bands)
+    if values.shape[-1] == 3:
+        return values
+    return np.repeat(values.mean(axis=-1, keepdims=True), 3, axis=-1)
+
+
 # ----------------------------------------------------------------- RGB -> spectrum
 
 def _sigmoid(x):

@@ -123,11 +123,7 @@ def leaf_rgba(lm, lm_id, full_area, bands=None):
             src[j] = best
     e = lm.irradiance[src]
     rgba = np.zeros((h * w, 4), np.float32)
-    if bands is not None:
-        e = spectrum.to_rgb(e, bands)
-    elif e.shape[1] != 3:
-        e = np.repeat(e.mean(axis=1, keepdims=True), 3, axis=1)
-    rgba[:, :3] = e / math.pi
+    rgba[:, :3] = spectrum.as_rgb(e, bands) / math.pi
     full = np.asarray(full_area, np.float64).reshape(-1)
     cov = np.where(full > 0.0, visible / np.where(full > 0.0, full, 1.0), 0.0)
     rgba[:, 3] = np.clip(cov, 0.0, 1.0)

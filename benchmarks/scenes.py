@@ -114,12 +114,15 @@ def mesh_objects(scene=None):
 # Fields the engine's scene gained after the stored references were made: left
 # out of the key at these values, where they change nothing, so a new option
 # does not orphan the references of the scenes that do not use it.
-KEY_NEUTRAL = {("Light", "temperature"): 0.0, ("Scene", "spectral"): None}
+KEY_NEUTRAL = {("Light", "temperature"): 0.0, ("Scene", "spectral"): None, ("Material", "glass"): "",
+               ("Material", "abbe"): 0.0}
 
 
 def _neutral(value, neutral):
     if value is None or neutral is None:
         return value is neutral
+    if isinstance(neutral, str):
+        return value == neutral
     return isinstance(value, (int, float)) and float(value) == float(neutral)
 
 

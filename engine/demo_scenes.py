@@ -18,6 +18,20 @@ def quad_mesh(p0, p1, p2, p3, material=0, name="quad"):
     return TriangleMesh(v, tris, material=material, uvs=uv, name=name)
 
 
+def prism_mesh(base=1.0, depth=1.0, apex_deg=60.0, material=0, name="prism"):
+    """A closed triangular prism, normals out: its base (width `base`) on z = 0 across x,
+    its apex angle `apex_deg` on top at x = 0, extruded over y in [-depth/2, depth/2]."""
+    h = 0.5 * base / math.tan(math.radians(apex_deg) / 2.0)
+    y0, y1 = -0.5 * depth, 0.5 * depth
+    a, b, c = (-0.5 * base, 0.0), (0.5 * base, 0.0), (0.0, h)
+    v = np.array([(p[0], y, p[1]) for y in (y0, y1) for p in (a, b, c)], np.float64)
+    tris = np.array([[0, 1, 2], [3, 5, 4],            # the ends, facing -y and +y
+                     [0, 4, 1], [0, 3, 4],            # base, facing -z
+                     [1, 5, 2], [1, 4, 5],            # right face
+                     [2, 3, 0], [2, 5, 3]], np.int64)  # left face
+    return TriangleMesh(v, tris, material=material, name=name)
+
+
 def uv_sphere_mesh(radius=1.0, n_theta=32, n_phi=64, inward=False, material=0, uvs=None):
     """Closed triangulated sphere (poles fanned); normals outward unless `inward`."""
     verts = [(0.0, 0.0, radius)]

@@ -10,9 +10,16 @@ an image averaged, with a warning.
 import numpy as np
 
 from ..engine.core.scene import Material
+from ..engine.shading import dispersion
 from . import textures
 from ..engine.shading.texture import srgb_to_linear
 from .context import DEFAULT_DIFFUSE, output_priority
+
+
+# The material panel's Dispersion choices (Material.photon_lightmaps.dispersion):
+# none, an Abbe number that spreads the shader's IOR, or a catalogue glass
+DISPERSION_NONE, DISPERSION_ABBE = "NONE", "ABBE"
+GLASS_IDS = {name.upper().replace("-", "_").replace(" ", "_"): name for name in dispersion.PRESETS}
 
 
 def image_mean(ctx, image):
@@ -195,7 +202,18 @@ def _convert(ctx, mat, driven):
             "has no surface shader" if node is None else f"uses an unsupported shader ({node.bl_idname})"
         ctx.report("WARNING", f"{owner} {why}; rendered as diffuse with its viewport colour")
         m = Material(name, diffuse=np.asarray(tuple(mat.diffuse_color)[:3], dtype=np.float64))
+    _dispersion(mat, m)
     return _physical(ctx, m, owner)
+
+
+def _dispersion(mat, m):
+    """The panel's Dispersion setting onto engine Material m (the compiler checks the values)."""
+    settings = getattr(mat.original, "photon_lightmaps", None)
+    choice = getattr(settings, "dispersion", DISPERSION_NONE)
+    if choice == DISPERSION_ABBE:
+        m.abbe = float(settings.abbe)
+    elif choice in GLASS_IDS:
+        m.glass = GLASS_IDS[choice]
 
 
 def _physical(ctx, m, owner):

@@ -271,6 +271,28 @@ def test_principled_material_mapping():
         assert np.all(mm.diffuse + mm.specular + mm.transmission <= 1.0 + 1e-12)
 
 
+def test_material_dispersion_setting_is_exported():
+    """The material panel's Dispersion: a catalogue glass replaces the shader's IOR by its n_d,
+    an Abbe number spreads the IOR, None leaves a material as it was."""
+    crown = demo_blend.principled("crown", (1.0, 1.0, 1.0), transmission=1.0, roughness=0.0, ior=1.45)
+    crown.photon_lightmaps.dispersion = "N_BK7"
+    flint = demo_blend.principled("flint", (1.0, 1.0, 1.0), transmission=1.0, roughness=0.0, ior=1.7)
+    flint.photon_lightmaps.dispersion = "ABBE"
+    flint.photon_lightmaps.abbe = 30.0
+    plain = demo_blend.principled("plain", (1.0, 1.0, 1.0), transmission=1.0, ior=1.33)
+    plain.photon_lightmaps.abbe = 30.0        # not chosen: no dispersion
+    _mat_objects([crown, flint, plain])
+    scene, _, _ = export_current()
+    m = {mm.name: mm for mm in scene.materials}
+    assert (m["crown"].glass, m["flint"].glass, m["plain"].glass) == ("N-BK7", "", "")
+    assert (m["crown"].abbe, m["flint"].abbe, m["plain"].abbe) == (0.0, 30.0, 0.0)
+    from photon_lightmaps.engine import spectral
+    ms = compile_scene(spectral.spectral_scene(scene)).materials
+    idx = {mm.name: i for i, mm in enumerate(scene.materials)}
+    assert ms.ior[idx["crown"]] == pytest.approx(1.5168, abs=1e-4) and ms.ior[idx["flint"]] == pytest.approx(1.7)
+    assert ms.dispersion[idx["plain"], 0] == 0 and ms.dispersion[idx["flint"], 0] > 0
+
+
 def test_image_texture_is_baked_and_other_shaders_fall_back():
     tex_mat = demo_blend.principled("textured", (0.1, 0.1, 0.1))
     tree = tex_mat.node_tree

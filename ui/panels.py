@@ -7,6 +7,8 @@ lightmap settings, and the material/light/world inputs the exporter uses.
 """
 import bpy
 
+from ..engine.shading.dispersion import PRESETS
+from ..export.materials import DISPERSION_ABBE, DISPERSION_NONE, GLASS_IDS
 from ..operators.render_engine import ENGINE_ID
 
 
@@ -397,6 +399,31 @@ class PHOTON_LIGHTMAPS_PT_material_surface(_EnginePanel, bpy.types.Panel):
                       "Principled, Diffuse, Glossy, Glass or Emission", "diffuse_color")
 
 
+class PHOTON_LIGHTMAPS_PT_material_dispersion(_EnginePanel, bpy.types.Panel):
+    bl_label = "Dispersion"
+    bl_context = "material"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    @classmethod
+    def poll(cls, context):
+        mat = context.material
+        return super().poll(context) and mat is not None and not mat.grease_pencil
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        s = context.material.photon_lightmaps
+        layout.prop(s, "dispersion")
+        if s.dispersion == DISPERSION_ABBE:
+            layout.prop(s, "abbe")
+        elif s.dispersion in GLASS_IDS:
+            g = PRESETS[GLASS_IDS[s.dispersion]]
+            layout.label(text=f"IOR {g.n_d:.5f} at 587.6 nm, Abbe number {g.abbe}")
+        if s.dispersion != DISPERSION_NONE and not context.scene.photon_lightmaps.spectral:
+            layout.label(text="Seen with Spectral on (Render properties)", icon='INFO')
+
+
 class PHOTON_LIGHTMAPS_PT_light(_EnginePanel, bpy.types.Panel):
     bl_label = "Light"
     bl_context = "data"
@@ -455,6 +482,7 @@ classes = (
     PHOTON_LIGHTMAPS_PT_lsystem,
     PHOTON_LIGHTMAPS_PT_material_slots,
     PHOTON_LIGHTMAPS_PT_material_surface,
+    PHOTON_LIGHTMAPS_PT_material_dispersion,
     PHOTON_LIGHTMAPS_PT_light,
     PHOTON_LIGHTMAPS_PT_world,
 )

@@ -1,5 +1,5 @@
-"""Settings stored in .blend files: `Scene.photon_lightmaps` and `Object.photon_lightmaps`
-(with `Object.photon_lightmaps.lsystem` for L-system objects).
+"""Settings stored in .blend files: `Scene.photon_lightmaps`, `Object.photon_lightmaps`
+(with `Object.photon_lightmaps.lsystem` for L-system objects) and `Material.photon_lightmaps`.
 
 The scene defaults are engine.session.Settings' (one copy), the L-system ones
 export.lsystems.LSystemSettings': code reads the PropertyGroup into that typed
@@ -10,7 +10,9 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, P
                        StringProperty)
 
 from ..engine.session import Settings
+from ..engine.shading.dispersion import PRESETS
 from ..export.lsystems import MAX_PREVIEW_DEPTH, LSystemSettings
+from ..export.materials import DISPERSION_ABBE, DISPERSION_NONE, GLASS_IDS
 
 _D = Settings()
 _L = LSystemSettings()
@@ -198,7 +200,26 @@ class PhotonLightmapsObjectSettings(bpy.types.PropertyGroup):
     lsystem: PointerProperty(type=PhotonLSystemSettings)
 
 
-classes = (PhotonLightmapsSceneSettings, PhotonLSystemSettings, PhotonLightmapsObjectSettings)
+class PhotonLightmapsMaterialSettings(bpy.types.PropertyGroup):
+    # Blender's shaders have no dispersion input: the engine's own, read by export/materials.py
+    dispersion: EnumProperty(
+        name="Dispersion", default=DISPERSION_NONE,
+        items=[(DISPERSION_NONE, "None", "One index of refraction for every wavelength"),
+               (DISPERSION_ABBE, "Abbe Number", "Spread the shader's IOR (taken as n_d, at 587.6 nm) over "
+                                                "wavelengths by an Abbe number")]
+              + [(key, name, f"{name} from the glass catalogue (Sellmeier): n_d {PRESETS[name].n_d}, "
+                             f"Abbe number {PRESETS[name].abbe}; replaces the shader's IOR")
+                 for key, name in GLASS_IDS.items()],
+        description="How the index of refraction changes with wavelength: glass splits white light "
+                    "into colours (rainbows through a prism). Traced in Spectral mode")
+    abbe: FloatProperty(
+        name="Abbe Number", default=40.0, min=1.0, soft_max=100.0,
+        description="V_d = (n_d - 1) / (n_F - n_C): lower spreads the colours more "
+                    "(crown glass about 60, flint glass about 30, diamond 55)")
+
+
+classes = (PhotonLightmapsSceneSettings, PhotonLSystemSettings, PhotonLightmapsObjectSettings,
+           PhotonLightmapsMaterialSettings)
 
 
 def register():
@@ -206,9 +227,11 @@ def register():
         bpy.utils.register_class(cls)
     bpy.types.Scene.photon_lightmaps = PointerProperty(type=PhotonLightmapsSceneSettings)
     bpy.types.Object.photon_lightmaps = PointerProperty(type=PhotonLightmapsObjectSettings)
+    bpy.types.Material.photon_lightmaps = PointerProperty(type=PhotonLightmapsMaterialSettings)
 
 
 def unregister():
+    del bpy.types.Material.photon_lightmaps
     del bpy.types.Object.photon_lightmaps
     del bpy.types.Scene.photon_lightmaps
     for cls in reversed(classes):

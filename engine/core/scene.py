@@ -112,6 +112,11 @@ class Material:
     # input name ('base_color', 'roughness', 'metallic', 'transmission', 'normal')
     # -> index into Scene.textures, sampled at the mesh's `tex_uvs`
     textures: dict = field(default_factory=dict)
+    # Dispersion (thesis A.1), seen in spectral mode: `glass` names a catalogue glass
+    # (engine/shading/dispersion.PRESETS), whose index replaces `ior`; otherwise an
+    # Abbe number > 0 spreads `ior` (taken as n_d) by Cauchy's fit. RGB traces n_d.
+    glass: str = ""
+    abbe: float = 0.0
 
 
 @dataclass

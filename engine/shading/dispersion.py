@@ -9,6 +9,14 @@ its index at the d line and its Abbe number V_d = (n_d - 1) / (n_F - n_C), as
 Blender users and glass tables often quote them, gets Cauchy's two-term fit
 n(λ) = A + B / λ² through n_d with that V_d.
 
+In the passes (spectral mode only) a path carries every band until it meets a
+dispersive surface; there it keeps one band, picked in proportion to what the
+path carries in each (so the pick's weight leaves its total unchanged), and one
+wavelength within that band, and from there on refracts at that wavelength
+(the hero wavelength of A.1.2, with the others dropped rather than carried).
+A path's wavelength state is two numbers (`WAVE_*`): the band it keeps (-1:
+all of them) and its wavelength in nm.
+
 The presets are catalogue data (Schott for N-BK7, N-SF11 and SF6; Malitson 1965
 for fused silica; Peter 1923 for diamond), with the catalogue's own n_d and V_d
 beside them, which the tests hold the Sellmeier terms to.
@@ -17,6 +25,10 @@ import math
 from collections import namedtuple
 
 import numpy as np
+from numba import njit
+
+from ..core.jit import CORE, INLINE
+from ..core.sampling import next_float
 
 # Fraunhofer lines, nm: F (hydrogen), d (helium), C (hydrogen)
 LINE_F, LINE_D, LINE_C = 486.1327, 587.5618, 656.2725
@@ -68,3 +80,97 @@ def minimum_deviation(n, apex_deg=60.0):
     """Minimum deviation (degrees) of a prism of index n and apex angle apex_deg in air."""
     a = math.radians(apex_deg)
     return math.degrees(2.0 * math.asin(n * math.sin(0.5 * a)) - a)
+
+
+# ------------------------------------------------------------------ in the kernels
+
+# A material's dispersion as the kernels read it: a row of DISPERSION_SIZE floats,
+# [kind, then Sellmeier B1 B2 B3 C1 C2 C3, or Cauchy A B].
+NONE, SELLMEIER, CAUCHY = 0, 1, 2
+DISPERSION_SIZE = 7
+# a path's wavelength state: the band it keeps (-1: every band) and its wavelength, nm
+WAVE_BAND, WAVE_NM = 0, 1
+
+
+def dispersion_row(glass="", abbe=0.0, ior=1.5, spectral=True, what="material"):
+    """(row, n_d) of a material: its kernel row (NONE unless `spectral`) and the
+    index RGB traces; `glass` a PRESETS name, else `abbe` > 0 spreads `ior` as n_d."""
+    row = np.zeros(DISPERSION_SIZE)
+    glass = str(glass or "")
+    if glass:
+        if glass not in PRESETS:
+            raise ValueError(f"{what}: unknown glass '{glass}' (one of {', '.join(PRESETS)})")
+        g = PRESETS[glass]
+        row[0] = SELLMEIER
+        row[1:4], row[4:7] = g.B, g.C
+        n_d = float(sellmeier_index(g, LINE_D))
+    elif abbe:
+        try:
+            A, B = cauchy_from_abbe(float(ior), float(abbe))
+        except ValueError as e:
+            raise ValueError(f"{what}: {e}; give it an IOR above 1 and an Abbe number above 0, "
+                             "or turn its dispersion off") from None
+        row[0], row[1], row[2] = CAUCHY, A, B
+        n_d = float(ior)
+    else:
+        return row, float(ior)
+    if not spectral:
+        row[:] = 0.0
+    return row, n_d
+
+
+@njit(cache=True)
+def index_at(row, nm):
+    """n at wavelength nm of a dispersion row."""
+    l2 = (nm * 1e-3) ** 2
+    if row[0] == SELLMEIER:
+        n2 = 1.0
+        for i in range(3):
+            n2 += row[1 + i] * l2 / (l2 - row[4 + i])
+        return math.sqrt(max(n2, 1e-6))
+    return row[1] + row[2] / l2
+
+
+@njit(**INLINE)
+def splits_bands(disp, m, wave):
+    """True where material m (rows `disp`) disperses and the path still carries every band."""
+    return m >= 0 and disp[m, 0] != NONE and wave[WAVE_BAND] < 0.0
+
+
+@njit(**INLINE)
+def path_ior(disp, m, ior, wave):
+    """Material m's index for a path: at its wavelength where m disperses and
+    the path has kept one band, else `ior` (n_d)."""
+    if disp[m, 0] == NONE or wave[WAVE_BAND] < 0.0:
+        return ior
+    return index_at(disp[m], wave[WAVE_NM])
+
+
+@njit(**CORE)
+def keep_one_band(bands, tp, wave, state):
+    """The path (throughput tp per band) keeps one band k, picked with
+    probability tp[k] / sum(tp), and one wavelength uniform in it: tp becomes
+    sum(tp) in band k and 0 elsewhere (tp[k] over its probability), so the
+    expected throughput is unchanged in every band and the total exactly.
+    bands = (n, lo nm, width nm) -> state."""
+    nb = tp.shape[0]
+    total = 0.0
+    for b in range(nb):
+        total += tp[b]
+    state, u = next_float(state)
+    state, v = next_float(state)
+    if not total > 0.0:
+        return state
+    k = -1
+    c = 0.0
+    for b in range(nb):
+        if tp[b] > 0.0:
+            k = b               # rounding past the end keeps the last band that carries light
+            c += tp[b]
+            if u * total < c:
+                break
+    for b in range(nb):
+        tp[b] = total if b == k else 0.0
+    wave[WAVE_BAND] = k
+    wave[WAVE_NM] = bands[1] + (k + v) * bands[2]
+    return state

@@ -13,6 +13,7 @@ from numba import njit
 
 from ..core.jit import CORE, INLINE
 from ..core.scene import SceneError, as_bands
+from . import dispersion
 from .texture import lod_for, sample4, sample_mean4
 
 # diffuse/specular/transmission (n, bands): the lobe weights of an untextured material.
@@ -20,8 +21,11 @@ from .texture import lod_for, sample4, sample_mean4
 # metallic, transmission_weight: the Principled inputs the weights are recomputed
 # from per hit when a texture drives one of them; specular_level: Principled
 # 'Specular IOR Level' (the dielectric layer over diffuse; 0 none).
+# dispersion (n, dispersion.DISPERSION_SIZE): each material's index per wavelength
+# (all NONE in RGB); bands: (n, lo nm, width nm) of a spectral scene's bands (n 0: RGB).
 MaterialSet = namedtuple("MaterialSet", "diffuse specular transmission roughness ior emission "
-                                        "tex base metallic transmission_weight specular_level")
+                                        "tex base metallic transmission_weight specular_level "
+                                        "dispersion bands")
 
 # Material.textures keys, in the column order of MaterialSet.tex
 TEXTURE_INPUTS = ("base_color", "roughness", "metallic", "transmission", "normal")
@@ -36,7 +40,8 @@ def compile_materials(scene):
     out = MaterialSet(np.full((n, b), 0.8), np.zeros((n, b)), np.zeros((n, b)),
                       np.zeros(n), np.full(n, 1.5), np.zeros((n, b)),
                       np.full((n, len(TEXTURE_INPUTS)), -1, np.int32), np.full((n, b), 0.8),
-                      np.zeros(n), np.zeros(n), np.zeros(n))
+                      np.zeros(n), np.zeros(n), np.zeros(n),
+                      np.zeros((n, dispersion.DISPERSION_SIZE)), _bands(getattr(scene, "spectral", None)))
     n_tex = len(getattr(scene, "textures", None) or [])
     for i, m in enumerate(mats):
         _texture_inputs(out, i, m, b, n_tex)
@@ -55,8 +60,20 @@ def compile_materials(scene):
             raise SceneError(f"material '{m.name}': invalid roughness/ior ({m.roughness}, {m.ior})")
         out.diffuse[i], out.specular[i], out.transmission[i], out.emission[i] = kd, ks, kt, le
         out.roughness[i] = min(max(float(m.roughness), 0.0), 1.0)
-        out.ior[i] = float(m.ior)
+        try:
+            out.dispersion[i], out.ior[i] = dispersion.dispersion_row(
+                getattr(m, "glass", ""), float(getattr(m, "abbe", 0.0) or 0.0), float(m.ior),
+                spectral=out.bands[0] > 0, what=f"material '{m.name}'")
+        except ValueError as e:
+            raise SceneError(str(e)) from None
     return out
+
+
+def _bands(bands):
+    """(n, lo, width) of spectrum.Bands, or zeros for an RGB scene."""
+    if bands is None:
+        return np.zeros(3)
+    return np.array([float(bands.n), float(bands.lo), (float(bands.hi) - float(bands.lo)) / float(bands.n)])
 
 
 def _texture_inputs(out, i, m, b, n_tex):

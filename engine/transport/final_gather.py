@@ -36,6 +36,7 @@ import math
 from numba import njit
 
 from ..shading import bsdf
+from ..shading import dispersion
 from ..shading import environment
 from ..shading import light_hits
 from ..shading import materials
@@ -89,7 +90,11 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
     spread = 2.0 / math.sqrt(n_rays)
     env_li = light_hits.environment_light(ls)
     sectors = n_rays // rings if rings > 0 else 0
+    # every ray starts at the wavelength state p's path has (all bands, or the one it keeps)
+    band0, nm0 = w.wave[dispersion.WAVE_BAND], w.wave[dispersion.WAVE_NM]
     for i in range(n_rays):
+        w.wave[dispersion.WAVE_BAND] = band0
+        w.wave[dispersion.WAVE_NM] = nm0
         dst = out
         if rings > 0:
             state, u1 = next_float(state)
@@ -139,6 +144,9 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
             qx, qy, qz = ox + t * dx, oy + t * dy, oz + t * dz
             rough, ior, _ = materials.surface_inputs(ms, scene.textures, g, inst, m, shape, face, u, v, spread * t,
                                                      kd, ks, kt)
+            if dispersion.splits_bands(ms.dispersion, m, w.wave):
+                state = dispersion.keep_one_band(ms.bands, tp, w.wave, state)
+            ior = dispersion.path_ior(ms.dispersion, m, ior, w.wave)
             cos_o = min(abs(cos_dn), 1.0)
             bsdf.closure_scalars(scene.bsdf, m, rough, ior, cos_dn < 0.0, cos_o, pc)
             pd, ps, pm, pg = bsdf.lobe_probabilities(pc, kd, ks, kt, cos_o)
@@ -180,4 +188,6 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
         if rings > 0:
             for b in range(nb):
                 out[b] += wr * dst[b]
+    w.wave[dispersion.WAVE_BAND] = band0
+    w.wave[dispersion.WAVE_NM] = nm0
     return state

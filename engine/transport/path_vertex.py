@@ -14,6 +14,7 @@ from numba import njit
 from ..core.jit import INLINE
 from ..geometry.raycast import STACK_WORDS
 from ..shading import bsdf
+from ..shading import dispersion
 from ..shading import materials
 
 PathScratch = namedtuple("PathScratch", [
@@ -27,6 +28,7 @@ PathScratch = namedtuple("PathScratch", [
     "stack",            # the ray traversal's stack (geometry/raycast.py)
     "count",            # count[0]: rays traced
     "bands",            # the nine band arrays above as the rows of one array (a 2-D argument where one is due)
+    "wave",             # the path's wavelength state (dispersion.WAVE_*): the band it keeps (-1: all), nm
 ])
 
 
@@ -35,7 +37,8 @@ def path_scratch(nb, stack, count):
     """Scratch for a path of nb bands that traverses with `stack` and counts its rays in count[0]
     (two paths of one thread, a camera path and its gathers, share both)."""
     r = np.empty((9, nb))
-    return PathScratch(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], np.empty(bsdf.P_SIZE), stack, count, r)
+    return PathScratch(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], np.empty(bsdf.P_SIZE), stack, count, r,
+                       np.full(2, -1.0))
 
 
 @njit(cache=True)
@@ -72,11 +75,14 @@ def surface_closure(ms, ts, bt, g, w, m, surf, n, d, foot):
     (f, s, cos_dn, cos_o, lobes): the face normal and the (normal-mapped)
     shading normal, both turned to the side d came from; d·n (< 0: entering);
     the cosine of the way back along -d with s; the lobe probabilities
-    (pd, ps, pm, pg). A normal map tilted away from the ray gives way to the face."""
+    (pd, ps, pm, pg). A normal map tilted away from the ray gives way to the face.
+    A dispersive material refracts at the path's wavelength once it keeps one
+    band (dispersion.keep_one_band, which the caller runs first)."""
     inst, shape, face, u, v = surf
     nx, ny, nz = n
     dx, dy, dz = d
     rough, ior, _ = materials.surface_inputs(ms, ts, g, inst, m, shape, face, u, v, foot, w.kd, w.ks, w.kt)
+    ior = dispersion.path_ior(ms.dispersion, m, ior, w.wave)
     snx, sny, snz = materials.shading_normal(ms, ts, g, inst, m, shape, face, u, v, foot, nx, ny, nz)
     cos_dn = dx * nx + dy * ny + dz * nz
     if cos_dn > 0.0:

@@ -30,6 +30,7 @@ from ..lightmaps import orientation_lightmap
 from ..shading import lights as lights_module
 from ..shading.lights import emit_photon, photon_tint
 from ..shading import bsdf
+from ..shading import dispersion
 from ..geometry.raycast import intersect_closest
 from .kernel_scene import kernel_scene
 from .path_vertex import leave_surface, new_path_scratch, surface_closure
@@ -123,9 +124,11 @@ def _trace_chunk_core(scene, job, out, start, stop, w):
             if depth >= job.max_bounces or (depth >= job.main_last and not caustic):
                 _book(out, i, TRUNCATED, power)
                 break
+            m = g.shape_material[shape]
+            if dispersion.splits_bands(ms.dispersion, m, w.wave):
+                state = _keep_one_band(out, i, ms, w, state)
             # photons read textures at their finest level: the albedo at the hit itself
-            fn, sn, _, _, lobes = surface_closure(ms, ts, bt, g, w, g.shape_material[shape], surf, (nx, ny, nz),
-                                                  (dx, dy, dz), 0.0)
+            fn, sn, _, _, lobes = surface_closure(ms, ts, bt, g, w, m, surf, (nx, ny, nz), (dx, dy, dz), 0.0)
             alive, o, d, caustic, state = _scatter(w, out, i, lobes, (fn, sn), ((nx, ny, nz), p), (dx, dy, dz),
                                                    caustic, state)
             if not alive:
@@ -153,6 +156,7 @@ def _start(ls, job, out, i, w, li, d, wl):
     its power in w.tp and in the ledger."""
     power, wt = w.tp, w.f
     nb = power.shape[0]
+    w.wave[dispersion.WAVE_BAND] = -1.0      # every band, until a dispersive surface
     for r in range(out.texel.shape[1]):
         out.texel[i, r] = -1
     for k in range(4):
@@ -164,6 +168,21 @@ def _start(ls, job, out, i, w, li, d, wl):
     for b in range(nb):
         power[b] = wl * wt[b] * ls.flux[li, b] * scale / p_light if p_light > 0.0 else 0.0
         out.ledger[i, EMITTED, b] = power[b]
+
+
+@njit(**INLINE)
+def _keep_one_band(out, i, ms, w, state):
+    """Photon i meets a dispersive surface carrying every band: it keeps one
+    (dispersion.keep_one_band). Its total power is unchanged; what moves between
+    bands is booked in the absorbed column, so each band's ledger still balances
+    (that column's entries then sum to the absorbed power only in expectation)."""
+    power = w.tp
+    for b in range(power.shape[0]):
+        out.ledger[i, ABSORBED, b] += power[b]
+    state = dispersion.keep_one_band(ms.bands, power, w.wave, state)
+    for b in range(power.shape[0]):
+        out.ledger[i, ABSORBED, b] -= power[b]
+    return state
 
 
 @njit(**INLINE)

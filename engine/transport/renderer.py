@@ -25,6 +25,7 @@ from ..core.jit import CORE, INLINE, typed
 from ..lightmaps import lightmap
 from ..lightmaps import orientation_lightmap
 from ..shading import bsdf
+from ..shading import dispersion
 from ..shading import light_hits
 from ..shading import materials
 from ..shading import environment
@@ -242,6 +243,7 @@ def _render_tile_core(scene, cam, tile, rec, out, rays, start, stop, work):
             ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
             for b in range(nb):
                 tp[b] = 1.0 / tile.spp
+            w.wave[dispersion.WAVE_BAND] = -1.0
             pdf_b = 0.0
             delta = True
             travelled = 0.0
@@ -269,6 +271,8 @@ def _render_tile_core(scene, cam, tile, rec, out, rays, start, stop, work):
                     acc[b] += tp[b] * ms.emission[m, b]
                 travelled += t
                 surf = (inst, shape, face, u, v)
+                if dispersion.splits_bands(ms.dispersion, m, w.wave):
+                    state = dispersion.keep_one_band(ms.bands, tp, w.wave, state)
                 fn, sn, _, _, lobes = surface_closure(ms, ts, bt, g, w, m, surf, (nx, ny, nz), (dx, dy, dz),
                                                       width0 + spread * travelled)
                 wo = bsdf.to_local(-dx, -dy, -dz, sn[0], sn[1], sn[2])
@@ -321,6 +325,9 @@ def _shade(scene, tile, rec, work, hit, frame, lobes, strata, state):
                 for b in range(nb):
                     e[b] += ind[b]
         if not reached:
+            # gather rays go on at the path's wavelength
+            gw.wave[dispersion.WAVE_BAND] = w.wave[dispersion.WAVE_BAND]
+            gw.wave[dispersion.WAVE_NM] = w.wave[dispersion.WAVE_NM]
             state = final_gather.gather_irradiance(scene, gw, p, fn, sn, n_gather, tile.mode, state, e,
                                                    (typed(0), rec.E, rec.R))
     elif pd > 0.0 and tile.indirect and orientation_lightmap.surface_irradiance(

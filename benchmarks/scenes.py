@@ -115,7 +115,7 @@ def mesh_objects(scene=None):
 # out of the key at these values, where they change nothing, so a new option
 # does not orphan the references of the scenes that do not use it.
 KEY_NEUTRAL = {("Light", "temperature"): 0.0, ("Scene", "spectral"): None, ("Material", "glass"): "",
-               ("Material", "abbe"): 0.0}
+               ("Material", "abbe"): 0.0, ("Material", "fluorescence"): None}
 
 
 def _neutral(value, neutral):

@@ -7,10 +7,12 @@ transmission and normal inputs driven by anything else are baked per mesh by
 Cycles (textures.py) and sampled per hit; other driven inputs (emission) read
 an image averaged, with a warning.
 """
+from dataclasses import replace
+
 import numpy as np
 
 from ..engine.core.scene import Material
-from ..engine.shading import dispersion
+from ..engine.shading import dispersion, fluorescence
 from . import textures
 from ..engine.shading.texture import srgb_to_linear
 from .context import DEFAULT_DIFFUSE, output_priority
@@ -20,6 +22,9 @@ from .context import DEFAULT_DIFFUSE, output_priority
 # none, an Abbe number that spreads the shader's IOR, or a catalogue glass
 DISPERSION_NONE, DISPERSION_ABBE = "NONE", "ABBE"
 GLASS_IDS = {name.upper().replace("-", "_").replace(" ", "_"): name for name in dispersion.PRESETS}
+# ... and its Fluorescence choices: none, a preset, or custom spectra
+FLUORESCENCE_NONE, FLUORESCENCE_CUSTOM = "NONE", "CUSTOM"
+FLUORESCENCE_IDS = {name.upper().replace(" ", "_"): name for name in fluorescence.PRESETS}
 
 
 def image_mean(ctx, image):
@@ -214,6 +219,22 @@ def _dispersion(mat, m):
         m.abbe = float(settings.abbe)
     elif choice in GLASS_IDS:
         m.glass = GLASS_IDS[choice]
+    m.fluorescence = material_fluorescence(settings)
+
+
+def material_fluorescence(settings):
+    """The panel's Fluorescence as a fluorescence.Fluorescence (None: off); Strength scales
+    the absorption of a preset or of custom spectra."""
+    choice = getattr(settings, "fluorescence", FLUORESCENCE_NONE)
+    if choice in FLUORESCENCE_IDS:
+        fl = fluorescence.PRESETS[FLUORESCENCE_IDS[choice]]
+    elif choice == FLUORESCENCE_CUSTOM:
+        fl = fluorescence.Fluorescence("custom", settings.fl_excitation_nm, settings.fl_excitation_width,
+                                       settings.fl_emission_nm, settings.fl_emission_width, settings.fl_absorption,
+                                       settings.fl_quantum_yield)
+    else:
+        return None
+    return replace(fl, peak=fl.peak * float(settings.fl_strength))
 
 
 def _physical(ctx, m, owner):

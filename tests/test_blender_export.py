@@ -293,6 +293,32 @@ def test_material_dispersion_setting_is_exported():
     assert ms.dispersion[idx["plain"], 0] == 0 and ms.dispersion[idx["flint"], 0] > 0
 
 
+def test_material_fluorescence_setting_is_exported():
+    """The material panel's Fluorescence: a preset (its absorption scaled by Strength), custom
+    spectra, or none."""
+    from photon_lightmaps.engine.shading import fluorescence
+    dye = demo_blend.principled("dye", (0.9, 0.9, 0.2))
+    dye.photon_lightmaps.fluorescence = "FLUORESCEIN"
+    dye.photon_lightmaps.fl_strength = 0.5
+    own = demo_blend.principled("own", (0.9, 0.9, 0.9))
+    s = own.photon_lightmaps
+    s.fluorescence = "CUSTOM"
+    s.fl_excitation_nm, s.fl_excitation_width, s.fl_emission_nm, s.fl_emission_width = 400.0, 10.0, 600.0, 30.0
+    s.fl_absorption, s.fl_quantum_yield = 0.6, 0.5
+    plain = demo_blend.principled("plain", (0.5, 0.5, 0.5))
+    _mat_objects([dye, own, plain])
+    scene, _, _ = export_current()
+    m = {mm.name: mm for mm in scene.materials}
+    fl = fluorescence.PRESETS["fluorescein"]
+    assert m["dye"].fluorescence == fluorescence.Fluorescence("fluorescein", fl.excitation_nm, fl.excitation_width,
+                                                              fl.emission_nm, fl.emission_width, 0.5 * fl.peak,
+                                                              fl.quantum_yield)
+    got = m["own"].fluorescence
+    assert (got.excitation_nm, got.excitation_width, got.emission_nm, got.emission_width) == (400, 10, 600, 30)
+    assert got.peak == pytest.approx(0.6) and got.quantum_yield == pytest.approx(0.5)
+    assert m["plain"].fluorescence is None
+
+
 def test_image_texture_is_baked_and_other_shaders_fall_back():
     tex_mat = demo_blend.principled("textured", (0.1, 0.1, 0.1))
     tree = tex_mat.node_tree

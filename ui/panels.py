@@ -8,7 +8,9 @@ lightmap settings, and the material/light/world inputs the exporter uses.
 import bpy
 
 from ..engine.shading.dispersion import PRESETS
-from ..export.materials import DISPERSION_ABBE, DISPERSION_NONE, GLASS_IDS
+from ..engine.shading.fluorescence import PRESETS as FL
+from ..export.materials import DISPERSION_ABBE, DISPERSION_NONE, FLUORESCENCE_CUSTOM, FLUORESCENCE_IDS, \
+    FLUORESCENCE_NONE, GLASS_IDS
 from ..operators.render_engine import ENGINE_ID
 
 
@@ -424,6 +426,44 @@ class PHOTON_LIGHTMAPS_PT_material_dispersion(_EnginePanel, bpy.types.Panel):
             layout.label(text="Seen with Spectral on (Render properties)", icon='INFO')
 
 
+class PHOTON_LIGHTMAPS_PT_material_fluorescence(_EnginePanel, bpy.types.Panel):
+    bl_label = "Fluorescence"
+    bl_context = "material"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    @classmethod
+    def poll(cls, context):
+        mat = context.material
+        return super().poll(context) and mat is not None and not mat.grease_pencil
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        s = context.material.photon_lightmaps
+        layout.prop(s, "fluorescence")
+        if s.fluorescence == FLUORESCENCE_NONE:
+            return
+        layout.prop(s, "fl_strength")
+        if s.fluorescence == FLUORESCENCE_CUSTOM:
+            col = layout.column(align=True)
+            col.prop(s, "fl_excitation_nm")
+            col.prop(s, "fl_excitation_width")
+            col = layout.column(align=True)
+            col.prop(s, "fl_emission_nm")
+            col.prop(s, "fl_emission_width")
+            col = layout.column()
+            col.prop(s, "fl_absorption")
+            col.prop(s, "fl_quantum_yield")
+        else:
+            fl = FL[FLUORESCENCE_IDS[s.fluorescence]]
+            layout.label(text=f"Absorbs {fl.excitation_nm:.0f} ± {fl.excitation_width:.0f} nm "
+                              f"(peak {fl.peak:.2f}), glows {fl.emission_nm:.0f} ± {fl.emission_width:.0f} nm")
+            layout.label(text=f"Quantum yield {fl.quantum_yield}")
+        if not context.scene.photon_lightmaps.spectral:
+            layout.label(text="Seen with Spectral on (Render properties)", icon='INFO')
+
+
 class PHOTON_LIGHTMAPS_PT_light(_EnginePanel, bpy.types.Panel):
     bl_label = "Light"
     bl_context = "data"
@@ -483,6 +523,7 @@ classes = (
     PHOTON_LIGHTMAPS_PT_material_slots,
     PHOTON_LIGHTMAPS_PT_material_surface,
     PHOTON_LIGHTMAPS_PT_material_dispersion,
+    PHOTON_LIGHTMAPS_PT_material_fluorescence,
     PHOTON_LIGHTMAPS_PT_light,
     PHOTON_LIGHTMAPS_PT_world,
 )

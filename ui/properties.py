@@ -11,8 +11,10 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, P
 
 from ..engine.session import Settings
 from ..engine.shading.dispersion import PRESETS
+from ..engine.shading.fluorescence import PRESETS as FL
 from ..export.lsystems import MAX_PREVIEW_DEPTH, LSystemSettings
-from ..export.materials import DISPERSION_ABBE, DISPERSION_NONE, GLASS_IDS
+from ..export.materials import (DISPERSION_ABBE, DISPERSION_NONE, FLUORESCENCE_CUSTOM, FLUORESCENCE_IDS,
+                                FLUORESCENCE_NONE, GLASS_IDS)
 
 _D = Settings()
 _L = LSystemSettings()
@@ -216,6 +218,36 @@ class PhotonLightmapsMaterialSettings(bpy.types.PropertyGroup):
         name="Abbe Number", default=40.0, min=1.0, soft_max=100.0,
         description="V_d = (n_d - 1) / (n_F - n_C): lower spreads the colours more "
                     "(crown glass about 60, flint glass about 30, diamond 55)")
+    fluorescence: EnumProperty(
+        name="Fluorescence", default=FLUORESCENCE_NONE,
+        items=[(FLUORESCENCE_NONE, "None", "The surface only reflects"),
+               (FLUORESCENCE_CUSTOM, "Custom", "Excitation and emission spectra set below")]
+              + [(key, name.title(), f"{name}: absorbs around {FL[name].excitation_nm:.0f} nm, glows around "
+                                     f"{FL[name].emission_nm:.0f} nm (quantum yield {FL[name].quantum_yield})")
+                 for key, name in FLUORESCENCE_IDS.items()],
+        description="Diffuse light the surface absorbs at short wavelengths comes back at longer ones "
+                    "(a highlighter glowing under blue or UV light). Traced in Spectral mode")
+    fl_strength: FloatProperty(
+        name="Strength", default=1.0, min=0.0, max=1.0, subtype='FACTOR',
+        description="Scales how much light the fluorescent dye absorbs at its excitation peak")
+    fl_excitation_nm: FloatProperty(
+        name="Excitation", default=450.0, min=300.0, max=800.0,
+        description="Wavelength (nm) the dye absorbs most")
+    fl_excitation_width: FloatProperty(
+        name="Width", default=20.0, min=1.0, max=200.0,
+        description="Standard deviation (nm) of the excitation spectrum")
+    fl_emission_nm: FloatProperty(
+        name="Emission", default=520.0, min=300.0, max=900.0,
+        description="Wavelength (nm) the dye glows at most; only light at shorter wavelengths excites it")
+    fl_emission_width: FloatProperty(
+        name="Width", default=25.0, min=1.0, max=200.0,
+        description="Standard deviation (nm) of the emission spectrum")
+    fl_absorption: FloatProperty(
+        name="Absorption", default=0.8, min=0.0, max=1.0, subtype='FACTOR',
+        description="Fraction of the light at the excitation peak the dye absorbs")
+    fl_quantum_yield: FloatProperty(
+        name="Quantum Yield", default=0.9, min=0.0, max=1.0, subtype='FACTOR',
+        description="Photons re-emitted per photon absorbed (the rest becomes heat)")
 
 
 classes = (PhotonLightmapsSceneSettings, PhotonLSystemSettings, PhotonLightmapsObjectSettings,

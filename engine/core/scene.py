@@ -117,6 +117,9 @@ class Material:
     # Abbe number > 0 spreads `ior` (taken as n_d) by Cauchy's fit. RGB traces n_d.
     glass: str = ""
     abbe: float = 0.0
+    # Fluorescence (thesis A.3, engine/shading/fluorescence.Fluorescence), seen in spectral
+    # mode: its diffuse light re-emits absorbed light at longer wavelengths.
+    fluorescence: object = None
 
 
 @dataclass

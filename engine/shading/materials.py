@@ -14,6 +14,7 @@ from numba import njit
 from ..core.jit import CORE, INLINE
 from ..core.scene import SceneError, as_bands
 from . import dispersion
+from . import fluorescence
 from .texture import lod_for, sample4, sample_mean4
 
 # diffuse/specular/transmission (n, bands): the lobe weights of an untextured material.
@@ -23,9 +24,11 @@ from .texture import lod_for, sample4, sample_mean4
 # 'Specular IOR Level' (the dielectric layer over diffuse; 0 none).
 # dispersion (n, dispersion.DISPERSION_SIZE): each material's index per wavelength
 # (all NONE in RGB); bands: (n, lo nm, width nm) of a spectral scene's bands (n 0: RGB).
+# fluorescent (n,) bool, fluor (n, bands, bands) and fluor_albedo (n, bands): a
+# fluorescent material's re-radiation matrix M[o, i] and its column sums (fluorescence.py).
 MaterialSet = namedtuple("MaterialSet", "diffuse specular transmission roughness ior emission "
                                         "tex base metallic transmission_weight specular_level "
-                                        "dispersion bands")
+                                        "dispersion bands fluorescent fluor fluor_albedo")
 
 # Material.textures keys, in the column order of MaterialSet.tex
 TEXTURE_INPUTS = ("base_color", "roughness", "metallic", "transmission", "normal")
@@ -41,7 +44,8 @@ def compile_materials(scene):
                       np.zeros(n), np.full(n, 1.5), np.zeros((n, b)),
                       np.full((n, len(TEXTURE_INPUTS)), -1, np.int32), np.full((n, b), 0.8),
                       np.zeros(n), np.zeros(n), np.zeros(n),
-                      np.zeros((n, dispersion.DISPERSION_SIZE)), _bands(getattr(scene, "spectral", None)))
+                      np.zeros((n, dispersion.DISPERSION_SIZE)), _bands(getattr(scene, "spectral", None)),
+                      np.zeros(n, np.bool_), np.zeros((n, b, b)), np.zeros((n, b)))
     n_tex = len(getattr(scene, "textures", None) or [])
     for i, m in enumerate(mats):
         _texture_inputs(out, i, m, b, n_tex)
@@ -66,7 +70,25 @@ def compile_materials(scene):
                 spectral=out.bands[0] > 0, what=f"material '{m.name}'")
         except ValueError as e:
             raise SceneError(str(e)) from None
+        _fluorescence(out, i, m, getattr(scene, "spectral", None))
     return out
+
+
+def _fluorescence(out, i, m, bands):
+    """Row i's re-radiation (spectral scenes; RGB has no wavelengths to shift between)."""
+    fl = getattr(m, "fluorescence", None)
+    if fl is None or bands is None:
+        return
+    if not isinstance(fl, fluorescence.Fluorescence):
+        raise SceneError(f"material '{m.name}': fluorescence must be a Fluorescence, got {fl!r}")
+    try:
+        M, kd = fluorescence.compile_fluorescence(fl, out.diffuse[i], bands, f"material '{m.name}'")
+    except ValueError as e:
+        raise SceneError(str(e)) from None
+    out.fluorescent[i] = True
+    out.fluor[i] = M
+    out.fluor_albedo[i] = M.sum(axis=0)
+    out.diffuse[i] = kd
 
 
 def _bands(bands):

@@ -37,6 +37,7 @@ from numba import njit
 
 from ..shading import bsdf
 from ..shading import dispersion
+from ..shading import fluorescence
 from ..shading import environment
 from ..shading import light_hits
 from ..shading import materials
@@ -149,8 +150,9 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
             ior = dispersion.path_ior(ms.dispersion, m, ior, w.wave)
             cos_o = min(abs(cos_dn), 1.0)
             bsdf.closure_scalars(scene.bsdf, m, rough, ior, cos_dn < 0.0, cos_o, pc)
-            pd, ps, pm, pg = bsdf.lobe_probabilities(pc, kd, ks, kt, cos_o)
             ds = bsdf.diffuse_scale(pc)
+            pd, ps, pm, pg = fluorescence.diffuse_probability(ms, m, kd, ds,
+                                                              bsdf.lobe_probabilities(pc, kd, ks, kt, cos_o))
             if pd > 0.0 and ds > 0.0 and orientation_lightmap.surface_irradiance(g, lm, ol, inst, shape, face, u, v,
                                                                                  nx, ny, nz, mode, ind):
                 if scene.gather_lights.kind.shape[0] > 0:
@@ -163,7 +165,7 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
                     for b in range(nb):
                         ind[b] += w.e[b]
                 for b in range(nb):
-                    dst[b] += tp[b] * kd[b] * ds * ind[b]
+                    dst[b] += tp[b] * fluorescence.reflected(ms, m, kd, ind, b) * ds
             if ps + pm + pg <= 0.0 or k == CHAIN - 1:
                 break
             # on through the glossy lobes, in the frame of the face towards the ray

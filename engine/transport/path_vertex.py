@@ -15,6 +15,7 @@ from ..core.jit import INLINE
 from ..geometry.raycast import STACK_WORDS
 from ..shading import bsdf
 from ..shading import dispersion
+from ..shading import fluorescence
 from ..shading import materials
 
 PathScratch = namedtuple("PathScratch", [
@@ -94,5 +95,6 @@ def surface_closure(ms, ts, bt, g, w, m, surf, n, d, foot):
         sx, sy, sz = fx, fy, fz
         cos_o = abs(cos_dn)
     bsdf.closure_scalars(bt, m, rough, ior, cos_dn < 0.0, cos_o, w.closure)
-    lobes = bsdf.lobe_probabilities(w.closure, w.kd, w.ks, w.kt, cos_o)
+    lobes = fluorescence.diffuse_probability(ms, m, w.kd, bsdf.diffuse_scale(w.closure),
+                                             bsdf.lobe_probabilities(w.closure, w.kd, w.ks, w.kt, cos_o))
     return (fx, fy, fz), (sx, sy, sz), cos_dn, cos_o, lobes

@@ -31,6 +31,7 @@ from ..shading import lights as lights_module
 from ..shading.lights import emit_photon, photon_tint
 from ..shading import bsdf
 from ..shading import dispersion
+from ..shading import fluorescence
 from ..geometry.raycast import intersect_closest
 from .kernel_scene import kernel_scene
 from .path_vertex import leave_surface, new_path_scratch, surface_closure
@@ -130,7 +131,7 @@ def _trace_chunk_core(scene, job, out, start, stop, w):
             # photons read textures at their finest level: the albedo at the hit itself
             fn, sn, _, _, lobes = surface_closure(ms, ts, bt, g, w, m, surf, (nx, ny, nz), (dx, dy, dz), 0.0)
             alive, o, d, caustic, state = _scatter(w, out, i, lobes, (fn, sn), ((nx, ny, nz), p), (dx, dy, dz),
-                                                   caustic, state)
+                                                   caustic, state, ms, m)
             if not alive:
                 break
             ox, oy, oz = o
@@ -236,11 +237,13 @@ def _set_power(out, i, rec, power):
 
 
 @njit(**INLINE)
-def _scatter(w, out, i, lobes, frame, hit, d, caustic, state):
-    """Russian roulette on the closure in w (lobe probabilities `lobes`) at photon
-    i's hit = (n, point), thesis 3.4.3: a lobe or absorption. frame: the face and
-    shading normals facing where the photon came from. A survivor keeps power
-    k/p <= its power per band, the rest is booked absorbed here
+def _scatter(w, out, i, lobes, frame, hit, d, caustic, state, ms, m):
+    """Russian roulette on the closure in w (lobe probabilities `lobes`) of material m
+    at photon i's hit = (n, point), thesis 3.4.3: a lobe or absorption. frame: the
+    face and shading normals facing where the photon came from. A survivor keeps
+    power k/p <= its power per band, the rest is booked absorbed here; a
+    fluorescent diffuse lobe moves power between bands (fluorescence.py), and
+    the absorbed column books what each band lost or gained
     -> (alive, origin, direction, still a caustic path, state)."""
     n, p = hit
     fn, sn = frame
@@ -252,13 +255,19 @@ def _scatter(w, out, i, lobes, frame, hit, d, caustic, state):
     state, u2 = next_float(state)
     state, u3 = next_float(state)
     ok = True
+    moved = False       # the new power is in w.rad (fluorescence), not power times wt
     # a diffuse or rough bounce spreads the focus: the rest of the path is no caustic
     caustic = caustic and ur >= pd and w.closure[bsdf.P_ALPHA] <= CAUSTIC_ALPHA
     if ur < pd:
         ix, iy, iz = bsdf.sample_diffuse(u1, u2)
         ds = bsdf.diffuse_scale(w.closure)
-        for b in range(nb):
-            wt[b] = w.kd[b] * ds / pd
+        if ms.fluorescent[m]:
+            moved = True
+            for b in range(nb):
+                w.rad[b] = fluorescence.reflected(ms, m, w.kd, power, b) * ds / pd
+        else:
+            for b in range(nb):
+                wt[b] = w.kd[b] * ds / pd
     elif ur < pd + ps + pm + pg:
         q = ps + pm + pg
         lox, loy, loz = bsdf.to_local(-d[0], -d[1], -d[2], sn[0], sn[1], sn[2])
@@ -273,7 +282,7 @@ def _scatter(w, out, i, lobes, frame, hit, d, caustic, state):
         _book(out, i, ABSORBED, power)
         return False, p, d, caustic, state
     for b in range(nb):
-        kept = power[b] * wt[b]
+        kept = w.rad[b] if moved else power[b] * wt[b]
         out.ledger[i, ABSORBED, b] += power[b] - kept
         power[b] = kept
     d = bsdf.from_local(ix, iy, iz, sn[0], sn[1], sn[2])

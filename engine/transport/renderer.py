@@ -26,6 +26,7 @@ from ..lightmaps import lightmap
 from ..lightmaps import orientation_lightmap
 from ..shading import bsdf
 from ..shading import dispersion
+from ..shading import fluorescence
 from ..shading import light_hits
 from ..shading import materials
 from ..shading import environment
@@ -342,8 +343,9 @@ def _shade(scene, tile, rec, work, hit, frame, lobes, strata, state):
             for b in range(nb):
                 e[b] += ind[b]
     ds = bsdf.diffuse_scale(w.closure)
+    m = scene.geometry.shape_material[shape]
     for b in range(nb):
-        acc[b] += w.tp[b] * (w.kd[b] * ds * e[b] / math.pi + w.lg[b])
+        acc[b] += w.tp[b] * (fluorescence.reflected(scene.materials, m, w.kd, e, b) * ds / math.pi + w.lg[b])
     return state
 
 

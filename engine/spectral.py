@@ -13,6 +13,9 @@ depend on the number of bands.
   surface makes light.
 * A blackbody light (Blender's light temperature) emits Planck's spectrum
   times its tint, at its colour's luminance.
+* A line light (an LED, a UV lamp) emits a Gaussian line with a white light's
+  power, whatever its colour (which RGB mode uses); a line outside the bands
+  would emit nothing there, and is refused.
 * Emitted colours (lights, glowing surfaces, a constant world) become their
   brightest channel times a reflectance times the white light.
 * A grey (a scalar, or equal channels) stays flat: a grey is a grey in every band.
@@ -21,6 +24,7 @@ Not yet spectral: colour textures (their RGB is read per hit, band by band) and
 world maps. A scene with either is refused with the material or world named,
 rather than rendered in wrong colours.
 """
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -94,6 +98,17 @@ def _emission(value, bands):
 def _light(light, bands):
     """A light's spectrum: its colour's, or for a blackbody light Planck's spectrum
     times its tint (the colour over the blackbody's own RGB), at the colour's luminance."""
+    line = float(getattr(light, "line_nm", 0.0) or 0.0)
+    if line > 0.0:
+        width = float(light.line_width)
+        if not (math.isfinite(line) and math.isfinite(width) and width > 0.0):
+            raise SceneError(f"light '{light.name}': a line spectrum needs a finite wavelength and a width "
+                             f"above 0 nm, got {line} and {width}")
+        s = spectrum.line_spectrum(line, width, bands)
+        if not s.sum() > 1e-3 * bands.white.sum():
+            raise SceneError(f"light '{light.name}': its line at {line:g} nm lies outside the spectral bands "
+                             f"({bands.lo:g}-{bands.hi:g} nm); move it inside them")
+        return s
     kelvin = float(getattr(light, "temperature", 0.0) or 0.0)
     if kelvin <= 0.0:
         return _emission(light.color, bands)

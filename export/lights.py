@@ -4,6 +4,10 @@ import math
 import numpy as np
 
 from ..engine.core.scene import Light
+from ..engine.shading import spectrum
+
+# the light panel's Spectrum choices (Light.photon_lightmaps.spectrum): its colour, or a line
+LIGHT_COLOUR, LIGHT_LINE = "COLOUR", "LINE"
 
 
 def light(ctx, ob, xf):
@@ -21,6 +25,13 @@ def light(ctx, ob, xf):
         ctx.report("WARNING", f"{owner}: light shader nodes are ignored")
     kw = dict(name=name, color=ctx.bands(color), power=power, transform=xf,
               temperature=float(lt.temperature) if lt.use_temperature else 0.0)
+    settings = getattr(lt, "photon_lightmaps", None)
+    if getattr(settings, "spectrum", LIGHT_COLOUR) == LIGHT_LINE:
+        # the line's colour where RGB shows it (clipped into Rec.709: pure spectral colours lie outside it)
+        bands = spectrum.Bands()
+        rgb = spectrum.to_rgb(spectrum.line_spectrum(settings.line_nm, settings.line_width, bands), bands)
+        kw.update(color=ctx.bands(np.maximum(rgb, 0.0)), temperature=0.0, line_nm=float(settings.line_nm),
+                  line_width=float(settings.line_width))
     scale = np.linalg.norm(xf[:, :3], axis=0)
     # normalize=False (measured against Cycles 5.0): the power is per unit of the
     # light's area, 4 pi r² for point/spot (4 when r = 0), the shape's area for area

@@ -421,3 +421,20 @@ def test_light_units():
     # Unnormalised: power per unit area (world size, so object scale counts).
     assert L["unnormalised"].power == pytest.approx(30.0 * 2.0 * 1.5 * 0.5)
     assert L["unnormalised_point"].power == pytest.approx(10.0 * 4.0 * math.pi * 0.25)
+
+
+def test_line_spectrum_light_is_exported():
+    """The light panel's Spectrum = Line: the wavelength and width reach the engine, and RGB
+    gets the line's colour (a 395 nm lamp: violet, clipped into Rec.709)."""
+    sc = bpy.context.scene
+    uv = demo_blend.add_light(sc, "POINT", "uv_lamp", power=10.0)
+    uv.data.photon_lightmaps.spectrum = "LINE"
+    uv.data.photon_lightmaps.line_nm = 395.0
+    uv.data.photon_lightmaps.line_width = 15.0
+    plain = demo_blend.add_light(sc, "POINT", "plain", power=10.0)
+    plain.data.photon_lightmaps.line_nm = 500.0      # Spectrum stays Colour: no line
+    scene, _, _ = export_current()
+    L = {l.name: l for l in scene.lights}
+    assert (L["uv_lamp"].line_nm, L["uv_lamp"].line_width) == (395.0, 15.0) and L["plain"].line_nm == 0.0
+    c = np.asarray(L["uv_lamp"].color)
+    assert np.all(c >= 0.0) and c[2] > 5.0 * max(c[0], c[1])

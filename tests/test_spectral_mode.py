@@ -1,12 +1,14 @@
 """Spectral mode (engine/spectral.py): an RGB scene traced in 16 wavelength bands
 gives back its RGB result where colour does not mix (greys, direct light) and
 stays close where it does; what it cannot take yet is refused by name."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from photon_lightmaps.engine import demo_scenes, session, spectral
 from photon_lightmaps.engine.compile import compile_scene
-from photon_lightmaps.engine.core.scene import EnvironmentMap, SceneError, Texture
+from photon_lightmaps.engine.core.scene import EnvironmentMap, Light, Scene, SceneError, Texture
 from photon_lightmaps.engine.shading import spectrum
 from photon_lightmaps.engine.transport import texel_gather
 from photon_lightmaps.engine.transport.photon_tracer import trace_photons
@@ -125,3 +127,17 @@ def test_a_blackbody_light_emits_plancks_spectrum():
     np.testing.assert_allclose(spectrum.to_rgb(plain, bands), 2.0 * planck_rgb, rtol=1e-3)
     y = np.linalg.inv(bands.xyz_to_rgb)[1]
     assert spectrum.luminance(tinted, bands) == pytest.approx(float(y @ (planck_rgb * [0.5, 1.0, 0.8])), rel=1e-9)
+
+
+def test_a_line_light_emits_its_line_with_a_white_lights_power():
+    """A 395 nm line (15 nm wide) puts 94 % of its power into the 380-405 nm band and carries
+    what the white light of that power carries over the bands; a line outside the bands is
+    refused by name."""
+    bands = spectrum.Bands()
+    s = Scene(n_bands=3)
+    s.lights.append(Light("point", power=10.0, name="uv lamp", line_nm=395.0, line_width=15.0))
+    c = spectral.spectral_scene(s, bands).lights[0].color
+    assert c[0] > 0.9 * c.sum() and c.sum() == pytest.approx(bands.white.sum(), rel=0.02)
+    s.lights[0] = replace(s.lights[0], line_nm=300.0)
+    with pytest.raises(SceneError, match="light 'uv lamp'.*outside the spectral bands"):
+        spectral.spectral_scene(s, bands)

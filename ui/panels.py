@@ -9,6 +9,7 @@ import bpy
 
 from ..engine.shading.dispersion import PRESETS
 from ..engine.shading.fluorescence import PRESETS as FL
+from ..export.lights import LIGHT_LINE
 from ..export.materials import DISPERSION_ABBE, DISPERSION_NONE, FLUORESCENCE_CUSTOM, FLUORESCENCE_IDS, \
     FLUORESCENCE_NONE, GLASS_IDS
 from ..operators.render_engine import ENGINE_ID
@@ -474,13 +475,21 @@ class PHOTON_LIGHTMAPS_PT_light(_EnginePanel, bpy.types.Panel):
         light = context.light
         layout.row().prop(light, "type", expand=True)
         layout.use_property_split = True
+        settings = light.photon_lightmaps
+        layout.prop(settings, "spectrum")
         col = layout.column()
-        row = col.row(heading="Temperature")
-        row.prop(light, "use_temperature", text="")
-        sub = row.row()
-        sub.active = light.use_temperature
-        sub.prop(light, "temperature", text="")
-        col.prop(light, "color", text="Tint" if light.use_temperature else "Color")
+        if settings.spectrum == LIGHT_LINE:
+            col.prop(settings, "line_nm")
+            col.prop(settings, "line_width")
+            if not context.scene.photon_lightmaps.spectral:
+                col.label(text="RGB shows the line's colour; Spectral traces it", icon='INFO')
+        else:
+            row = col.row(heading="Temperature")
+            row.prop(light, "use_temperature", text="")
+            sub = row.row()
+            sub.active = light.use_temperature
+            sub.prop(light, "temperature", text="")
+            col.prop(light, "color", text="Tint" if light.use_temperature else "Color")
         col = layout.column()
         col.prop(light, "energy", text="Strength" if light.type == 'SUN' else "Power")
         col.prop(light, "exposure")

@@ -1,5 +1,6 @@
 """Settings stored in .blend files: `Scene.photon_lightmaps`, `Object.photon_lightmaps`
-(with `Object.photon_lightmaps.lsystem` for L-system objects) and `Material.photon_lightmaps`.
+(with `Object.photon_lightmaps.lsystem` for L-system objects), `Material.photon_lightmaps`
+and `Light.photon_lightmaps`.
 
 The scene defaults are engine.session.Settings' (one copy), the L-system ones
 export.lsystems.LSystemSettings': code reads the PropertyGroup into that typed
@@ -12,6 +13,7 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, P
 from ..engine.session import Settings
 from ..engine.shading.dispersion import PRESETS
 from ..engine.shading.fluorescence import PRESETS as FL
+from ..export.lights import LIGHT_COLOUR, LIGHT_LINE
 from ..export.lsystems import MAX_PREVIEW_DEPTH, LSystemSettings
 from ..export.materials import (DISPERSION_ABBE, DISPERSION_NONE, FLUORESCENCE_CUSTOM, FLUORESCENCE_IDS,
                                 FLUORESCENCE_NONE, GLASS_IDS)
@@ -250,8 +252,22 @@ class PhotonLightmapsMaterialSettings(bpy.types.PropertyGroup):
         description="Photons re-emitted per photon absorbed (the rest becomes heat)")
 
 
+class PhotonLightmapsLightSettings(bpy.types.PropertyGroup):
+    spectrum: EnumProperty(
+        name="Spectrum", default=LIGHT_COLOUR,
+        items=[(LIGHT_COLOUR, "Colour", "The light's colour (or temperature) as a smooth spectrum"),
+               (LIGHT_LINE, "Line", "A narrow band of wavelengths, as an LED, a UV lamp or a laser emits")],
+        description="What the light emits in Spectral mode; RGB renders show a line as its colour")
+    line_nm: FloatProperty(
+        name="Wavelength", default=395.0, min=300.0, max=900.0,
+        description="Centre of the line in nm (UV lamps: 365-405; the spectral bands cover 380-780)")
+    line_width: FloatProperty(
+        name="Width", default=15.0, min=0.1, max=200.0,
+        description="Full width at half maximum of the line, nm (LEDs 10-30, lasers below 1)")
+
+
 classes = (PhotonLightmapsSceneSettings, PhotonLSystemSettings, PhotonLightmapsObjectSettings,
-           PhotonLightmapsMaterialSettings)
+           PhotonLightmapsMaterialSettings, PhotonLightmapsLightSettings)
 
 
 def register():
@@ -260,9 +276,11 @@ def register():
     bpy.types.Scene.photon_lightmaps = PointerProperty(type=PhotonLightmapsSceneSettings)
     bpy.types.Object.photon_lightmaps = PointerProperty(type=PhotonLightmapsObjectSettings)
     bpy.types.Material.photon_lightmaps = PointerProperty(type=PhotonLightmapsMaterialSettings)
+    bpy.types.Light.photon_lightmaps = PointerProperty(type=PhotonLightmapsLightSettings)
 
 
 def unregister():
+    del bpy.types.Light.photon_lightmaps
     del bpy.types.Material.photon_lightmaps
     del bpy.types.Object.photon_lightmaps
     del bpy.types.Scene.photon_lightmaps

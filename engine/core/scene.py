@@ -257,6 +257,11 @@ class Light:
     # > 0: a blackbody at this many kelvin (Blender's light temperature); `color` then
     # holds its RGB times the tint, and spectral mode emits Planck's spectrum instead
     temperature: float = 0.0
+    # > 0: in spectral mode the light emits a line at this wavelength (nm; an LED, a UV
+    # lamp, a laser) of FWHM `line_width` nm, with a white light's power; `color` is
+    # then what RGB mode uses
+    line_nm: float = 0.0
+    line_width: float = 10.0
     name: str = "light"
 
 

@@ -226,3 +226,15 @@ def blackbody_spectrum(kelvin, bands):
 def luminance(spectrum, bands):
     """CIE Y of band spectra (..., n)."""
     return np.asarray(spectrum, np.float64) @ bands.cmf[:, 1]
+
+
+def line_spectrum(nm, fwhm, bands):
+    """(n,): a Gaussian line at nm of full width fwhm (nm), averaged over each band, with the
+    white light's total over the bands (a line light of a given power carries a white one's)."""
+    sigma = float(fwhm) / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    w = (bands.hi - bands.lo) / bands.n
+    lam = bands.lo + (np.arange(bands.n)[:, None] + (np.arange(64) + 0.5) / 64) * w
+    g = np.exp(-0.5 * ((lam - float(nm)) / sigma) ** 2).mean(axis=1)
+    # its share of the full line inside the bands: (what the bands hold) / (the line's whole integral)
+    inside = float(g.sum() * w / (sigma * np.sqrt(2.0 * np.pi)))
+    return g * (bands.white.sum() / max(float(g.sum()), 1e-300)) * min(inside, 1.0)

@@ -171,6 +171,9 @@ def build_parser():
     b.add_argument("--error-images", action="store_true",
                    help="also write DIR/<object>_error.exr: each texel's estimated relative error "
                         "(gathered bakes)")
+    b.add_argument("--spectral-exr", action="store_true",
+                   help="with --spectral (or the scene's Spectral): also write DIR/<object>_spectral.exr, "
+                        "every wavelength band as a channel (the spectral OpenEXR layout)")
     _add_denoise(b)
     b.set_defaults(func=bake_main)
 
@@ -443,7 +446,7 @@ def bake_main(args):
                        bake_target_error=settings.bake_target_error, bake_time=settings.bake_time,
                        error_images=args.error_images or None,
                        irradiance_cache=settings.bake_irradiance_cache,
-                       gather_lights=settings.bake_gather_lights)
+                       gather_lights=settings.bake_gather_lights, spectral_exr=args.spectral_exr or None)
     print(file=sys.stderr)
     stats = res.stats
     report = {
@@ -466,7 +469,8 @@ def bake_main(args):
         "objects": {name: {"path": res.paths[name], "width": bm.width, "height": bm.height,
                            "bytes": os.path.getsize(res.paths[name]), "mean": bm.mean(),
                            **({"error": res.error[name]} if name in res.error else {}),
-                           **({"error_image": res.error_paths[name]} if name in res.error_paths else {})}
+                           **({"error_image": res.error_paths[name]} if name in res.error_paths else {}),
+                           **({"spectral_exr": res.spectral_paths[name]} if name in res.spectral_paths else {})}
                     for name, bm in res.maps.items()},
         "skipped": res.skipped,
         "warnings": res.warnings,
@@ -526,11 +530,14 @@ def demo_main(args):
     blend = os.path.join(out, "demo.blend")
     width, height = args.size
     demo_blend.build_cornell_blend(blend, width=width, height=height, spheres=True, csg=True, ol=True)
+    spectral_blend = os.path.join(out, "spectral.blend")
+    demo_blend.build_spectral_blend(spectral_blend, width=width, height=height)
     common = [f"--{name}={getattr(args, name)}" for name in ("photons", "seed")
               if getattr(args, name) is not None]
     render_json = os.path.join(out, "render.json")
     bake_json = os.path.join(out, "bake.json")
     ol_json = os.path.join(out, "orientation_lightmaps.json")
+    spectral_json = os.path.join(out, "spectral.json")
     lightmaps = os.path.join(out, "lightmaps")
     samples = [f"--samples={args.samples}"] if args.samples is not None else []
     samples += ["--denoise"] if args.denoise else []
@@ -541,7 +548,10 @@ def demo_main(args):
     for argv in (["render", blend, "--out", os.path.join(out, "render.png"), "--json", render_json,
                   *samples, *common],
                  ["bake", blend, "--out", lightmaps, "--json", bake_json, *common],
-                 ["bake-ol", blend, "--out", lightmaps, "--json", ol_json, *common]):
+                 ["bake-ol", blend, "--out", lightmaps, "--json", ol_json, *common],
+                 # the prism's rainbow and a brightener under a UV lamp, in 16 wavelength bands
+                 ["render", spectral_blend, "--out", os.path.join(out, "spectral.png"), "--json", spectral_json,
+                  "--spectral", *samples, *common]):
         step = build_parser().parse_args(argv)
         step.func(step)
     with open(render_json) as f:
@@ -550,13 +560,15 @@ def demo_main(args):
         bake_report = json.load(f)
     with open(ol_json) as f:
         ol_report = json.load(f)
+    with open(spectral_json) as f:
+        spectral_report = json.load(f)
     report = {"blend": blend, "render": render_report, "bake": bake_report, "orientation_lightmaps": ol_report,
-              "seconds": {"total": time.perf_counter() - t0}}
+              "spectral": spectral_report, "seconds": {"total": time.perf_counter() - t0}}
     if args.json:
         with open(args.json, "w") as f:
             json.dump(report, f, indent=2)
-    print(f"demo: {render_report['image']} and {len(bake_report['objects'])} baked lightmaps in "
-          f"{os.path.join(out, 'lightmaps')} ({report['seconds']['total']:.1f} s)")
+    print(f"demo: {render_report['image']}, {spectral_report['image']} and {len(bake_report['objects'])} baked "
+          f"lightmaps in {os.path.join(out, 'lightmaps')} ({report['seconds']['total']:.1f} s)")
     return 0
 
 

@@ -294,6 +294,56 @@ LIGHT_TESTS = {
 }
 
 
+def build_spectral_blend(path=None, *, width=128, height=96, engine=ENGINE_ID, photons=None, samples=None):
+    """Spectral light (thesis Appendix A), rendered with Spectral on.
+
+    A 60° N-SF11 prism (dispersion from the glass catalogue) on a dark
+    pedestal, a narrow spot beam entering it at the d line's minimum deviation,
+    and the rainbow it throws onto the white floor; beside it, two white spheres
+    under a 395 nm UV lamp, one with an optical brightener, which glows blue,
+    and one without, which the eye hardly sees lit. Saves to `path` when given;
+    returns the scene.
+    """
+    from .engine import demo_scenes
+    from .engine.shading import dispersion
+    scene = _reset()
+    white = principled("white", (0.8, 0.8, 0.8))
+    dark = principled("dark", (0.05, 0.05, 0.05))
+    glass = principled("flint glass", (1.0, 1.0, 1.0), transmission=1.0, roughness=0.0, ior=1.78)
+    glass.photon_lightmaps.dispersion = "N_SF11"
+    brightened = principled("brightened paper", (0.85, 0.85, 0.85))
+    brightened.photon_lightmaps.fluorescence = "OPTICAL_BRIGHTENER"
+    mesh_object("floor", [(-1.5, -1.5, 0), (1.5, -1.5, 0), (1.5, 1.5, 0), (-1.5, 1.5, 0)], [(0, 1, 2, 3)], white,
+                uvs=quad_uvs())
+    mesh_object("wall", [(-1.5, 1.5, 0), (1.5, 1.5, 0), (1.5, 1.5, 1.5), (-1.5, 1.5, 1.5)], [(0, 1, 2, 3)], white,
+                uvs=quad_uvs())
+    v, f = box_mesh_data()
+    stand = mesh_object("pedestal", v, f, dark)
+    stand.location, stand.scale = (0.0, 0.0, 0.25), (0.15, 0.15, 0.25)
+    base, top = 0.3, 0.5
+    prism = demo_scenes.prism_mesh(base=base, depth=0.3)
+    ob = mesh_object("prism", prism.vertices, prism.triangles.tolist(), glass)
+    ob.location = (0.0, 0.0, top)
+    # the beam: into the left face's middle at the d line's minimum-deviation incidence
+    n_d = float(dispersion.sellmeier_index(dispersion.PRESETS["N-SF11"], dispersion.LINE_D))
+    phi = math.asin(0.5 * n_d) - math.radians(30.0)
+    mid = np.array([-0.25 * base, 0.0, top + 0.25 * base * math.sqrt(3.0)])
+    lamp = mid - 0.6 * np.array([math.cos(phi), 0.0, math.sin(phi)])
+    add_light(scene, "SPOT", "beam", power=400.0, location=tuple(lamp), rotation=(0.0, -(math.pi / 2 + phi), 0.0),
+              spot_size=math.radians(3.0), spot_blend=0.0, soft_falloff=False)
+    smooth_sphere("brightened_sphere", 0.15, (-0.75, 0.7, 0.15), brightened)
+    smooth_sphere("plain_sphere", 0.15, (-0.35, 0.7, 0.15), white)
+    uv = add_light(scene, "POINT", "uv_lamp", power=4.0, location=(-0.55, 0.45, 0.45), radius=0.02)
+    uv.data.photon_lightmaps.spectrum = "LINE"
+    uv.data.photon_lightmaps.line_nm, uv.data.photon_lightmaps.line_width = 395.0, 15.0
+    add_camera(scene, (0.3, -2.2, 1.2), (math.radians(63.0), 0.0, math.radians(8.0)), lens=35.0)
+    set_world(scene, (0.08, 0.08, 0.08))
+    settings = getattr(scene, "photon_lightmaps", None)
+    if settings is not None:
+        settings.spectral = True
+    return _finish(scene, path, width, height, engine, photons, samples)
+
+
 def build_light_test_blend(light_type, path=None, *, width=32, height=32, albedo=0.8, engine=ENGINE_ID,
                            photons=None, samples=None):
     """A white Lambertian floor (6 x 6 m, 'Lightmap' UVs), one light from LIGHT_TESTS

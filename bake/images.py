@@ -59,16 +59,27 @@ class BakedMap:
         return [float((self.rgba[..., c] * a).sum() / a.sum()) for c in range(3)]
 
 
+def _baked(lm, lm_id):
+    """(E per texel and band, width, height, texel slice) of lightmap `lm_id`."""
+    sl = lightmap.texel_slice(lm, lm_id)
+    return open_area.baked(lm, np.arange(sl.start, sl.stop)), int(lm.width[lm_id]), int(lm.height[lm_id]), sl
+
+
 def lightmap_rgba(lm, lm_id, bands=None):
     """Lightmap `lm_id` as float32 (height, width, 4): RGB = E/pi, A = coverage.
     bands: the spectrum.Bands of a spectral scene, whose band values go to Rec.709."""
-    sl = lightmap.texel_slice(lm, lm_id)
-    w, h = int(lm.width[lm_id]), int(lm.height[lm_id])
-    e = open_area.baked(lm, np.arange(sl.start, sl.stop))
+    e, w, h, sl = _baked(lm, lm_id)
     rgba = np.zeros((h * w, 4), np.float32)
     rgba[:, :3] = spectrum.as_rgb(e, bands) / math.pi
     rgba[:, 3] = lm.coverage[sl]
     return rgba.reshape(h, w, 4)
+
+
+def lightmap_bands(lm, lm_id):
+    """Lightmap `lm_id` as float32 (height, width, n_bands): E/pi per band, as traced
+    (a spectral scene's wavelength bands: bake/spectral_exr.py)."""
+    e, w, h, _ = _baked(lm, lm_id)
+    return (e / math.pi).astype(np.float32).reshape(h, w, -1)
 
 
 def file_name(name):

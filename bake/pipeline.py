@@ -6,6 +6,7 @@ turns lightmaps into RGBA arrays; commit_bake writes images, files and hooks.
 A failed or cancelled compute or commit is undone by rollback_bake.
 """
 import math
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -19,7 +20,7 @@ from ..engine.core.scene import SceneError
 from ..export import csg as csg_export
 from ..export import uv_layers
 from ..export.ol_routing import OLRouter
-from . import boolean_meshes, csg_atlas, hooks, images
+from . import boolean_meshes, csg_atlas, hooks, images, spectral_exr
 from .images import BakedMap
 
 
@@ -33,6 +34,7 @@ class BakeSettings(session.Settings):
     pack: bool = False
     hook_materials: bool = False
     bake_error_images: bool = False  # also an image of each texel's estimated relative error
+    spectral_exr: bool = False       # spectral bakes: also "<object>_spectral.exr", every band (save_dir only)
 
 
 def bscene_props(bscene):
@@ -66,6 +68,9 @@ class BakeResult:
     error_maps: dict = field(default_factory=dict)
     error_images: dict = field(default_factory=dict)   # object name -> bpy image name
     error_paths: dict = field(default_factory=dict)    # object name -> saved file
+    # with spectral_exr: object name -> (height, width, bands) E/pi per band, and its file
+    spectral_maps: dict = field(default_factory=dict)
+    spectral_paths: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -199,7 +204,7 @@ def run_unwraps(plan, progress=None, should_stop=None):
 def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
-                 gather_lights=None):
+                 gather_lights=None, spectral_exr=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
@@ -231,7 +236,11 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      indirect_only=indirect_only, denoise=denoise, indirect=indirect,
                                      bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error,
                                      bake_time=bake_time, bake_error_images=error_images,
-                                     bake_irradiance_cache=irradiance_cache, bake_gather_lights=gather_lights)
+                                     bake_irradiance_cache=irradiance_cache, bake_gather_lights=gather_lights,
+                                     spectral_exr=spectral_exr)
+    if job.settings.spectral_exr and not job.settings.spectral:
+        _uv_restore(uv_undo)
+        raise SceneError("spectral EXR files need a spectral bake: turn Spectral on (CLI: --spectral)")
     if job.settings.spectral:
         try:
             job.scene = spectral.spectral_scene(job.scene)
@@ -511,6 +520,11 @@ def compute_bake(job, progress=None, phase=None):
             continue
         lm_id = cs.instance_lightmaps[i][0]
         result.maps[name] = BakedMap(name, images.lightmap_rgba(cs.lightmaps, lm_id, cs.spectral), lm_id)
+        if job.settings.spectral_exr:
+            result.spectral_maps[name] = images.lightmap_bands(cs.lightmaps, lm_id)
+    if job.settings.spectral_exr and job.csg:
+        result.warnings.append(f"spectral EXR files are not written for CSG solids ({', '.join(sorted(job.csg))}); "
+                               "their RGB lightmaps are")
     if job.settings.bake_error_images and getattr(cs, "bake_error", None) is not None:
         result.error_maps = _error_maps(cs, job, solids)
     result.seconds["extract"] = time.perf_counter() - t1
@@ -563,6 +577,13 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
         result.error_images[name] = img.name
         result.error_paths[name] = images.store(img, name + images.ERROR_FILE_SUFFIX,
                                                 save_dir=save_dir, pack=pack)
+    for name, values in result.spectral_maps.items():
+        if not save_dir:
+            result.warnings.append("spectral EXR files are written only to a folder (the CLI's --out)")
+            break
+        path = os.path.join(save_dir, images.file_name(name) + "_spectral.exr")
+        spectral_exr.write(path, values, job.cs.spectral)
+        result.spectral_paths[name] = path
     if result.maps and images.in_memory_only(save_dir, pack):
         result.warnings.append("the .blend is not saved yet: the lightmap images live only in memory "
                                "(save the .blend and bake again, or pack them)")
@@ -583,7 +604,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  indirect_only=False, progress=None, overwrite=False, save_dir=None, pack=False,
                  hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
-                 gather_lights=None):
+                 gather_lights=None, spectral_exr=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
@@ -595,7 +616,9 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     irradiance cache (None: the scene's Bake Irradiance Cache); `gather_lights`
     samples point, spot and sun lights where gather rays land (None: the scene's
     Bake Gather Lights); `error_images` also writes each texel's estimated
-    relative error as an image, BakeResult.error_maps). `resolution` forces
+    relative error as an image, BakeResult.error_maps; `spectral_exr`, with a
+    spectral bake and `save_dir`, also writes every band to
+    "<save_dir>/<object>_spectral.exr", bake/spectral_exr.py). `resolution` forces
     R x R texels per object; otherwise the object's own setting or the scene's
     texel density decides. `denoise` (None: the scene's setting) runs OIDN over
     each map (engine/transport/denoise.py). `progress(done, total)`
@@ -606,7 +629,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                        resolution=resolution, indirect_only=indirect_only, denoise=denoise,
                        indirect=indirect, bake_gather_rays=bake_gather_rays,
                        bake_target_error=bake_target_error, bake_time=bake_time,
-                       error_images=error_images, irradiance_cache=irradiance_cache, gather_lights=gather_lights)
+                       error_images=error_images, irradiance_cache=irradiance_cache, gather_lights=gather_lights,
+                       spectral_exr=spectral_exr)
     try:
         compute_bake(job, progress)
     except BaseException:

@@ -1,5 +1,6 @@
 """Every CLI command end to end, at tiny sizes, as a user runs it: the README's
-`make demo` (through make, so the Makefile's command line is tested too), then
+`make demo` (through make, so the Makefile's command line is tested too; it renders the
+spectral demo too), then
 `render`, `bake` and `bake-ol` on the file the demo wrote, and `lsystem`.
 Each checks its exit code, the files it wrote and the keys of its report."""
 import json
@@ -16,10 +17,11 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 TINY = ("--photons", "20000", "--seed", "1")
 
 
-def run(*argv, timeout=900, env=None):
+def run(*argv, timeout=900, env=None, check=True):
+    """The CLI on argv; check: it must succeed (otherwise only: without a traceback)."""
     r = subprocess.run([sys.executable, "-m", "photon_lightmaps", *map(str, argv)], cwd=ROOT,
                        capture_output=True, text=True, timeout=timeout, env=env)
-    assert r.returncode == 0, r.stderr[-3000:]
+    assert r.returncode == 0 or not check, r.stderr[-3000:]
     assert "Traceback" not in r.stderr
     return r
 
@@ -63,11 +65,13 @@ def demo(tmp_path_factory):
 
 def test_make_demo_renders_and_bakes(demo):
     out, r = demo
-    assert re.search(r"^demo: .*render\.png and \d+ baked lightmaps", r.stdout, re.M), r.stdout[-2000:]
-    assert (out / "demo.blend").is_file()
-    assert read_png(out / "render.png") == (24, 16)
+    assert re.search(r"^demo: .*render\.png, .*spectral\.png and \d+ baked lightmaps", r.stdout, re.M), \
+        r.stdout[-2000:]
+    assert (out / "demo.blend").is_file() and (out / "spectral.blend").is_file()
+    assert read_png(out / "render.png") == (24, 16) and read_png(out / "spectral.png") == (24, 16)
     report = json.loads((out / "demo.json").read_text())
-    assert set(report) >= {"blend", "render", "bake", "orientation_lightmaps", "seconds"}
+    assert set(report) >= {"blend", "render", "bake", "orientation_lightmaps", "spectral", "seconds"}
+    assert report["spectral"]["photons"] > 0
     assert report["render"]["photons"] > 0 and report["render"]["width"] == 24
     assert report["bake"]["indirect"] == "gather" and report["bake"]["photons"] > 0
     baked = report["bake"]["objects"]
@@ -134,12 +138,38 @@ def test_spectral_render_and_bake_come_back_as_rgb(demo, tmp_path):
     for mode in ("--spectral", "--no-spectral"):
         rep = tmp_path / f"{mode}.json"
         run("bake", out / "demo.blend", "--out", tmp_path / mode, "--json", rep, "--photons", "200000", "--seed",
-            "1", "--resolution", "8", "--bake-gather-rays", "16", mode)
+            "1", "--resolution", "8", "--bake-gather-rays", "16", mode,
+            *(["--spectral-exr"] if mode == "--spectral" else []))
         means[mode] = {name: _exr_mean(row["path"]) for name, row in json.loads(rep.read_text())["objects"].items()}
     assert means["--spectral"].keys() == means["--no-spectral"].keys()
     for name, rgb in means["--no-spectral"].items():
         print(f"\n{name}: RGB {np.round(rgb, 4)}, spectral {np.round(means['--spectral'][name], 4)}")
         np.testing.assert_allclose(means["--spectral"][name], rgb, rtol=0.01, err_msg=name)
+    # --spectral-exr: every band of each (mesh) lightmap, which goes to the RGB map's values
+    from photon_lightmaps.bake import spectral_exr
+    from photon_lightmaps.engine.shading import spectrum
+    bands = spectrum.Bands()
+    objects = json.loads((tmp_path / "--spectral.json").read_text())["objects"]
+    written = {name: row["spectral_exr"] for name, row in objects.items() if "spectral_exr" in row}
+    assert {"floor", "back", "left", "right"} <= set(written)
+    for name, path in written.items():
+        values, nm = spectral_exr.read(path)
+        np.testing.assert_allclose(nm, bands.lo + (np.arange(16) + 0.5) * 25.0)
+        rgb = _exr_pixels(objects[name]["path"])
+        np.testing.assert_allclose(spectrum.to_rgb(values.astype(np.float64), bands), rgb[..., :3], rtol=1e-4,
+                                   atol=1e-6, err_msg=name)
+    r = run("bake", out / "demo.blend", "--out", tmp_path / "x", "--no-spectral", "--spectral-exr", check=False)
+    assert r.returncode == 2 and "spectral EXR files need a spectral bake" in r.stderr
+
+
+def _exr_pixels(path):
+    """(height, width, 4) of an RGBA EXR, bottom row first."""
+    import bpy
+    img = bpy.data.images.load(str(path))
+    try:
+        return np.array(img.pixels[:], np.float64).reshape(img.size[1], img.size[0], 4)
+    finally:
+        bpy.data.images.remove(img)
 
 
 def _exr_mean(path):

@@ -388,35 +388,37 @@ class PHOTON_LIGHTMAPS_PT_material_slots(_EnginePanel, bpy.types.Panel):
             layout.template_ID(context.space_data, "pin_id")
 
 
-class PHOTON_LIGHTMAPS_PT_material_surface(_EnginePanel, bpy.types.Panel):
-    bl_label = "Surface"
+class _MaterialPanel(_EnginePanel):
+    """A panel of the material tab, for a material that is not grease pencil."""
     bl_context = "material"
 
     @classmethod
     def poll(cls, context):
         mat = context.material
         return super().poll(context) and mat is not None and not mat.grease_pencil
+
+    def settings_layout(self, context):
+        """(layout, the material's photon_lightmaps settings), property-split like Cycles' panels."""
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        return layout, context.material.photon_lightmaps
+
+
+class PHOTON_LIGHTMAPS_PT_material_surface(_MaterialPanel, bpy.types.Panel):
+    bl_label = "Surface"
 
     def draw(self, context):
         _draw_surface(self.layout, context.material, "ShaderNodeOutputMaterial",
                       "Principled, Diffuse, Glossy, Glass or Emission", "diffuse_color")
 
 
-class PHOTON_LIGHTMAPS_PT_material_dispersion(_EnginePanel, bpy.types.Panel):
+class PHOTON_LIGHTMAPS_PT_material_dispersion(_MaterialPanel, bpy.types.Panel):
     bl_label = "Dispersion"
-    bl_context = "material"
     bl_options = {'DEFAULT_CLOSED'}
 
-    @classmethod
-    def poll(cls, context):
-        mat = context.material
-        return super().poll(context) and mat is not None and not mat.grease_pencil
-
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        s = context.material.photon_lightmaps
+        layout, s = self.settings_layout(context)
         layout.prop(s, "dispersion")
         if s.dispersion == DISPERSION_ABBE:
             layout.prop(s, "abbe")
@@ -427,21 +429,12 @@ class PHOTON_LIGHTMAPS_PT_material_dispersion(_EnginePanel, bpy.types.Panel):
             layout.label(text="Seen with Spectral on (Render properties)", icon='INFO')
 
 
-class PHOTON_LIGHTMAPS_PT_material_fluorescence(_EnginePanel, bpy.types.Panel):
+class PHOTON_LIGHTMAPS_PT_material_fluorescence(_MaterialPanel, bpy.types.Panel):
     bl_label = "Fluorescence"
-    bl_context = "material"
     bl_options = {'DEFAULT_CLOSED'}
 
-    @classmethod
-    def poll(cls, context):
-        mat = context.material
-        return super().poll(context) and mat is not None and not mat.grease_pencil
-
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        s = context.material.photon_lightmaps
+        layout, s = self.settings_layout(context)
         layout.prop(s, "fluorescence")
         if s.fluorescence == FLUORESCENCE_NONE:
             return

@@ -20,9 +20,11 @@ depend on the number of bands.
   brightest channel times a reflectance times the white light.
 * A grey (a scalar, or equal channels) stays flat: a grey is a grey in every band.
 
-Not yet spectral: colour textures (their RGB is read per hit, band by band) and
-world maps. A scene with either is refused with the material or world named,
-rather than rendered in wrong colours.
+* A base-colour texture keeps its RGB; each hit turns the colour it reads into
+  a spectrum through the spectra of an RGB grid (spectrum.rgb_table).
+
+Not yet spectral: world image maps. A scene with one is refused with the world
+named, rather than rendered in wrong colours.
 """
 import math
 from dataclasses import replace
@@ -31,9 +33,6 @@ import numpy as np
 
 from .core.scene import EnvironmentMap, SceneError
 from .shading import spectrum
-
-COLOUR_TEXTURES = ("base_color",)
-
 
 def spectral_scene(scene, bands=None):
     """A copy of RGB `scene` (n_bands 3) with every colour a spectrum over `bands`
@@ -46,10 +45,6 @@ def spectral_scene(scene, bands=None):
                          "use a world colour or turn Spectral off")
     mats = []
     for m in scene.materials:
-        for key in COLOUR_TEXTURES:
-            if key in (m.textures or {}):
-                raise SceneError(f"material '{m.name}': spectral mode does not take a texture on its "
-                                 f"{key.replace('_', ' ')} yet; remove it or turn Spectral off")
         d, s, t = (_reflectance(getattr(m, k), bands) for k in ("diffuse", "specular", "transmission"))
         total = _as_array(d, bands) + _as_array(s, bands) + _as_array(t, bands)
         over = np.maximum(total, 1.0)

@@ -160,8 +160,8 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
     spectral: BoolProperty(
         name="Spectral", default=_D.spectral,
         description="Trace 16 wavelength bands over 380-780 nm instead of RGB; renders and bakes come "
-                    "back as RGB. Colours become smooth spectra (Jakob & Hanika). Colour textures "
-                    "and world image maps are not spectral yet")
+                    "back as RGB. Colours become smooth spectra (Jakob & Hanika); glass disperses and "
+                    "dyes fluoresce where their material asks. World image maps are not spectral yet")
     seed: IntProperty(
         name="Seed", default=_D.seed, min=0,
         description="Random seed; the same seed gives the same image")

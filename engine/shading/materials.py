@@ -15,6 +15,7 @@ from ..core.jit import CORE, INLINE
 from ..core.scene import SceneError, as_bands
 from . import dispersion
 from . import fluorescence
+from . import spectrum
 from .texture import lod_for, sample4, sample_mean4
 
 # diffuse/specular/transmission (n, bands): the lobe weights of an untextured material.
@@ -26,9 +27,11 @@ from .texture import lod_for, sample4, sample_mean4
 # (all NONE in RGB); bands: (n, lo nm, width nm) of a spectral scene's bands (n 0: RGB).
 # fluorescent (n,) bool, fluor (n, bands, bands) and fluor_albedo (n, bands): a
 # fluorescent material's re-radiation matrix M[o, i] and its column sums (fluorescence.py).
+# rgb_table (k, k, k, bands): a spectral scene's spectra of an RGB grid (spectrum.rgb_table),
+# through which a base-colour texture's RGB becomes a spectrum per hit; (1, 1, 1, bands) unused.
 MaterialSet = namedtuple("MaterialSet", "diffuse specular transmission roughness ior emission "
                                         "tex base metallic transmission_weight specular_level "
-                                        "dispersion bands fluorescent fluor fluor_albedo")
+                                        "dispersion bands fluorescent fluor fluor_albedo rgb_table")
 
 # Material.textures keys, in the column order of MaterialSet.tex
 TEXTURE_INPUTS = ("base_color", "roughness", "metallic", "transmission", "normal")
@@ -45,7 +48,7 @@ def compile_materials(scene):
                       np.full((n, len(TEXTURE_INPUTS)), -1, np.int32), np.full((n, b), 0.8),
                       np.zeros(n), np.zeros(n), np.zeros(n),
                       np.zeros((n, dispersion.DISPERSION_SIZE)), _bands(getattr(scene, "spectral", None)),
-                      np.zeros(n, np.bool_), np.zeros((n, b, b)), np.zeros((n, b)))
+                      np.zeros(n, np.bool_), np.zeros((n, b, b)), np.zeros((n, b)), _rgb_table(scene, mats, b))
     n_tex = len(getattr(scene, "textures", None) or [])
     for i, m in enumerate(mats):
         _texture_inputs(out, i, m, b, n_tex)
@@ -89,6 +92,14 @@ def _fluorescence(out, i, m, bands):
     out.fluor[i] = M
     out.fluor_albedo[i] = M.sum(axis=0)
     out.diffuse[i] = kd
+
+
+def _rgb_table(scene, mats, nb):
+    """The RGB grid's spectra where a spectral scene has a base-colour texture."""
+    bands = getattr(scene, "spectral", None)
+    if bands is None or not any("base_color" in (getattr(m, "textures", None) or {}) for m in mats):
+        return np.zeros((1, 1, 1, nb))
+    return spectrum.rgb_table(bands)
 
 
 def _bands(bands):
@@ -238,18 +249,40 @@ def _textured_inputs(ms, ts, g, inst, m, shape, face, u, v, footprint, kd, ks, k
     cr, cg, cb = 0.0, 0.0, 0.0
     if tex[m, TEX_BASE] >= 0:
         cr, cg, cb, _ = _lookup(ts, tex[m, TEX_BASE], ok, s, t, f_uv)
+        cr, cg, cb = _unit01(cr), _unit01(cg), _unit01(cb)
+    # a spectral scene turns the texture's colour into a spectrum (a grey stays flat)
+    table = ms.bands[0] > 0.0 and tex[m, TEX_BASE] >= 0 and not (cr == cg and cg == cb)
     for b in range(nb):
         if tex[m, TEX_BASE] < 0:
             B = ms.base[m, b]
-        elif nb == 1:             # grey scenes: the mean of RGB, as the exporter's ctx.bands
-            B = (cr + cg + cb) / 3.0
-        else:
+        elif table:
+            B = _table_spectrum(ms.rgb_table, cr, cg, cb, b)
+        elif nb == 3:
             B = cr if b == 0 else cg if b == 1 else cb
+        else:                     # grey scenes: the mean of RGB, as the exporter's ctx.bands
+            B = cr if ms.bands[0] > 0.0 else (cr + cg + cb) / 3.0
         B = _unit01(B)
         kd[b] = B * (1.0 - M) * (1.0 - T)
         ks[b] = B * M
         kt[b] = B * (1.0 - M) * T
     return rough, ms.ior[m], ms.specular_level[m]
+
+
+@njit(cache=True)
+def _table_spectrum(table, r, g, b, band):
+    """Band `band` of the spectrum of colour (r, g, b) in [0, 1]: trilinear in the RGB
+    grid's spectra (spectrum.rgb_table), which gives the colour back exactly."""
+    k = table.shape[0] - 1
+    fr, fg, fb = r * k, g * k, b * k
+    i, j, l = min(int(fr), k - 1), min(int(fg), k - 1), min(int(fb), k - 1)
+    wr, wg, wb = fr - i, fg - j, fb - l
+    out = 0.0
+    for di in range(2):
+        for dj in range(2):
+            for dl in range(2):
+                w = (wr if di else 1.0 - wr) * (wg if dj else 1.0 - wg) * (wb if dl else 1.0 - wb)
+                out += w * table[i + di, j + dj, l + dl, band]
+    return out
 
 
 @njit(**INLINE)

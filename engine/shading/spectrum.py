@@ -202,6 +202,25 @@ def reflectance_spectrum(rgb, bands):
     return _sigmoid(x)
 
 
+RGB_TABLE_SIDE = 17
+
+
+@functools.lru_cache(maxsize=4)
+def rgb_table(bands, side=RGB_TABLE_SIDE):
+    """(side, side, side, n): the reflectance spectra of an even grid over the RGB cube
+    (reflectance_spectrum at each grid colour), for colours only known per hit (textures).
+
+    Interpolated trilinearly between grid colours, the spectra (not their
+    coefficients) give back the colour exactly: a spectrum's RGB is linear in it,
+    and trilinear interpolation reproduces a linear function. A mix of sigmoids
+    stays within (0, 1), but is not the sigmoid fitted to that colour itself: a
+    textured colour's spectrum differs a little from the same colour given as a
+    constant (the same RGB under the white light, a little apart under others)."""
+    g = np.linspace(0.0, 1.0, int(side))
+    grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1)
+    return np.ascontiguousarray(reflectance_spectrum(grid, bands))
+
+
 def emission_spectrum(rgb, bands):
     """An emitted colour (..., 3), any brightness -> band spectrum (..., n):
     its brightest channel times a reflectance times the white light."""

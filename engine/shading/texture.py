@@ -100,11 +100,12 @@ def compile_textures(scene, n_bands=None):
     """The TextureSet of scene.textures (an empty one when there are none).
 
     Colour textures are RGB; 3 bands use them as they are and 1 band their
-    mean (as the exporter's ctx.bands does). Other band counts would need a
+    mean (as the exporter's ctx.bands does); a spectral scene's bands take the
+    spectrum of their colour (materials.py). Other band counts would need a
     spectral upsampling the scene does not describe, so they are refused."""
     n_bands = int(scene.n_bands if n_bands is None else n_bands)
     texs = list(getattr(scene, "textures", None) or [])
-    if texs and n_bands not in (1, 3):
+    if texs and n_bands not in (1, 3) and getattr(scene, "spectral", None) is None:
         raise SceneError(f"textures need 3 (RGB) or 1 (grey) colour bands, the scene has {n_bands}")
     need = sum(4 * np.prod(np.shape(t.pixels)[:2]) * (np.shape(t.pixels) + (1,))[2] * 4 / 3
                for t in texs)

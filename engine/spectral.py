@@ -23,8 +23,8 @@ depend on the number of bands.
 * A base-colour texture keeps its RGB; each hit turns the colour it reads into
   a spectrum through the spectra of an RGB grid (spectrum.rgb_table).
 
-Not yet spectral: world image maps. A scene with one is refused with the world
-named, rather than rendered in wrong colours.
+* A world image map's pixels become emission spectra through the same grid, so
+  each keeps its RGB.
 """
 import math
 from dataclasses import replace
@@ -40,9 +40,6 @@ def spectral_scene(scene, bands=None):
     bands = bands or spectrum.Bands()
     if int(scene.n_bands) != 3:
         raise SceneError(f"spectral mode: the scene must be RGB (3 bands), it has {scene.n_bands}")
-    if isinstance(scene.environment, EnvironmentMap):
-        raise SceneError(f"world '{scene.environment.name}': spectral mode does not take world image maps yet; "
-                         "use a world colour or turn Spectral off")
     mats = []
     for m in scene.materials:
         d, s, t = (_reflectance(getattr(m, k), bands) for k in ("diffuse", "specular", "transmission"))
@@ -53,8 +50,9 @@ def spectral_scene(scene, bands=None):
         mats.append(replace(m, diffuse=d, specular=s, transmission=t, base_color=_reflectance(m.base_color, bands),
                             emission=_emission(m.emission, bands)))
     lights = [replace(lt, color=_light(lt, bands)) for lt in scene.lights]
-    return replace(scene, n_bands=int(bands.n), materials=mats, lights=lights,
-                   environment=_emission(scene.environment, bands), spectral=bands)
+    env = scene.environment
+    env = _world_map(env, bands) if isinstance(env, EnvironmentMap) else _emission(env, bands)
+    return replace(scene, n_bands=int(bands.n), materials=mats, lights=lights, environment=env, spectral=bands)
 
 
 def to_rgb(cs, image):
@@ -116,6 +114,21 @@ def _light(light, bands):
     s = planck * spectrum.reflectance_spectrum(np.clip(tint / peak, 0.0, 1.0), bands)
     y = float(np.linalg.inv(bands.xyz_to_rgb)[1] @ rgb)      # the colour's luminance
     return s * (y / max(float(spectrum.luminance(s, bands)), 1e-300))
+
+
+def _world_map(env, bands):
+    """A world image map's pixels as emission spectra (each its brightest channel times a
+    reflectance times the white light, as a constant world's), through the RGB grid's
+    spectra (spectrum.table_spectrum: no fit per pixel), so each pixel keeps its RGB."""
+    rgb = np.asarray(env.pixels, np.float64)
+    if rgb.ndim != 3 or rgb.shape[2] not in (1, 3):
+        raise SceneError(f"world '{env.name}': spectral mode needs an RGB or grey map, got {rgb.shape}")
+    if rgb.shape[2] == 1:
+        return replace(env, pixels=rgb * bands.white)
+    peak = rgb.max(axis=2, keepdims=True)
+    safe = np.where(peak > 0.0, peak, 1.0)
+    spectra = np.maximum(peak, 0.0) * spectrum.table_spectrum(rgb / safe, bands) * bands.white
+    return replace(env, pixels=spectra)
 
 
 def _as_array(x, bands):

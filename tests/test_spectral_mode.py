@@ -121,11 +121,31 @@ def test_textured_colours_become_spectra_per_hit(colour):
     np.testing.assert_allclose(_patch(colour, True) / _patch((1.0, 1.0, 1.0), False), colour, atol=5e-5)
 
 
-def test_what_is_not_spectral_yet_is_refused_by_name():
-    scene = demo_scenes.cornell_box(n_bands=3, with_primitives=False)
-    scene.environment = EnvironmentMap(np.ones((4, 8, 3)), name="sky")
-    with pytest.raises(SceneError, match="world 'sky'"):
-        spectral.spectral_scene(scene)
+def test_a_world_map_keeps_its_colours_as_spectra():
+    """A world image map in spectral mode: every pixel a non-negative spectrum whose RGB is the
+    pixel's (within 2e-4 of its brightest channel: a sigmoid never reaches 1), grey pixels the
+    white light; the camera sees the sky it sees in RGB, and the world's power per RGB
+    channel is kept."""
+    rng = np.random.default_rng(3)
+    sky = (rng.random((8, 16, 3)) * np.array([2.0, 1.0, 0.5])).astype(np.float32)
+    sky[0, 0] = 0.7                                                  # a grey pixel
+    s = Scene(n_bands=3)
+    s.environment = EnvironmentMap(sky, name="sky")
+    s.camera = Camera(fov=math.radians(120.0), width=8, height=8)
+    bands = spectrum.Bands()
+    sp = spectral.spectral_scene(s, bands)
+    px = sp.environment.pixels
+    assert px.shape == (8, 16, bands.n) and np.all(px >= 0.0)
+    np.testing.assert_allclose(spectrum.to_rgb(px, bands), sky, atol=2e-4 * sky.max())
+    np.testing.assert_allclose(px[0, 0], 0.7 * bands.white, rtol=1e-3)
+    rgb_cs, sp_cs = compile_scene(s), compile_scene(sp)
+    img_rgb = renderer.render(rgb_cs, samples=4, indirect=False)
+    img_sp = spectral.to_rgb(sp_cs, renderer.render(sp_cs, samples=4, indirect=False))
+    np.testing.assert_allclose(img_sp, img_rgb, atol=2e-4 * sky.max())
+    np.testing.assert_allclose(spectrum.to_rgb(sp_cs.environment.power, bands), rgb_cs.environment.power, rtol=1e-3)
+
+
+def test_only_rgb_scenes_become_spectral():
     with pytest.raises(SceneError, match="must be RGB"):
         spectral.spectral_scene(demo_scenes.cornell_box(n_bands=1))
 

@@ -161,7 +161,7 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         name="Spectral", default=_D.spectral,
         description="Trace 16 wavelength bands over 380-780 nm instead of RGB; renders and bakes come "
                     "back as RGB. Colours become smooth spectra (Jakob & Hanika); glass disperses and "
-                    "dyes fluoresce where their material asks. World image maps are not spectral yet")
+                    "dyes fluoresce where their material asks")
     seed: IntProperty(
         name="Seed", default=_D.seed, min=0,
         description="Random seed; the same seed gives the same image")

@@ -221,6 +221,22 @@ def rgb_table(bands, side=RGB_TABLE_SIDE):
     return np.ascontiguousarray(reflectance_spectrum(grid, bands))
 
 
+def table_spectrum(rgb, bands):
+    """Reflectance spectra (..., n) of colours (..., 3) in [0, 1] through rgb_table (trilinear):
+    the colour back exactly, for as many colours as an image has, without a fit each."""
+    table = rgb_table(bands)
+    k = table.shape[0] - 1
+    f = np.clip(np.asarray(rgb, np.float64), 0.0, 1.0) * k
+    i = np.minimum(f.astype(np.int64), k - 1)
+    w = f - i
+    out = 0.0
+    for corner in range(8):
+        d = [(corner >> a) & 1 for a in range(3)]
+        weight = np.prod([w[..., a] if d[a] else 1.0 - w[..., a] for a in range(3)], axis=0)
+        out = out + weight[..., None] * table[i[..., 0] + d[0], i[..., 1] + d[1], i[..., 2] + d[2]]
+    return out
+
+
 def emission_spectrum(rgb, bands):
     """An emitted colour (..., 3), any brightness -> band spectrum (..., n):
     its brightest channel times a reflectance times the white light."""

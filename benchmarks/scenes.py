@@ -115,7 +115,8 @@ def mesh_objects(scene=None):
 # out of the key at these values, where they change nothing, so a new option
 # does not orphan the references of the scenes that do not use it.
 KEY_NEUTRAL = {("Light", "temperature"): 0.0, ("Scene", "spectral"): None, ("Material", "glass"): "",
-               ("Material", "abbe"): 0.0, ("Material", "fluorescence"): None}
+               ("Material", "abbe"): 0.0, ("Material", "fluorescence"): None,
+               ("Material", "emission_temperature"): 0.0}
 
 
 def _neutral(value, neutral):

@@ -11,8 +11,9 @@ depend on the number of bands.
   Hanika spectra. Each lobe is fitted on its own; where the lobes of a material
   would then sum above 1 in some band, they are scaled down there, so no
   surface makes light.
-* A blackbody light (Blender's light temperature) emits Planck's spectrum
-  times its tint, at its colour's luminance.
+* A blackbody light (Blender's light temperature) or glowing surface (a
+  Blackbody node on its emission colour) emits Planck's spectrum times its
+  tint, at its colour's luminance.
 * A line light (an LED, a UV lamp) emits a Gaussian line with a white light's
   power, whatever its colour (which RGB mode uses); a line outside the bands
   would emit nothing there, and is refused.
@@ -47,8 +48,10 @@ def spectral_scene(scene, bands=None):
         over = np.maximum(total, 1.0)
         if np.any(over > 1.0):
             d, s, t = (_as_array(x, bands) / over for x in (d, s, t))
+        kelvin = float(getattr(m, "emission_temperature", 0.0) or 0.0)
+        glow = _blackbody(m.emission, kelvin, bands) if kelvin > 0.0 else _emission(m.emission, bands)
         mats.append(replace(m, diffuse=d, specular=s, transmission=t, base_color=_reflectance(m.base_color, bands),
-                            emission=_emission(m.emission, bands)))
+                            emission=glow))
     lights = [replace(lt, color=_light(lt, bands)) for lt in scene.lights]
     env = scene.environment
     env = _world_map(env, bands) if isinstance(env, EnvironmentMap) else _emission(env, bands)
@@ -105,7 +108,13 @@ def _light(light, bands):
     kelvin = float(getattr(light, "temperature", 0.0) or 0.0)
     if kelvin <= 0.0:
         return _emission(light.color, bands)
-    rgb = np.broadcast_to(np.asarray(light.color, np.float64), (3,))
+    return _blackbody(light.color, kelvin, bands)
+
+
+def _blackbody(colour, kelvin, bands):
+    """Planck's spectrum at kelvin times the tint (colour over the blackbody's own RGB),
+    at the colour's luminance: a blackbody light's or glowing surface's spectrum."""
+    rgb = np.broadcast_to(np.asarray(colour, np.float64), (3,))
     planck = spectrum.blackbody_spectrum(kelvin, bands)
     tint = rgb / np.maximum(spectrum.to_rgb(planck, bands), 1e-12)
     peak = tint.max()

@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..engine.core.scene import Material
-from ..engine.shading import dispersion, fluorescence
+from ..engine.shading import dispersion, fluorescence, spectrum
 from . import textures
 from ..engine.shading.texture import srgb_to_linear
 from .context import DEFAULT_DIFFUSE, output_priority
@@ -75,6 +75,8 @@ def node_input(ctx, socket, what, owner, baked=False):
         if node.bl_idname in ("ShaderNodeRGB", "ShaderNodeValue"):
             val = out.default_value
             return _shape_like(socket, val)
+        if node.bl_idname == "ShaderNodeBlackbody" and not node.inputs["Temperature"].is_linked:
+            return _shape_like(socket, tuple(blackbody_rgb(node.inputs["Temperature"].default_value)) + (1.0,))
         if baked:
             break
         if node.bl_idname in ("ShaderNodeTexImage", "ShaderNodeTexEnvironment") and node.image is not None:
@@ -208,7 +210,38 @@ def _convert(ctx, mat, driven):
         ctx.report("WARNING", f"{owner} {why}; rendered as diffuse with its viewport colour")
         m = Material(name, diffuse=np.asarray(tuple(mat.diffuse_color)[:3], dtype=np.float64))
     _dispersion(mat, m)
+    _emission_temperature(node, m)
     return _physical(ctx, m, owner)
+
+
+def blackbody_rgb(kelvin):
+    """Blender's Blackbody node: Planck's colour at kelvin in Rec.709, luminance 1, through
+    the spectral bands (within 1.5 % of Blender's own from 1500 to 10 000 K), negative
+    channels clipped."""
+    bands = spectrum.Bands()
+    return np.maximum(spectrum.to_rgb(spectrum.blackbody_spectrum(float(kelvin), bands), bands), 0.0)
+
+
+# where each converted shader takes its emitted colour
+EMISSION_COLOUR = {"ShaderNodeBsdfPrincipled": "Emission Color", "ShaderNodeEmission": "Color"}
+
+
+def _emission_temperature(node, m):
+    """A Blackbody node on the shader's emission colour: its temperature on Material m
+    (spectral mode emits Planck's spectrum; RGB its colour, as node_input gave it)."""
+    key = EMISSION_COLOUR.get(getattr(node, "bl_idname", None))
+    if key is None:
+        return
+    sock = node.inputs[key]
+    for _ in range(32):
+        if not sock.is_linked:
+            return
+        src = sock.links[0].from_node
+        if src.bl_idname != "NodeReroute":
+            break
+        sock = src.inputs[0]
+    if src.bl_idname == "ShaderNodeBlackbody" and not src.inputs["Temperature"].is_linked:
+        m.emission_temperature = float(src.inputs["Temperature"].default_value)
 
 
 def _dispersion(mat, m):

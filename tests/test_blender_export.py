@@ -293,6 +293,39 @@ def test_material_dispersion_setting_is_exported():
     assert ms.dispersion[idx["plain"], 0] == 0 and ms.dispersion[idx["flint"], 0] > 0
 
 
+def test_blackbody_node_on_an_emission_colour():
+    """A Blackbody node (3000 K) on an Emission shader's colour: RGB mode glows its colour
+    (within 2 % of Blender's own blackbody colour, here a light's at that temperature;
+    measured 0.9 % in blue: our colour is Planck's through the 16 bands),
+    and spectral mode emits Planck's spectrum at that colour's luminance."""
+    mat = bpy.data.materials.new("ember")
+    mat.use_nodes = True
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    em = tree.nodes.new("ShaderNodeEmission")
+    bb = tree.nodes.new("ShaderNodeBlackbody")
+    bb.inputs["Temperature"].default_value = 3000.0
+    em.inputs["Strength"].default_value = 2.0
+    tree.links.new(bb.outputs["Color"], em.inputs["Color"])
+    tree.links.new(em.outputs["Emission"], out.inputs["Surface"])
+    _mat_objects([mat])
+    lamp = bpy.data.lights.new("ref", "POINT")
+    lamp.use_temperature, lamp.temperature = True, 3000.0
+    scene, _, warnings = export_current()
+    m = next(mm for mm in scene.materials if mm.name == "ember")
+    assert m.emission_temperature == 3000.0 and not [w for w in warnings if "ember" in w[1]]
+    np.testing.assert_allclose(m.emission, 2.0 * np.asarray(lamp.temperature_color), rtol=0.02)
+    from photon_lightmaps.engine import spectral
+    from photon_lightmaps.engine.shading import spectrum
+    bands = spectrum.Bands()
+    glow = next(mm for mm in spectral.spectral_scene(scene, bands).materials if mm.name == "ember").emission
+    planck = spectrum.blackbody_spectrum(3000.0, bands)
+    np.testing.assert_allclose(glow / glow.sum(), planck / planck.sum(), rtol=0.02)
+    y = np.linalg.inv(bands.xyz_to_rgb)[1]
+    assert spectrum.luminance(glow, bands) == pytest.approx(float(y @ m.emission), rel=1e-6)
+
+
 def test_material_fluorescence_setting_is_exported():
     """The material panel's Fluorescence: a preset (its absorption scaled by Strength), custom
     spectra, or none."""

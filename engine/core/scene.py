@@ -120,6 +120,9 @@ class Material:
     # Fluorescence (thesis A.3, engine/shading/fluorescence.Fluorescence), seen in spectral
     # mode: its diffuse light re-emits absorbed light at longer wavelengths.
     fluorescence: object = None
+    # > 0: the emission is a blackbody's at this many kelvin (Blender's Blackbody node);
+    # `emission` holds its RGB times the tint, and spectral mode emits Planck's spectrum
+    emission_temperature: float = 0.0
 
 
 @dataclass

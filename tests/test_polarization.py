@@ -1,0 +1,118 @@
+"""Polarization algebra (engine/shading/polarization.py, thesis A.2): Fresnel with
+retardance against the complex-amplitude Fresnel equations, Brewster's angle, Malus's
+law, Mueller matrices against Jones calculus, and energy bounds along specular chains."""
+import math
+
+import numpy as np
+import pytest
+
+from photon_lightmaps.engine.shading import polarization as P
+
+ANGLES = np.radians(np.concatenate([np.linspace(0.0, 89.0, 90), [89.5, 89.9]]))
+INTERFACES = {"glass 1.5": (1.5, 0.0), "glass 1.9": (1.9, 0.0), "inside glass 1.5": (1 / 1.5, 0.0),
+              **{name: nk for name, nk in P.CONDUCTORS.items()}}
+
+
+@pytest.mark.parametrize("name", list(INTERFACES))
+def test_fresnel_with_retardance_matches_the_complex_amplitudes(name):
+    """F_s = |r_s|², F_p = |r_p|² and δ = -arg r within 1e-6 at every incidence, for
+    dielectrics from both sides (total internal reflection from inside) and metals."""
+    n, k = INTERFACES[name]
+    c = np.cos(ANGLES)
+    f_s, f_p, d_s, d_p = P.fresnel_retardance(c, n, k)
+    r_s, r_p = P.fresnel_amplitudes(c, n, k)
+    np.testing.assert_allclose(f_s, np.abs(r_s) ** 2, atol=1e-6)
+    np.testing.assert_allclose(f_p, np.abs(r_p) ** 2, atol=1e-6)
+    # phases compared on the circle (a phase of 0 and of 2π are one)
+    for d, r in ((d_s, r_s), (d_p, r_p)):
+        ok = np.abs(r) > 1e-9                      # the phase of a vanishing amplitude (Brewster) is moot
+        np.testing.assert_allclose(np.exp(1j * d[ok]), np.exp(-1j * np.angle(r[ok])), atol=1e-6)
+
+
+def test_catalogued_reflectances():
+    """1 -> 1.5 at normal incidence: 0.04; Cu, Au, Al near 560 nm: 0.6725, 0.8776, 0.9200."""
+    assert P.fresnel_retardance(1.0, 1.5)[0] == pytest.approx(0.04, abs=1e-12)
+    for name, r0 in (("Cu", 0.6725), ("Au", 0.8776), ("Al", 0.9200)):
+        f_s, f_p, _, _ = P.fresnel_retardance(1.0, *P.CONDUCTORS[name])
+        assert f_s == pytest.approx(r0, abs=1e-4) and f_p == pytest.approx(r0, abs=1e-4)
+
+
+@pytest.mark.parametrize("n,deg", [(1.5, 56.31), (1.9, 62.24)])
+def test_light_reflected_at_brewsters_angle_is_fully_s_polarized(n, deg):
+    """At atan(n) (56.31° for 1.5, 62.24° for 1.9) F_p vanishes: unpolarized light comes back
+    polarized along s, degree of polarization 1, S1 = S0."""
+    theta = math.atan(n)
+    assert math.degrees(theta) == pytest.approx(deg, abs=0.005)
+    f_s, f_p, d_s, d_p = P.fresnel_retardance(math.cos(theta), n)
+    assert f_p < 1e-15
+    S = P.reflection(f_s, f_p, d_s, d_p) @ np.array([1.0, 0.0, 0.0, 0.0])
+    assert S[0] == pytest.approx(f_s / 2) and S[1] == pytest.approx(S[0]) and P.degree_of_polarization(S) == \
+        pytest.approx(1.0)
+    # a degree away it is not
+    f_s, f_p, d_s, d_p = P.fresnel_retardance(math.cos(theta + math.radians(1.0)), n)
+    assert P.degree_of_polarization(P.reflection(f_s, f_p, d_s, d_p) @ [1.0, 0, 0, 0]) < 0.999
+
+
+@pytest.mark.parametrize("name", list(INTERFACES))
+def test_mueller_matrices_are_their_jones_matrices(name):
+    """The reflection matrix from F and δ equals U (J ⊗ J*) U⁻¹ of J = diag(r_s, r_p) within
+    1e-6 (this pins the sign of the retardance terms); so do the rotator and the polarizer."""
+    n, k = INTERFACES[name]
+    for t in ANGLES[::7]:
+        c = math.cos(t)
+        m = P.reflection(*(float(x) for x in P.fresnel_retardance(c, n, k)))
+        r_s, r_p = P.fresnel_amplitudes(c, n, k)
+        np.testing.assert_allclose(m, P.mueller_of_jones(np.diag([complex(r_s), complex(r_p)])), atol=1e-6)
+    for phi in (0.3, -1.1, 2.0):
+        c, s = math.cos(phi), math.sin(phi)
+        # a frame turned by phi: components in the new frame are R(-phi) applied to the old ones
+        np.testing.assert_allclose(P.rotator(phi), P.mueller_of_jones([[c, s], [-s, c]]), atol=1e-12)
+        np.testing.assert_allclose(P.linear_polarizer(phi), P.mueller_of_jones([[c * c, c * s], [c * s, s * s]]),
+                                   atol=1e-12)
+
+
+def test_malus_law():
+    """A polarizer at φ behind a linearly polarized source passes cos²φ of it."""
+    source = P.linear_polarizer(0.0) @ np.array([2.0, 0.0, 0.0, 0.0])     # 1 W along x
+    for phi in np.radians([0.0, 20.0, 45.0, 60.0, 90.0, 135.0]):
+        assert (P.linear_polarizer(phi) @ source)[0] == pytest.approx(math.cos(phi) ** 2, abs=1e-12)
+
+
+def test_frames_turn_with_the_ray():
+    """frame_angle gives the rotator's argument: x turned by it about d lands on the new x, and
+    re-expressing a polarized beam in a turned frame keeps its intensity and degree."""
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        x = P.s_direction(d, rng.normal(size=3))
+        y = np.cross(d, x)
+        phi = rng.uniform(-math.pi, math.pi)
+        x2 = math.cos(phi) * x + math.sin(phi) * y
+        assert P.frame_angle(x, x2, d) == pytest.approx(phi, abs=1e-12)
+        S = np.array([1.0, 0.6, -0.3, 0.2])
+        S2 = P.rotator(phi) @ S
+        assert S2[0] == S[0] and P.degree_of_polarization(S2) == pytest.approx(P.degree_of_polarization(S))
+
+
+def test_specular_chains_are_passive_and_keep_polarization_physical():
+    """Random chains of metal and glass reflections and transmissions, each in its own frame:
+    S0 never exceeds the S0 that came in, and the degree of polarization stays within 1.
+    (It may exceed the product of unpolarized reflectances: light polarized by one
+    reflection can be what the next reflects best.)"""
+    rng = np.random.default_rng(7)
+    names = list(INTERFACES)
+    for _ in range(200):
+        S = np.array([1.0, 0.0, 0.0, 0.0]) if rng.random() < 0.5 else \
+            np.concatenate([[1.0], rng.normal(size=3)])
+        S[1:] *= min(1.0, 1.0 / np.linalg.norm(S[1:])) if np.linalg.norm(S[1:]) > 0 else 1.0
+        s0 = S[0]
+        for _ in range(rng.integers(1, 6)):
+            n, k = INTERFACES[names[rng.integers(len(names))]]
+            c = rng.uniform(0.0, 1.0)
+            f = [float(x) for x in P.fresnel_retardance(c, n, k)]
+            m = P.reflection(*f) if (k > 0.0 or rng.random() < 0.5) else P.transmission(f[0], f[1])
+            S = m @ (P.rotator(rng.uniform(-math.pi, math.pi)) @ S)
+            assert S[0] <= s0 * (1.0 + 1e-12)
+            assert P.degree_of_polarization(S) <= 1.0 + 1e-9
+            s0 = S[0]

@@ -12,6 +12,9 @@ def camera(ctx, cam_ob, width, height):
         return cam
     cam.transform = matrix(cam_ob.matrix_world)
     data = cam_ob.data
+    settings = getattr(getattr(data, "original", None) or data, "photon_lightmaps", None)
+    if settings is not None and settings.use_polarizer:
+        cam.polarizer = float(settings.polarizer_angle)
     r = ctx.dg.scene.render
     if abs(r.pixel_aspect_x - r.pixel_aspect_y) > 1e-6:
         ctx.report("WARNING", "non-square pixel aspect is ignored")

@@ -471,3 +471,15 @@ def test_line_spectrum_light_is_exported():
     assert (L["uv_lamp"].line_nm, L["uv_lamp"].line_width) == (395.0, 15.0) and L["plain"].line_nm == 0.0
     c = np.asarray(L["uv_lamp"].color)
     assert np.all(c >= 0.0) and c[2] > 5.0 * max(c[0], c[1])
+
+
+def test_camera_polarizing_filter_is_exported():
+    """The camera panel's Polarizing Filter: its angle when on, None when off."""
+    sc = bpy.context.scene
+    cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
+    link(cam)
+    sc.camera = cam
+    assert export_current()[0].camera.polarizer is None
+    cam.data.photon_lightmaps.use_polarizer = True
+    cam.data.photon_lightmaps.polarizer_angle = math.radians(90.0)
+    assert export_current()[0].camera.polarizer == pytest.approx(math.pi / 2)

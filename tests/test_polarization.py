@@ -116,3 +116,83 @@ def test_specular_chains_are_passive_and_keep_polarization_physical():
             assert S[0] <= s0 * (1.0 + 1e-12)
             assert P.degree_of_polarization(S) <= 1.0 + 1e-9
             s0 = S[0]
+
+
+def _glare(theta_deg, polarizer, ior=1.5):
+    """The camera's value (one ray) looking at a smooth dielectric surface at theta_deg from its
+    normal (a black base under a clear coat of index `ior`, Principled's Specular IOR Level
+    0.5: every camera ray reflects, weighted by Fresnel), seeing the reflection of a white
+    glowing wall (radiance 1). The filter's axis is at `polarizer` from the camera's x,
+    which is the s direction here (None: no filter)."""
+    from photon_lightmaps.engine import demo_scenes
+    from photon_lightmaps.engine.compile import compile_scene
+    from photon_lightmaps.engine.core.scene import Camera, Material, Scene, compose, rotate, translate
+    from photon_lightmaps.engine.transport import renderer
+    s = Scene(n_bands=3)
+    glass = s.add_material(Material("water", diffuse=0.0, roughness=0.0, ior=ior, specular_level=0.5))
+    glow = s.add_material(Material("glow", diffuse=0.0, emission=1.0))
+    s.add_object(demo_scenes.quad_mesh((-50, -50, 0), (50, -50, 0), (50, 50, 0), (-50, 50, 0), material=glass,
+                                       name="water"), name="water", lightmap_resolution=2)
+    s.add_object(demo_scenes.quad_mesh((-80, 60, 0), (80, 60, 0), (80, 60, 300), (-80, 60, 300), material=glow,
+                                       name="wall"), name="wall", lightmap_resolution=2)
+    t = math.radians(theta_deg)
+    s.camera = Camera(transform=compose(translate(0.0, -5.0 * math.sin(t), 5.0 * math.cos(t)), rotate("x", theta_deg)),
+                      fov=math.radians(0.01), width=1, height=1,
+                      polarizer=None if polarizer is None else math.radians(polarizer))
+    return renderer.render(compile_scene(s), samples=1, indirect=False)[0, 0]
+
+
+@pytest.mark.parametrize("theta", [56.3099, 30.0, 75.0])
+def test_a_polarizing_filter_takes_the_glare_off_water(theta):
+    """The camera's filter across the plane of incidence (along s) passes F_s/2 of the glare,
+    along the plane (p) F_p/2, none the unpolarized (F_s + F_p)/2, each within 1e-9; at
+    Brewster's angle (56.31° for 1.5) the p filter removes the glare."""
+    f_s, f_p, _, _ = P.fresnel(math.cos(math.radians(theta)), 1.5, 0.0)
+    none, along_s, along_p = (_glare(theta, pol) for pol in (None, 0.0, 90.0))
+    np.testing.assert_allclose(none, 0.5 * (f_s + f_p), rtol=1e-9)
+    np.testing.assert_allclose(along_s, 0.5 * f_s, rtol=1e-9)
+    np.testing.assert_allclose(along_p, 0.5 * f_p, rtol=1e-9, atol=1e-12)
+    if abs(theta - 56.3099) < 1e-3:
+        assert along_p.max() < 1e-8 * none.min()
+    # a filter at 45° passes half of the (partly polarized) glare: S2 is 0 in this frame
+    np.testing.assert_allclose(_glare(theta, 45.0), 0.5 * none, rtol=1e-9)
+
+
+def _through_pane(theta_deg, polarizer, spp=16384):
+    """The camera's value looking through a 1 cm glass pane (index 1.5, two smooth faces) at
+    theta_deg from its normal onto a glowing floor (radiance 1) below; what the pane reflects
+    goes up into a black world. Camera paths pick reflection or refraction at each face by
+    Fresnel's odds, so this is a Monte Carlo estimate."""
+    from photon_lightmaps.engine import demo_scenes
+    from photon_lightmaps.engine.compile import compile_scene
+    from photon_lightmaps.engine.core.scene import Camera, Material, Scene, compose, rotate, translate
+    from photon_lightmaps.engine.transport import renderer
+    s = Scene(n_bands=3)
+    glass = s.add_material(Material("glass", diffuse=0.0, transmission=1.0, roughness=0.0, ior=1.5))
+    glow = s.add_material(Material("glow", diffuse=0.0, emission=1.0))
+    big = 50.0
+    s.add_object([demo_scenes.quad_mesh((-big, -big, 0.01), (big, -big, 0.01), (big, big, 0.01), (-big, big, 0.01),
+                                        material=glass, name="top"),
+                  demo_scenes.quad_mesh((-big, -big, 0.0), (-big, big, 0.0), (big, big, 0.0), (big, -big, 0.0),
+                                        material=glass, name="bottom")], name="pane", lightmap_resolution=2)
+    s.add_object(demo_scenes.quad_mesh((-big, -big, -1), (big, -big, -1), (big, big, -1), (-big, big, -1),
+                                       material=glow, name="floor"), name="floor", lightmap_resolution=2)
+    t = math.radians(theta_deg)
+    s.camera = Camera(transform=compose(translate(0.0, -5.0 * math.sin(t), 5.0 * math.cos(t)), rotate("x", theta_deg)),
+                      fov=math.radians(0.01), width=1, height=1,
+                      polarizer=None if polarizer is None else math.radians(polarizer))
+    return renderer.render(compile_scene(s), samples=spp, seed=3, indirect=False, max_depth=16)[0, 0]
+
+
+def test_light_through_a_tilted_pane_is_partly_p_polarized():
+    """Through both faces of a pane at 60° (every internal reflection added up, incoherently):
+    (1 - R)/(1 + R) of each component, so a filter along p passes more than one along s;
+    within 1 % (measured 0.15 % and 0.27 %; the estimate's noise at 16384 paths: 0.3 %).
+    Without a filter nothing is polarized: every face reflects the mean (R_s + R_p)/2, and
+    the pane passes (1 - R)/(1 + R) of that, 1.4 % less than the two components do."""
+    f_s, f_p, _, _ = P.fresnel(math.cos(math.radians(60.0)), 1.5, 0.0)
+    t_s, t_p = (1 - f_s) / (1 + f_s), (1 - f_p) / (1 + f_p)
+    np.testing.assert_allclose(_through_pane(60.0, 0.0), 0.5 * t_s, rtol=0.01)
+    np.testing.assert_allclose(_through_pane(60.0, 90.0), 0.5 * t_p, rtol=0.01)
+    r = 0.5 * (f_s + f_p)
+    np.testing.assert_allclose(_through_pane(60.0, None), (1 - r) / (1 + r), rtol=0.01)

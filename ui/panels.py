@@ -508,6 +508,23 @@ class PHOTON_LIGHTMAPS_PT_light(_EnginePanel, bpy.types.Panel):
             col.prop(light, "show_cone")
 
 
+class PHOTON_LIGHTMAPS_PT_camera_polarizer(_EnginePanel, bpy.types.Panel):
+    bl_label = "Polarizing Filter"
+    bl_context = "data"
+    needs = "camera"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw_header(self, context):
+        self.layout.prop(context.camera.photon_lightmaps, "use_polarizer", text="")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        s = context.camera.photon_lightmaps
+        layout.active = s.use_polarizer
+        layout.prop(s, "polarizer_angle")
+
+
 class PHOTON_LIGHTMAPS_PT_world(_EnginePanel, bpy.types.Panel):
     bl_label = "Surface"
     bl_context = "world"
@@ -527,5 +544,6 @@ classes = (
     PHOTON_LIGHTMAPS_PT_material_dispersion,
     PHOTON_LIGHTMAPS_PT_material_fluorescence,
     PHOTON_LIGHTMAPS_PT_light,
+    PHOTON_LIGHTMAPS_PT_camera_polarizer,
     PHOTON_LIGHTMAPS_PT_world,
 )

@@ -1,11 +1,13 @@
 """Settings stored in .blend files: `Scene.photon_lightmaps`, `Object.photon_lightmaps`
 (with `Object.photon_lightmaps.lsystem` for L-system objects), `Material.photon_lightmaps`
-and `Light.photon_lightmaps`.
+`Light.photon_lightmaps` and `Camera.photon_lightmaps`.
 
 The scene defaults are engine.session.Settings' (one copy), the L-system ones
 export.lsystems.LSystemSettings': code reads the PropertyGroup into that typed
 object, never into a dict of its own.
 """
+import math
+
 import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
@@ -266,8 +268,21 @@ class PhotonLightmapsLightSettings(bpy.types.PropertyGroup):
         description="Full width at half maximum of the line, nm (LEDs 10-30, lasers below 1)")
 
 
+class PhotonLightmapsCameraSettings(bpy.types.PropertyGroup):
+    use_polarizer: BoolProperty(
+        name="Polarizing Filter", default=False,
+        description="A linear polarizing filter in front of the lens: turned across the glare's plane it "
+                    "takes reflections off water and glass, as in a photograph (it passes half of "
+                    "unpolarized light). Traced through smooth glass and clear coats")
+    polarizer_angle: FloatProperty(
+        name="Angle", default=0.0, subtype='ANGLE', soft_min=-math.pi, soft_max=math.pi,
+        description="The filter's axis, from the image's horizontal toward its vertical: light polarized "
+                    "along it passes, across it is blocked (glare off a level surface is polarized "
+                    "horizontally: 90° removes it)")
+
+
 classes = (PhotonLightmapsSceneSettings, PhotonLSystemSettings, PhotonLightmapsObjectSettings,
-           PhotonLightmapsMaterialSettings, PhotonLightmapsLightSettings)
+           PhotonLightmapsMaterialSettings, PhotonLightmapsLightSettings, PhotonLightmapsCameraSettings)
 
 
 def register():
@@ -277,9 +292,11 @@ def register():
     bpy.types.Object.photon_lightmaps = PointerProperty(type=PhotonLightmapsObjectSettings)
     bpy.types.Material.photon_lightmaps = PointerProperty(type=PhotonLightmapsMaterialSettings)
     bpy.types.Light.photon_lightmaps = PointerProperty(type=PhotonLightmapsLightSettings)
+    bpy.types.Camera.photon_lightmaps = PointerProperty(type=PhotonLightmapsCameraSettings)
 
 
 def unregister():
+    del bpy.types.Camera.photon_lightmaps
     del bpy.types.Light.photon_lightmaps
     del bpy.types.Material.photon_lightmaps
     del bpy.types.Object.photon_lightmaps

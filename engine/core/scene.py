@@ -276,6 +276,10 @@ class Camera:
     ortho_scale: float = 6.0
     width: int = 256
     height: int = 256
+    # a linear polarizing filter at this angle (radians, from the camera's x axis toward
+    # its y) in front of the lens; None: none. With one, camera paths carry Stokes
+    # vectors through smooth glass and coats (engine/shading/polarization.py)
+    polarizer: object = None
 
 
 @dataclass

@@ -33,6 +33,7 @@ Mitsuba ships them); one index for all wavelengths.
 import math
 
 import numpy as np
+from numba import njit
 
 # complex index (n, k) of metals near 560 nm: normal-incidence reflectance 0.6725, 0.8776, 0.9200
 CONDUCTORS = {"Cu": (0.826, 2.599), "Au": (0.306, 2.880), "Al": (1.020, 6.850)}
@@ -42,23 +43,31 @@ _U = np.array([[1, 0, 0, 1], [1, 0, 0, -1], [0, 1, 1, 0], [0, -1j, 1j, 0]], np.c
 _U_INV = np.linalg.inv(_U)
 
 
-def fresnel_retardance(cos_i, n, k=0.0):
+@njit(cache=True)
+def fresnel(cos_i, n, k):
     """(F_s, F_p, δ_s, δ_p) of a reflection at incidence cos_i onto index n + ik (relative
     to the side the light comes from; n < 1 from inside a denser dielectric, where past
-    the critical angle F = 1 with a phase), thesis eq. A.3."""
-    c = np.clip(np.asarray(cos_i, np.float64), 0.0, 1.0)
+    the critical angle F = 1 with a phase), thesis eq. A.3. Scalars (the kernels' form)."""
+    c = min(max(cos_i, 0.0), 1.0)
     s2 = 1.0 - c * c
     q = n * n - k * k - s2
-    root = np.sqrt(q * q + 4.0 * n * n * k * k)
-    a = np.sqrt(np.maximum(root + q, 0.0) / 2.0)
-    b = np.sqrt(np.maximum(root - q, 0.0) / 2.0)
+    root = math.sqrt(q * q + 4.0 * n * n * k * k)
+    a = math.sqrt(max(root + q, 0.0) / 2.0)
+    b = math.sqrt(max(root - q, 0.0) / 2.0)
     ab = a * a + b * b
     f_s = (ab - 2.0 * a * c + c * c) / (ab + 2.0 * a * c + c * c)
-    st = np.sqrt(s2) * np.sqrt(s2) / np.maximum(c, 1e-300)          # sinθ tanθ
-    f_p = f_s * (ab - 2.0 * a * st + st * st) / (ab + 2.0 * a * st + st * st)
-    d_s = np.arctan2(2.0 * b * c, c * c - ab)
-    d_p = np.arctan2(2.0 * c * ((n * n - k * k) * b - 2.0 * n * k * a), (n * n + k * k) ** 2 * c * c - ab)
+    st = s2 / max(c, 1e-300)                                      # sinθ tanθ
+    f_p = f_s * (ab - 2.0 * a * st + st * st) / (ab + 2.0 * a * st + st * st) if c > 0.0 else f_s
+    d_s = math.atan2(2.0 * b * c, c * c - ab)
+    d_p = math.atan2(2.0 * c * ((n * n - k * k) * b - 2.0 * n * k * a), (n * n + k * k) ** 2 * c * c - ab)
     return f_s, f_p, d_s, d_p
+
+
+def fresnel_retardance(cos_i, n, k=0.0):
+    """`fresnel` over an array of incidence cosines -> four arrays (F_s, F_p, δ_s, δ_p)."""
+    c = np.asarray(cos_i, np.float64)
+    out = np.array([fresnel(float(x), float(n), float(k)) for x in c.reshape(-1)]).reshape(c.shape + (4,))
+    return tuple(out[..., j] for j in range(4))
 
 
 def fresnel_amplitudes(cos_i, n, k=0.0):
@@ -129,3 +138,79 @@ def degree_of_polarization(S):
     """√(S1² + S2² + S3²) / S0 (0 for no light)."""
     S = np.asarray(S, np.float64)
     return float(np.sqrt(S[1] ** 2 + S[2] ** 2 + S[3] ** 2) / S[0]) if S[0] > 0.0 else 0.0
+
+
+# ------------------------------------------------------------------ along camera paths
+# A camera path with a polarizing filter carries what the camera measures as a row
+# vector w over the Stokes vector of the light arriving along its current segment,
+# in that segment's frame: the measured value is w · S. It starts as the filter's
+# first row and meets every interaction from the camera's side, w <- w · R · M (the
+# interaction's Mueller matrix M in its s frame, R turning that frame into the
+# segment's). Lights and lightmaps send unpolarized light, w · (L, 0, 0, 0) = w0 L:
+# so w is kept with w0 = 1 and its scale moved into the path's throughput, and the
+# rest of the renderer is unchanged. pol (7 floats): w0..w3, then the frame's x.
+
+@njit(cache=True)
+def start_filter(pol, tp, angle, xaxis, d):
+    """A camera ray d through a linear polarizer at `angle` from the camera's x axis
+    (xaxis): pol = the filter's first row, normalised, the frame x the camera's x
+    across d; tp takes the row's scale (1/2: the filter passes half of unpolarized light)."""
+    c, s = math.cos(2.0 * angle), math.sin(2.0 * angle)
+    pol[0], pol[1], pol[2], pol[3] = 1.0, c, s, 0.0
+    k = xaxis[0] * d[0] + xaxis[1] * d[1] + xaxis[2] * d[2]
+    x0, x1, x2 = xaxis[0] - k * d[0], xaxis[1] - k * d[1], xaxis[2] - k * d[2]
+    ln = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    pol[4], pol[5], pol[6] = x0 / ln, x1 / ln, x2 / ln
+    for b in range(tp.shape[0]):
+        tp[b] *= 0.5
+
+
+@njit(cache=True)
+def depolarize(pol):
+    """A rough or diffuse interaction: the light it sends is taken as unpolarized."""
+    pol[1], pol[2], pol[3] = 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def specular_vertex(pol, tp, d_cam, d_next, n, eta):
+    """The camera path went along d_cam, met a smooth dielectric interface (normal n on the
+    camera's side, relative index eta from that side) and goes on along d_next: reflected
+    when d_next leaves on n's side, refracted otherwise. w <- w · R · M / A (A: M's
+    unpolarized weight, which the path's throughput already has), the scale of w0 into
+    tp, the frame to the s direction."""
+    rx, ry, rz = -d_cam[0], -d_cam[1], -d_cam[2]            # the light's way to the camera
+    cos_c = rx * n[0] + ry * n[1] + rz * n[2]
+    lx, ly, lz = -d_next[0], -d_next[1], -d_next[2]          # the light's way in
+    reflect = d_next[0] * n[0] + d_next[1] * n[1] + d_next[2] * n[2] > 0.0
+    f_s, f_p, d_s, d_p = fresnel(cos_c, eta, 0.0)
+    # the s direction: across the plane of incidence (light in x normal)
+    sx, sy, sz = ly * n[2] - lz * n[1], lz * n[0] - lx * n[2], lx * n[1] - ly * n[0]
+    ln = math.sqrt(sx * sx + sy * sy + sz * sz)
+    if ln < 1e-9:            # normal incidence: s and p are one, any direction across the ray
+        sx, sy, sz = pol[4], pol[5], pol[6]
+    else:
+        sx, sy, sz = sx / ln, sy / ln, sz / ln
+    # R: from the s frame to the frame of the segment toward the camera (about rx, ry, rz)
+    x0, x1, x2 = pol[4], pol[5], pol[6]
+    cr0, cr1, cr2 = sy * x2 - sz * x1, sz * x0 - sx * x2, sx * x1 - sy * x0
+    phi = math.atan2(cr0 * rx + cr1 * ry + cr2 * rz, sx * x0 + sy * x1 + sz * x2)
+    c2, s2 = math.cos(2.0 * phi), math.sin(2.0 * phi)
+    v0, v1, v2, v3 = pol[0], pol[1] * c2 - pol[2] * s2, pol[1] * s2 + pol[2] * c2, pol[3]
+    if reflect:
+        A, B = 0.5 * (f_s + f_p), 0.5 * (f_s - f_p)
+        m = math.sqrt(max(f_s * f_p, 0.0))
+        C, S = m * math.cos(d_s - d_p), -m * math.sin(d_s - d_p)
+    else:
+        t_s, t_p = 1.0 - f_s, 1.0 - f_p
+        A, B, C, S = 0.5 * (t_s + t_p), 0.5 * (t_s - t_p), math.sqrt(max(t_s * t_p, 0.0)), 0.0
+    if not A > 0.0:
+        return
+    w0 = (v0 * A + v1 * B) / A
+    w1 = (v0 * B + v1 * A) / A
+    w2 = (v2 * C + v3 * S) / A
+    w3 = (-v2 * S + v3 * C) / A
+    for b in range(tp.shape[0]):
+        tp[b] *= w0
+    if w0 > 0.0:
+        pol[0], pol[1], pol[2], pol[3] = 1.0, w1 / w0, w2 / w0, w3 / w0
+    pol[4], pol[5], pol[6] = sx, sy, sz

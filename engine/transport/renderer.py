@@ -20,6 +20,7 @@ from collections import namedtuple
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 
 from ..core.jit import CORE, INLINE, typed
 from ..lightmaps import lightmap
@@ -30,6 +31,7 @@ from ..shading import fluorescence
 from ..shading import light_hits
 from ..shading import materials
 from ..shading import environment
+from ..shading import polarization
 from . import final_gather
 from . import irradiance_cache
 from ..core import parallel
@@ -41,7 +43,9 @@ from ..geometry.raycast import STACK_WORDS, intersect_closest, occluded
 from ..core.sampling import next_float, stream_state
 from .texel_gather import grid_side, jitter, light_stratum, texel_shift
 
-CameraData = namedtuple("CameraData", "xf kind sx sy width height")
+# pol: a polarizing filter as a type the render kernel specialises on: a (1, 1) array
+# holding its angle, or an empty 1-D array for none (no polarization code is compiled)
+CameraData = namedtuple("CameraData", "xf kind sx sy width height pol")
 
 
 def compile_camera(camera):
@@ -68,7 +72,49 @@ def compile_camera(camera):
     else:
         raise SceneError(f"unknown camera kind '{camera.kind}'")
     sx, sy = (half, half / aspect) if w >= h else (half * aspect, half)
-    return CameraData(xf, kind, sx, sy, w, h)
+    angle = getattr(camera, "polarizer", None)
+    if angle is None:
+        pol = np.zeros(0)
+    else:
+        if not math.isfinite(float(angle)):
+            raise SceneError(f"camera: the polarizing filter's angle must be finite, got {angle}")
+        pol = np.array([[float(angle)]])
+    return CameraData(xf, kind, sx, sy, w, h, pol)
+
+
+def _polarizer_start(pol, w, tp, cam, d):
+    """A camera with a polarizing filter: the path's Stokes row starts as the filter's."""
+
+
+def _polarizer_vertex(pol, w, tp, d_cam, d_next, fn, lobes, delta):
+    """A camera path behind a polarizing filter meets a glossy interaction: polarized by a
+    smooth dielectric one (glass, or a coat), depolarized by a rough one; a smooth metal
+    (Schlick's colour, no complex index) is taken as keeping the polarization."""
+
+
+@overload(_polarizer_start)
+def _polarizer_start_gate(pol, w, tp, cam, d):
+    if pol.ndim == 2:
+        def start(pol, w, tp, cam, d):
+            m = cam.xf
+            polarization.start_filter(w.pol, tp, pol[0, 0], (m[0, 0], m[1, 0], m[2, 0]), d)
+        return start
+    return lambda pol, w, tp, cam, d: None
+
+
+@overload(_polarizer_vertex)
+def _polarizer_vertex_gate(pol, w, tp, d_cam, d_next, fn, lobes, delta):
+    if pol.ndim == 2:
+        def vertex(pol, w, tp, d_cam, d_next, fn, lobes, delta):
+            _, ps, pm, pg = lobes
+            if not delta:
+                polarization.depolarize(w.pol)
+            elif pg > 0.0:
+                polarization.specular_vertex(w.pol, tp, d_cam, d_next, fn, w.closure[bsdf.P_ETA])
+            elif ps > 0.0:
+                polarization.specular_vertex(w.pol, tp, d_cam, d_next, fn, w.closure[bsdf.P_LAYER_ETA])
+        return vertex
+    return lambda pol, w, tp, d_cam, d_next, fn, lobes, delta: None
 
 
 @njit(cache=True)
@@ -244,6 +290,7 @@ def _render_tile_core(scene, cam, tile, rec, out, rays, start, stop, work):
             ox, oy, oz, dx, dy, dz = camera_ray(cam, px_i + jx, py_i + jy)
             for b in range(nb):
                 tp[b] = 1.0 / tile.spp
+            _polarizer_start(cam.pol, w, tp, cam, (dx, dy, dz))
             w.wave[dispersion.WAVE_BAND] = -1.0
             pdf_b = 0.0
             delta = True
@@ -288,6 +335,7 @@ def _render_tile_core(scene, cam, tile, rec, out, rays, start, stop, work):
                 ok, o, d, pdf_b, delta, state = _scatter_glossy(w, lobes, (fn, sn, wo), (nx, ny, nz), p, state)
                 if not ok:
                     break
+                _polarizer_vertex(cam.pol, w, tp, (dx, dy, dz), d, fn, lobes, delta)
                 ox, oy, oz = o
                 dx, dy, dz = d
         for b in range(nb):

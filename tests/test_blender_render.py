@@ -266,7 +266,7 @@ def test_panels_draw_existing_properties():
     scene = demo_blend.build_light_test_blend("SPOT")
     ob = bpy.data.objects["floor"]
     ctx = types.SimpleNamespace(engine=ENGINE, scene=scene, object=ob, material=ob.active_material,
-                                world=scene.world, light=None, space_data=None)
+                                world=scene.world, light=None, space_data=None, camera=scene.camera.data)
     drawn = {}
     for light_type in ("POINT", "SPOT", "SUN", "AREA"):
         ctx.light = bpy.data.lights.new(f"l_{light_type}", light_type)
@@ -284,5 +284,8 @@ def test_panels_draw_existing_properties():
     assert {"exclude", "lightmap_resolution"} <= drawn["PHOTON_LIGHTMAPS_PT_object"]
     assert {"spot_size", "spot_blend", "angle", "shape", "shadow_soft_size", "energy"} <= \
         drawn["PHOTON_LIGHTMAPS_PT_light"]
+    assert {"dispersion"} <= drawn["PHOTON_LIGHTMAPS_PT_material_dispersion"]
+    assert {"fluorescence"} <= drawn["PHOTON_LIGHTMAPS_PT_material_fluorescence"]
+    assert {"polarizer_angle"} <= drawn["PHOTON_LIGHTMAPS_PT_camera_polarizer"]
     ctx.engine = "CYCLES"
     assert not any(cls.poll(ctx) for cls in panels.classes)

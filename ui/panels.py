@@ -388,6 +388,13 @@ class PHOTON_LIGHTMAPS_PT_material_slots(_EnginePanel, bpy.types.Panel):
             layout.template_ID(context.space_data, "pin_id")
 
 
+def _material_settings(layout, context):
+    """(layout, the material's photon_lightmaps settings), property-split like Cycles' panels."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    return layout, context.material.photon_lightmaps
+
+
 class _MaterialPanel(_EnginePanel):
     """A panel of the material tab, for a material that is not grease pencil."""
     bl_context = "material"
@@ -397,12 +404,6 @@ class _MaterialPanel(_EnginePanel):
         mat = context.material
         return super().poll(context) and mat is not None and not mat.grease_pencil
 
-    def settings_layout(self, context):
-        """(layout, the material's photon_lightmaps settings), property-split like Cycles' panels."""
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        return layout, context.material.photon_lightmaps
 
 
 class PHOTON_LIGHTMAPS_PT_material_surface(_MaterialPanel, bpy.types.Panel):
@@ -418,7 +419,7 @@ class PHOTON_LIGHTMAPS_PT_material_dispersion(_MaterialPanel, bpy.types.Panel):
     bl_options = {'DEFAULT_CLOSED'}
 
     def draw(self, context):
-        layout, s = self.settings_layout(context)
+        layout, s = _material_settings(self.layout, context)
         layout.prop(s, "dispersion")
         if s.dispersion == DISPERSION_ABBE:
             layout.prop(s, "abbe")
@@ -434,7 +435,7 @@ class PHOTON_LIGHTMAPS_PT_material_fluorescence(_MaterialPanel, bpy.types.Panel)
     bl_options = {'DEFAULT_CLOSED'}
 
     def draw(self, context):
-        layout, s = self.settings_layout(context)
+        layout, s = _material_settings(self.layout, context)
         layout.prop(s, "fluorescence")
         if s.fluorescence == FLUORESCENCE_NONE:
             return

@@ -51,6 +51,9 @@ class Settings:
     denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/transport/denoise.py)
     # trace 16 wavelength bands instead of RGB (engine/spectral.py); results come back as Rec.709
     spectral: bool = False
+    # camera paths trace polarization through smooth glass and coats even without the
+    # camera's polarizing filter (engine/shading/polarization.py)
+    polarization: bool = False
 
     @classmethod
     def read(cls, props, **overrides):

@@ -15,6 +15,8 @@ def camera(ctx, cam_ob, width, height):
     settings = getattr(getattr(data, "original", None) or data, "photon_lightmaps", None)
     if settings is not None and settings.use_polarizer:
         cam.polarizer = float(settings.polarizer_angle)
+    scene_settings = getattr(ctx.dg.scene, "photon_lightmaps", None)
+    cam.polarized = bool(getattr(scene_settings, "polarization", False))
     r = ctx.dg.scene.render
     if abs(r.pixel_aspect_x - r.pixel_aspect_y) > 1e-6:
         ctx.report("WARNING", "non-square pixel aspect is ignored")

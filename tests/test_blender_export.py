@@ -474,12 +474,16 @@ def test_line_spectrum_light_is_exported():
 
 
 def test_camera_polarizing_filter_is_exported():
-    """The camera panel's Polarizing Filter: its angle when on, None when off."""
+    """The camera panel's Polarizing Filter: its angle when on, None when off; the render
+    panel's Polarization reaches the camera too."""
     sc = bpy.context.scene
     cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     link(cam)
     sc.camera = cam
-    assert export_current()[0].camera.polarizer is None
+    c = export_current()[0].camera
+    assert c.polarizer is None and c.polarized is False
     cam.data.photon_lightmaps.use_polarizer = True
     cam.data.photon_lightmaps.polarizer_angle = math.radians(90.0)
-    assert export_current()[0].camera.polarizer == pytest.approx(math.pi / 2)
+    sc.photon_lightmaps.polarization = True
+    c = export_current()[0].camera
+    assert c.polarizer == pytest.approx(math.pi / 2) and c.polarized is True

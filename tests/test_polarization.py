@@ -158,7 +158,7 @@ def test_a_polarizing_filter_takes_the_glare_off_water(theta):
     np.testing.assert_allclose(_glare(theta, 45.0), 0.5 * none, rtol=1e-9)
 
 
-def _through_pane(theta_deg, polarizer, spp=16384):
+def _through_pane(theta_deg, polarizer, spp=16384, polarized=False):
     """The camera's value looking through a 1 cm glass pane (index 1.5, two smooth faces) at
     theta_deg from its normal onto a glowing floor (radiance 1) below; what the pane reflects
     goes up into a black world. Camera paths pick reflection or refraction at each face by
@@ -180,7 +180,7 @@ def _through_pane(theta_deg, polarizer, spp=16384):
     t = math.radians(theta_deg)
     s.camera = Camera(transform=compose(translate(0.0, -5.0 * math.sin(t), 5.0 * math.cos(t)), rotate("x", theta_deg)),
                       fov=math.radians(0.01), width=1, height=1,
-                      polarizer=None if polarizer is None else math.radians(polarizer))
+                      polarizer=None if polarizer is None else math.radians(polarizer), polarized=polarized)
     return renderer.render(compile_scene(s), samples=spp, seed=3, indirect=False, max_depth=16)[0, 0]
 
 
@@ -189,10 +189,13 @@ def test_light_through_a_tilted_pane_is_partly_p_polarized():
     (1 - R)/(1 + R) of each component, so a filter along p passes more than one along s;
     within 1 % (measured 0.15 % and 0.27 %; the estimate's noise at 16384 paths: 0.3 %).
     Without a filter nothing is polarized: every face reflects the mean (R_s + R_p)/2, and
-    the pane passes (1 - R)/(1 + R) of that, 1.4 % less than the two components do."""
+    the pane passes (1 - R)/(1 + R) of that, 1.4 % less than the two components do; with
+    the scene's Polarization on, the camera sees the components' sum."""
     f_s, f_p, _, _ = P.fresnel(math.cos(math.radians(60.0)), 1.5, 0.0)
     t_s, t_p = (1 - f_s) / (1 + f_s), (1 - f_p) / (1 + f_p)
     np.testing.assert_allclose(_through_pane(60.0, 0.0), 0.5 * t_s, rtol=0.01)
     np.testing.assert_allclose(_through_pane(60.0, 90.0), 0.5 * t_p, rtol=0.01)
     r = 0.5 * (f_s + f_p)
     np.testing.assert_allclose(_through_pane(60.0, None), (1 - r) / (1 + r), rtol=0.01)
+    # with Polarization on and no filter, the camera sees both components' sum
+    np.testing.assert_allclose(_through_pane(60.0, None, polarized=True), 0.5 * (t_s + t_p), rtol=0.01)

@@ -98,6 +98,7 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         sub.prop(s, "bake_error_images")
         col.prop(s, "denoise")
         col.prop(s, "spectral")
+        col.prop(s, "polarization")
         if s.denoise and not _denoiser_available():
             col.label(text="Denoise needs the pyoidn package (not installed)", icon='ERROR')
         _draw_last_run(layout, context.scene)

@@ -164,6 +164,11 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         description="Trace 16 wavelength bands over 380-780 nm instead of RGB; renders and bakes come "
                     "back as RGB. Colours become smooth spectra (Jakob & Hanika); glass disperses and "
                     "dyes fluoresce where their material asks")
+    polarization: BoolProperty(
+        name="Polarization", default=_D.polarization,
+        description="Camera paths carry the light's polarization through smooth glass and clear coats "
+                    "(Fresnel per component, not their mean): what chains of glass pass changes by a few "
+                    "percent. The camera's polarizing filter traces it either way")
     seed: IntProperty(
         name="Seed", default=_D.seed, min=0,
         description="Random seed; the same seed gives the same image")

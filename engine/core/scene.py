@@ -280,6 +280,9 @@ class Camera:
     # its y) in front of the lens; None: none. With one, camera paths carry Stokes
     # vectors through smooth glass and coats (engine/shading/polarization.py)
     polarizer: object = None
+    # camera paths trace polarization without a filter too (the scene's Polarization):
+    # what long chains of glass pass changes with it
+    polarized: bool = False
 
 
 @dataclass

@@ -141,7 +141,8 @@ def degree_of_polarization(S):
 
 
 # ------------------------------------------------------------------ along camera paths
-# A camera path with a polarizing filter carries what the camera measures as a row
+# A camera path that traces polarization (behind a polarizing filter, or with the
+# scene's Polarization on) carries what the camera measures as a row
 # vector w over the Stokes vector of the light arriving along its current segment,
 # in that segment's frame: the measured value is w · S. It starts as the filter's
 # first row and meets every interaction from the camera's side, w <- w · R · M (the
@@ -151,18 +152,22 @@ def degree_of_polarization(S):
 # rest of the renderer is unchanged. pol (7 floats): w0..w3, then the frame's x.
 
 @njit(cache=True)
-def start_filter(pol, tp, angle, xaxis, d):
-    """A camera ray d through a linear polarizer at `angle` from the camera's x axis
-    (xaxis): pol = the filter's first row, normalised, the frame x the camera's x
-    across d; tp takes the row's scale (1/2: the filter passes half of unpolarized light)."""
-    c, s = math.cos(2.0 * angle), math.sin(2.0 * angle)
-    pol[0], pol[1], pol[2], pol[3] = 1.0, c, s, 0.0
+def start_row(pol, tp, angle, filtered, xaxis, d):
+    """A camera ray d, through a linear polarizer at `angle` from the camera's x axis
+    (xaxis) where `filtered`: pol = the filter's first row, normalised (without a
+    filter, what the camera measures is S0: (1, 0, 0, 0)), the frame x the camera's x
+    across d; tp takes the row's scale (1/2: a filter passes half of unpolarized light)."""
+    if filtered:
+        c, s = math.cos(2.0 * angle), math.sin(2.0 * angle)
+        pol[0], pol[1], pol[2], pol[3] = 1.0, c, s, 0.0
+        for b in range(tp.shape[0]):
+            tp[b] *= 0.5
+    else:
+        pol[0], pol[1], pol[2], pol[3] = 1.0, 0.0, 0.0, 0.0
     k = xaxis[0] * d[0] + xaxis[1] * d[1] + xaxis[2] * d[2]
     x0, x1, x2 = xaxis[0] - k * d[0], xaxis[1] - k * d[1], xaxis[2] - k * d[2]
     ln = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
     pol[4], pol[5], pol[6] = x0 / ln, x1 / ln, x2 / ln
-    for b in range(tp.shape[0]):
-        tp[b] *= 0.5
 
 
 @njit(cache=True)

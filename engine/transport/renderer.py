@@ -43,8 +43,9 @@ from ..geometry.raycast import STACK_WORDS, intersect_closest, occluded
 from ..core.sampling import next_float, stream_state
 from .texel_gather import grid_side, jitter, light_stratum, texel_shift
 
-# pol: a polarizing filter as a type the render kernel specialises on: a (1, 1) array
-# holding its angle, or an empty 1-D array for none (no polarization code is compiled)
+# pol: polarization as a type the render kernel specialises on: a (1, 2) array (the
+# filter's angle, 1 with a filter / 0 without) when camera paths trace it, or an
+# empty 1-D array when they do not (no polarization code is compiled)
 CameraData = namedtuple("CameraData", "xf kind sx sy width height pol")
 
 
@@ -73,21 +74,23 @@ def compile_camera(camera):
         raise SceneError(f"unknown camera kind '{camera.kind}'")
     sx, sy = (half, half / aspect) if w >= h else (half * aspect, half)
     angle = getattr(camera, "polarizer", None)
-    if angle is None:
+    if angle is None and not getattr(camera, "polarized", False):
         pol = np.zeros(0)
+    elif angle is None:
+        pol = np.array([[0.0, 0.0]])
     else:
         if not math.isfinite(float(angle)):
             raise SceneError(f"camera: the polarizing filter's angle must be finite, got {angle}")
-        pol = np.array([[float(angle)]])
+        pol = np.array([[float(angle), 1.0]])
     return CameraData(xf, kind, sx, sy, w, h, pol)
 
 
 def _polarizer_start(pol, w, tp, cam, d):
-    """A camera with a polarizing filter: the path's Stokes row starts as the filter's."""
+    """Camera paths that trace polarization: the Stokes row starts as the filter's, or S0."""
 
 
 def _polarizer_vertex(pol, w, tp, d_cam, d_next, fn, lobes, delta):
-    """A camera path behind a polarizing filter meets a glossy interaction: polarized by a
+    """A camera path that traces polarization meets a glossy interaction: polarized by a
     smooth dielectric one (glass, or a coat), depolarized by a rough one; a smooth metal
     (Schlick's colour, no complex index) is taken as keeping the polarization."""
 
@@ -97,7 +100,7 @@ def _polarizer_start_gate(pol, w, tp, cam, d):
     if pol.ndim == 2:
         def start(pol, w, tp, cam, d):
             m = cam.xf
-            polarization.start_filter(w.pol, tp, pol[0, 0], (m[0, 0], m[1, 0], m[2, 0]), d)
+            polarization.start_row(w.pol, tp, pol[0, 0], pol[0, 1] > 0.0, (m[0, 0], m[1, 0], m[2, 0]), d)
         return start
     return lambda pol, w, tp, cam, d: None
 

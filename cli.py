@@ -143,6 +143,9 @@ def build_parser():
                    help="render frames A to B (one image each: a run of '#' in --out is the frame "
                         "number, else _#### goes before the extension); where only the camera moves, "
                         "the first frame's photon pass is reused")
+    r.add_argument("--polarization", action=argparse.BooleanOptionalAction, default=None,
+                   help="camera paths carry polarization through smooth glass and coats (the camera's "
+                        "polarizing filter traces it either way; default: scene setting)")
     _add_denoise(r)
     r.set_defaults(func=render_main)
 
@@ -345,7 +348,8 @@ def render_main(args):
         raise InputError(f"scene '{scene.name}': no camera; add one and set it as the scene camera "
                          "(Scene Properties > Camera)")
     settings = scene.photon_lightmaps
-    for name in ("photons", "samples", "seed", "gather_rays", "denoise", "irradiance_cache", "spectral"):
+    for name in ("photons", "samples", "seed", "gather_rays", "denoise", "irradiance_cache", "spectral",
+                 "polarization"):
         value = getattr(args, name, None)
         if value is not None:
             setattr(settings, name, value)
@@ -354,7 +358,7 @@ def render_main(args):
     t_load = time.perf_counter()
     used = {k: getattr(settings, k) for k in ("photons", "max_bounces", "texel_density", "reconstruction",
                                               "samples", "seed", "indirect", "gather_rays", "denoise",
-                                              "irradiance_cache", "spectral")}
+                                              "irradiance_cache", "spectral", "polarization")}
     if args.frames is not None:
         report = _render_frames(scene, out, args.frames)
     else:

@@ -127,13 +127,15 @@ def test_bake(demo, tmp_path):
 
 
 def test_spectral_render_and_bake_come_back_as_rgb(demo, tmp_path):
-    """--spectral traces 16 bands and writes RGB like the plain run: the demo's bake
+    """--spectral traces 16 bands (and --polarization Stokes rows) and writes RGB like the
+    plain run: the demo's bake
     in both modes, the same seed, each object's mean within 1 % per channel (measured
     0.4 %: the two differ where colours mix)."""
     out, _ = demo
     run("render", out / "demo.blend", "--out", tmp_path / "s.exr", "--json", tmp_path / "s.json", *TINY,
-        "--samples", "1", "--spectral")
-    assert json.loads((tmp_path / "s.json").read_text())["settings"]["spectral"] is True
+        "--samples", "1", "--spectral", "--polarization")
+    used = json.loads((tmp_path / "s.json").read_text())["settings"]
+    assert used["spectral"] is True and used["polarization"] is True
     means = {}
     for mode in ("--spectral", "--no-spectral"):
         rep = tmp_path / f"{mode}.json"

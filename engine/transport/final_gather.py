@@ -164,8 +164,12 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
                                                  (sg * nx, sg * ny, sg * nz), state, w.e, w.lg)
                     for b in range(nb):
                         ind[b] += w.e[b]
-                for b in range(nb):
-                    dst[b] += tp[b] * fluorescence.reflected(ms, m, kd, ind, b) * ds
+                if ms.fluorescent[m]:
+                    for b in range(nb):
+                        dst[b] += tp[b] * fluorescence.reflected(ms, m, kd, ind, b) * ds
+                else:
+                    for b in range(nb):
+                        dst[b] += tp[b] * kd[b] * ds * ind[b]
             if ps + pm + pg <= 0.0 or k == CHAIN - 1:
                 break
             # on through the glossy lobes, in the frame of the face towards the ray

@@ -395,8 +395,12 @@ def _shade(scene, tile, rec, work, hit, frame, lobes, strata, state):
                 e[b] += ind[b]
     ds = bsdf.diffuse_scale(w.closure)
     m = scene.geometry.shape_material[shape]
-    for b in range(nb):
-        acc[b] += w.tp[b] * (fluorescence.reflected(scene.materials, m, w.kd, e, b) * ds / math.pi + w.lg[b])
+    if m >= 0 and scene.materials.fluorescent[m]:
+        for b in range(nb):
+            acc[b] += w.tp[b] * (fluorescence.reflected(scene.materials, m, w.kd, e, b) * ds / math.pi + w.lg[b])
+    else:
+        for b in range(nb):
+            acc[b] += w.tp[b] * (w.kd[b] * ds * e[b] / math.pi + w.lg[b])
     return state
 
 

@@ -49,7 +49,8 @@ def spectral_scene(scene, bands=None):
         if np.any(over > 1.0):
             d, s, t = (_as_array(x, bands) / over for x in (d, s, t))
         kelvin = float(getattr(m, "emission_temperature", 0.0) or 0.0)
-        glow = _blackbody(m.emission, kelvin, bands) if kelvin > 0.0 else _emission(m.emission, bands)
+        glow = _blackbody(m.emission, kelvin, bands, f"material '{m.name}'") \
+            if kelvin > 0.0 or not math.isfinite(kelvin) else _emission(m.emission, bands)
         mats.append(replace(m, diffuse=d, specular=s, transmission=t, base_color=_reflectance(m.base_color, bands),
                             emission=glow))
     lights = [replace(lt, color=_light(lt, bands)) for lt in scene.lights]
@@ -108,12 +109,14 @@ def _light(light, bands):
     kelvin = float(getattr(light, "temperature", 0.0) or 0.0)
     if kelvin <= 0.0:
         return _emission(light.color, bands)
-    return _blackbody(light.color, kelvin, bands)
+    return _blackbody(light.color, kelvin, bands, f"light '{light.name}'")
 
 
-def _blackbody(colour, kelvin, bands):
+def _blackbody(colour, kelvin, bands, what):
     """Planck's spectrum at kelvin times the tint (colour over the blackbody's own RGB),
     at the colour's luminance: a blackbody light's or glowing surface's spectrum."""
+    if not (math.isfinite(kelvin) and 1.0 <= kelvin <= 1e6):
+        raise SceneError(f"{what}: a blackbody temperature must lie between 1 and 1e6 K, got {kelvin}")
     rgb = np.broadcast_to(np.asarray(colour, np.float64), (3,))
     planck = spectrum.blackbody_spectrum(kelvin, bands)
     tint = rgb / np.maximum(spectrum.to_rgb(planck, bands), 1e-12)

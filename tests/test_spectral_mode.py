@@ -150,6 +150,20 @@ def test_only_rgb_scenes_become_spectral():
         spectral.spectral_scene(demo_scenes.cornell_box(n_bands=1))
 
 
+@pytest.mark.parametrize("kelvin", [math.inf, math.nan, 1e9])
+def test_blackbody_temperatures_are_checked_by_name(kelvin):
+    """A light's or glowing material's temperature that Planck's law cannot take is refused
+    with its owner named, not turned into a black or NaN spectrum."""
+    s = demo_scenes.cornell_box(n_bands=3, with_primitives=False)
+    s.lights[0] = replace(s.lights[0], temperature=kelvin)
+    with pytest.raises(SceneError, match="light 'ceiling_light'.*blackbody temperature"):
+        spectral.spectral_scene(s)
+    s = demo_scenes.cornell_box(n_bands=3, with_primitives=False)
+    s.materials[0] = replace(s.materials[0], emission=1.0, emission_temperature=kelvin)
+    with pytest.raises(SceneError, match="material 'white'.*blackbody temperature"):
+        spectral.spectral_scene(s)
+
+
 def test_no_material_makes_light_in_any_band():
     """Lobes fitted one by one may sum above 1 in a band; they are scaled down there."""
     from photon_lightmaps.engine.core.scene import Material, Scene

@@ -132,10 +132,10 @@ def diffuse_probability(ms, m, kd, ds, lobes):
 
 @njit(**INLINE)
 def reflected(ms, m, kd, e, b):
-    """Band b of what the diffuse lobe sends back from irradiance e (per band): kd[b] e[b],
-    plus what fluorescence moves into band b from e."""
+    """Band b of what the diffuse lobe of fluorescent material m sends back from irradiance
+    e (per band): kd[b] e[b] plus what fluorescence moves into band b from e. Callers
+    test ms.fluorescent[m] once, outside their band loops (plain materials: kd[b] e[b])."""
     r = kd[b] * e[b]
-    if m >= 0 and ms.fluorescent[m]:
-        for i in range(e.shape[0]):
-            r += ms.fluor[m, b, i] * e[i]
+    for i in range(e.shape[0]):
+        r += ms.fluor[m, b, i] * e[i]
     return r

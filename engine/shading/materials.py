@@ -256,7 +256,7 @@ def _textured_inputs(ms, ts, g, inst, m, shape, face, u, v, footprint, kd, ks, k
         if tex[m, TEX_BASE] < 0:
             B = ms.base[m, b]
         elif table:
-            B = _table_spectrum(ms.rgb_table, cr, cg, cb, b)
+            B = spectrum.table_band(ms.rgb_table, cr, cg, cb, b)
         elif nb == 3:
             B = cr if b == 0 else cg if b == 1 else cb
         else:                     # grey scenes: the mean of RGB, as the exporter's ctx.bands
@@ -266,23 +266,6 @@ def _textured_inputs(ms, ts, g, inst, m, shape, face, u, v, footprint, kd, ks, k
         ks[b] = B * M
         kt[b] = B * (1.0 - M) * T
     return rough, ms.ior[m], ms.specular_level[m]
-
-
-@njit(cache=True)
-def _table_spectrum(table, r, g, b, band):
-    """Band `band` of the spectrum of colour (r, g, b) in [0, 1]: trilinear in the RGB
-    grid's spectra (spectrum.rgb_table), which gives the colour back exactly."""
-    k = table.shape[0] - 1
-    fr, fg, fb = r * k, g * k, b * k
-    i, j, l = min(int(fr), k - 1), min(int(fg), k - 1), min(int(fb), k - 1)
-    wr, wg, wb = fr - i, fg - j, fb - l
-    out = 0.0
-    for di in range(2):
-        for dj in range(2):
-            for dl in range(2):
-                w = (wr if di else 1.0 - wr) * (wg if dj else 1.0 - wg) * (wb if dl else 1.0 - wb)
-                out += w * table[i + di, j + dj, l + dl, band]
-    return out
 
 
 @njit(**INLINE)

@@ -84,22 +84,35 @@ def mueller_of_jones(J):
     return np.real(_U @ np.kron(J, J.conj()) @ _U_INV)
 
 
+@njit(cache=True)
+def reflection_terms(f_s, f_p, d_s, d_p):
+    """(A, B, C, S) of a specular reflection's Mueller matrix (`reflection`)."""
+    m = math.sqrt(max(f_s * f_p, 0.0))
+    return 0.5 * (f_s + f_p), 0.5 * (f_s - f_p), m * math.cos(d_s - d_p), -m * math.sin(d_s - d_p)
+
+
+@njit(cache=True)
+def transmission_terms(f_s, f_p):
+    """(A, B, C, S) of a dielectric transmission's Mueller matrix (`transmission`; S = 0)."""
+    t_s, t_p = 1.0 - f_s, 1.0 - f_p
+    return 0.5 * (t_s + t_p), 0.5 * (t_s - t_p), math.sqrt(max(t_s * t_p, 0.0)), 0.0
+
+
+def _matrix(A, B, C, S):
+    return np.array([[A, B, 0.0, 0.0], [B, A, 0.0, 0.0], [0.0, 0.0, C, -S], [0.0, 0.0, S, C]])
+
+
 def reflection(f_s, f_p, d_s, d_p):
     """Mueller matrix of a specular reflection, in the frame whose x is the s direction:
     [[A, B, 0, 0], [B, A, 0, 0], [0, 0, C, -S], [0, 0, S, C]], A, B = (F_s ± F_p)/2,
     C + iS = √(F_s F_p) e^{-i(δ_s - δ_p)} (= r_s r_p*)."""
-    A, B = 0.5 * (f_s + f_p), 0.5 * (f_s - f_p)
-    m = math.sqrt(max(f_s * f_p, 0.0))
-    C, S = m * math.cos(d_s - d_p), -m * math.sin(d_s - d_p)
-    return np.array([[A, B, 0.0, 0.0], [B, A, 0.0, 0.0], [0.0, 0.0, C, -S], [0.0, 0.0, S, C]])
+    return _matrix(*reflection_terms(f_s, f_p, d_s, d_p))
 
 
 def transmission(f_s, f_p):
     """Mueller matrix of the light a dielectric interface lets through (no phase), as a
     radiance weight: T = 1 - F per component, so a grey path's S0 gets 1 - (F_s + F_p)/2."""
-    t_s, t_p = 1.0 - f_s, 1.0 - f_p
-    A, B, C = 0.5 * (t_s + t_p), 0.5 * (t_s - t_p), math.sqrt(max(t_s * t_p, 0.0))
-    return np.array([[A, B, 0.0, 0.0], [B, A, 0.0, 0.0], [0.0, 0.0, C, 0.0], [0.0, 0.0, 0.0, C]])
+    return _matrix(*transmission_terms(f_s, f_p))
 
 
 def rotator(phi):
@@ -115,11 +128,17 @@ def linear_polarizer(theta):
     return 0.5 * np.array([[1.0, c, s, 0.0], [c, c * c, c * s, 0.0], [s, c * s, s * s, 0.0], [0.0, 0.0, 0.0, 0.0]])
 
 
+@njit(cache=True)
+def turn_angle(f0, f1, f2, t0, t1, t2, d0, d1, d2):
+    """The angle that turns frame vector f into t about the ray direction d (both across d),
+    from x toward d × x: the argument of `rotator` (scalars, the kernels' form)."""
+    c0, c1, c2 = f1 * t2 - f2 * t1, f2 * t0 - f0 * t2, f0 * t1 - f1 * t0
+    return math.atan2(c0 * d0 + c1 * d1 + c2 * d2, f0 * t0 + f1 * t1 + f2 * t2)
+
+
 def frame_angle(x_from, x_to, d):
-    """The angle that turns frame vector x_from into x_to about the ray direction d (both
-    across d), from x toward d × x: the argument of `rotator`."""
-    x_from, x_to, d = (np.asarray(v, np.float64) for v in (x_from, x_to, d))
-    return math.atan2(float(np.dot(np.cross(x_from, x_to), d)), float(np.dot(x_from, x_to)))
+    """turn_angle of three vectors."""
+    return turn_angle(*(float(c) for v in (x_from, x_to, d) for c in v))
 
 
 def s_direction(d, n):
@@ -196,18 +215,13 @@ def specular_vertex(pol, tp, d_cam, d_next, n, eta):
     else:
         sx, sy, sz = sx / ln, sy / ln, sz / ln
     # R: from the s frame to the frame of the segment toward the camera (about rx, ry, rz)
-    x0, x1, x2 = pol[4], pol[5], pol[6]
-    cr0, cr1, cr2 = sy * x2 - sz * x1, sz * x0 - sx * x2, sx * x1 - sy * x0
-    phi = math.atan2(cr0 * rx + cr1 * ry + cr2 * rz, sx * x0 + sy * x1 + sz * x2)
+    phi = turn_angle(sx, sy, sz, pol[4], pol[5], pol[6], rx, ry, rz)
     c2, s2 = math.cos(2.0 * phi), math.sin(2.0 * phi)
     v0, v1, v2, v3 = pol[0], pol[1] * c2 - pol[2] * s2, pol[1] * s2 + pol[2] * c2, pol[3]
     if reflect:
-        A, B = 0.5 * (f_s + f_p), 0.5 * (f_s - f_p)
-        m = math.sqrt(max(f_s * f_p, 0.0))
-        C, S = m * math.cos(d_s - d_p), -m * math.sin(d_s - d_p)
+        A, B, C, S = reflection_terms(f_s, f_p, d_s, d_p)
     else:
-        t_s, t_p = 1.0 - f_s, 1.0 - f_p
-        A, B, C, S = 0.5 * (t_s + t_p), 0.5 * (t_s - t_p), math.sqrt(max(t_s * t_p, 0.0)), 0.0
+        A, B, C, S = transmission_terms(f_s, f_p)
     if not A > 0.0:
         return
     w0 = (v0 * A + v1 * B) / A

@@ -32,6 +32,7 @@ import pathlib
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 LO_NM, HI_NM = 380.0, 780.0
 N_BANDS = 16
@@ -221,20 +222,38 @@ def rgb_table(bands, side=RGB_TABLE_SIDE):
     return np.ascontiguousarray(reflectance_spectrum(grid, bands))
 
 
+@njit(cache=True)
+def table_band(table, r, g, b, band):
+    """Band `band` of the spectrum of colour (r, g, b) in [0, 1]: trilinear in the RGB
+    grid's spectra `table` (rgb_table), which gives the colour back exactly."""
+    k = table.shape[0] - 1
+    fr, fg, fb = r * k, g * k, b * k
+    i, j, l = min(int(fr), k - 1), min(int(fg), k - 1), min(int(fb), k - 1)
+    wr, wg, wb = fr - i, fg - j, fb - l
+    out = 0.0
+    for di in range(2):
+        for dj in range(2):
+            for dl in range(2):
+                w = (wr if di else 1.0 - wr) * (wg if dj else 1.0 - wg) * (wb if dl else 1.0 - wb)
+                out += w * table[i + di, j + dj, l + dl, band]
+    return out
+
+
+@njit(cache=True)
+def _table_spectra(table, rgb, out):
+    for p in range(rgb.shape[0]):
+        for band in range(out.shape[1]):
+            out[p, band] = table_band(table, rgb[p, 0], rgb[p, 1], rgb[p, 2], band)
+
+
 def table_spectrum(rgb, bands):
     """Reflectance spectra (..., n) of colours (..., 3) in [0, 1] through rgb_table (trilinear):
     the colour back exactly, for as many colours as an image has, without a fit each."""
-    table = rgb_table(bands)
-    k = table.shape[0] - 1
-    f = np.clip(np.asarray(rgb, np.float64), 0.0, 1.0) * k
-    i = np.minimum(f.astype(np.int64), k - 1)
-    w = f - i
-    out = 0.0
-    for corner in range(8):
-        d = [(corner >> a) & 1 for a in range(3)]
-        weight = np.prod([w[..., a] if d[a] else 1.0 - w[..., a] for a in range(3)], axis=0)
-        out = out + weight[..., None] * table[i[..., 0] + d[0], i[..., 1] + d[1], i[..., 2] + d[2]]
-    return out
+    rgb = np.clip(np.asarray(rgb, np.float64), 0.0, 1.0)
+    flat = np.ascontiguousarray(rgb.reshape(-1, 3))
+    out = np.empty((flat.shape[0], int(bands.n)))
+    _table_spectra(rgb_table(bands), flat, out)
+    return out.reshape(rgb.shape[:-1] + (int(bands.n),))
 
 
 def emission_spectrum(rgb, bands):

@@ -117,7 +117,8 @@ def mesh_objects(scene=None):
 KEY_NEUTRAL = {("Light", "temperature"): 0.0, ("Scene", "spectral"): None, ("Material", "glass"): "",
                ("Material", "abbe"): 0.0, ("Material", "fluorescence"): None,
                ("Material", "emission_temperature"): 0.0, ("Camera", "polarizer"): None,
-               ("Camera", "polarized"): False, ("Light", "line_nm"): 0.0, ("Light", "line_width"): 10.0}
+               ("Camera", "polarized"): False, ("Light", "line_nm"): 0.0, ("Light", "line_width"): 10.0,
+               ("Material", "conductor"): "", ("Light", "polarizer"): None}
 
 
 def _neutral(value, neutral):

@@ -543,7 +543,10 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
     if not (math.isfinite(density) and density > 0):
         raise SceneError(f"texel density must be positive, got {density}")
     materials = compile_materials(scene)
-    bsdf_tables = compile_bsdf(scene.materials)
+    try:
+        bsdf_tables = compile_bsdf(scene.materials, int(scene.n_bands), getattr(scene, "spectral", None))
+    except ValueError as e:
+        raise SceneError(str(e)) from None
     textures = compile_textures(scene)
     warnings = []
     # instances under a (non-backup) OL record there instead of on own lightmaps

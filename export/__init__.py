@@ -10,7 +10,7 @@ conventions are converted here, once:
   duplicates cost one prototype and 100 transforms.
 * lightmap UVs: the mesh UV layer named "Lightmap", when present and inside
   [0,1]², otherwise none (the core unwraps with xatlas).
-* materials: the Principled BSDF (plus Diffuse, Glossy, Glass and Emission
+* materials: the Principled BSDF (plus Diffuse, Glossy, Metallic, Glass and Emission
   shaders) mapped to diffuse/specular/transmission/emission weights.
 * lights, camera and a constant world in Cycles' units (see engine/shading/lights.py).
 * exact CSG (csg.py): an object with enabled Boolean modifiers becomes a

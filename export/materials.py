@@ -1,6 +1,6 @@
 """Blender materials -> engine Materials: node inputs evaluated to constants, one converter per shader.
 
-The Principled BSDF (plus Diffuse, Glossy, Glass and Emission shaders) maps to
+The Principled BSDF (plus Diffuse, Glossy, Metallic, Glass and Emission shaders) maps to
 diffuse/specular/transmission/emission weights; a linked input is followed
 through reroutes to an RGB/Value node. Base colour, roughness, metallic,
 transmission and normal inputs driven by anything else are baked per mesh by
@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..engine.core.scene import Material
-from ..engine.shading import dispersion, fluorescence, spectrum
+from ..engine.shading import conductor, dispersion, fluorescence, spectrum
 from . import textures
 from ..engine.shading.texture import srgb_to_linear
 from .context import DEFAULT_DIFFUSE, output_priority
@@ -25,6 +25,9 @@ GLASS_IDS = {name.upper().replace("-", "_").replace(" ", "_"): name for name in 
 # ... and its Fluorescence choices: none, a preset, or custom spectra
 FLUORESCENCE_NONE, FLUORESCENCE_CUSTOM = "NONE", "CUSTOM"
 FLUORESCENCE_IDS = {name.upper().replace(" ", "_"): name for name in fluorescence.PRESETS}
+# ... and its Conductor choices: none (the shader's own metal), or a measured metal
+CONDUCTOR_NONE = "NONE"
+CONDUCTOR_IDS = {name.upper(): name for name in conductor.PRESETS}
 
 
 def image_mean(ctx, image):
@@ -185,6 +188,24 @@ def _glossy(inp, name, ctx, owner):
     return Material(name, diffuse=0.0, specular=c, roughness=inp("Roughness"), base_color=c, metallic=1.0)
 
 
+@converter("ShaderNodeBsdfMetallic")
+def _metallic(inp, name, ctx, owner):
+    """Blender's Metallic BSDF: Physical Conductor is a conductor at the node's index per
+    RGB channel; F82 Tint is Schlick's colour of its base colour (the tint taken as white)."""
+    node = inp.node
+    if getattr(node, "fresnel_type", "F82") == "PHYSICAL_CONDUCTOR":
+        n = np.maximum(np.asarray(inp("IOR")[:3], float), 1e-3)
+        k = np.maximum(np.asarray(inp("Extinction")[:3], float), 0.0)
+        c = conductor.normal_reflectance(n, k)
+        return Material(name, diffuse=0.0, specular=c, roughness=inp("Roughness"), base_color=c, metallic=1.0,
+                        metal_fresnel=True, conductor=(n, k))
+    c = np.asarray(inp("Base Color")[:3])
+    if np.any(np.abs(np.asarray(inp("Edge Tint")[:3]) - 1.0) > 1e-3):
+        ctx.report("INFO", f"{owner}: the Metallic BSDF's Edge Tint is taken as white")
+    return Material(name, diffuse=0.0, specular=c, roughness=inp("Roughness"), base_color=c, metallic=1.0,
+                    metal_fresnel=True)
+
+
 @converter("ShaderNodeBsdfGlass")
 def _glass(inp, name, ctx, owner):
     c = np.asarray(inp("Color")[:3])
@@ -202,8 +223,10 @@ def _convert(ctx, mat, driven):
         baked = set(textures.TEXTURE_SOCKETS.get(node.bl_idname, {}).values())
         driven["inputs"] = textures.driven_inputs(ctx, node, owner)
         driven["node"] = node.name
-        m = convert(lambda key, what=None: node_input(ctx, node.inputs[key], what or key, owner,
-                                                      baked=key in baked), name, ctx, owner)
+        def inp(key, what=None):
+            return node_input(ctx, node.inputs[key], what or key, owner, baked=key in baked)
+        inp.node = node
+        m = convert(inp, name, ctx, owner)
     else:
         why = "has no shader nodes" if mat.node_tree is None else \
             "has no surface shader" if node is None else f"uses an unsupported shader ({node.bl_idname})"
@@ -245,7 +268,8 @@ def _emission_temperature(node, m):
 
 
 def _dispersion(mat, m):
-    """The panel's Dispersion setting onto engine Material m (the compiler checks the values)."""
+    """The panel's Dispersion, Fluorescence and Conductor settings onto engine Material m (the
+    compiler checks the values)."""
     settings = getattr(mat.original, "photon_lightmaps", None)
     choice = getattr(settings, "dispersion", DISPERSION_NONE)
     if choice == DISPERSION_ABBE:
@@ -253,6 +277,9 @@ def _dispersion(mat, m):
     elif choice in GLASS_IDS:
         m.glass = GLASS_IDS[choice]
     m.fluorescence = material_fluorescence(settings)
+    metal = getattr(settings, "conductor", CONDUCTOR_NONE)
+    if metal in CONDUCTOR_IDS:
+        m.conductor = CONDUCTOR_IDS[metal]
 
 
 def material_fluorescence(settings):

@@ -293,6 +293,42 @@ def test_material_dispersion_setting_is_exported():
     assert ms.dispersion[idx["plain"], 0] == 0 and ms.dispersion[idx["flint"], 0] > 0
 
 
+def test_conductors_are_exported():
+    """Blender's Metallic BSDF (Physical Conductor: its IOR and Extinction per channel; F82 Tint:
+    Schlick's colour) and the material panel's Conductor preset on a Principled metal."""
+    def metallic(name, fresnel):
+        mat = bpy.data.materials.new(name)
+        mat.use_nodes = True
+        nodes = mat.node_tree.nodes
+        nodes.remove(nodes["Principled BSDF"])
+        node = nodes.new("ShaderNodeBsdfMetallic")
+        node.inputs["Roughness"].default_value = 0.2
+        node.inputs["Base Color"].default_value = (0.9, 0.6, 0.3, 1.0)
+        node.fresnel_type = "PHYSICAL_CONDUCTOR"         # (a mode's sockets are reachable in that mode)
+        node.inputs["IOR"].default_value = (0.2, 0.4, 1.4)
+        node.inputs["Extinction"].default_value = (3.4, 2.4, 1.8)
+        node.fresnel_type = fresnel
+        mat.node_tree.links.new(node.outputs[0], nodes["Material Output"].inputs["Surface"])
+        return mat
+    gold = demo_blend.principled("gold", (1.0, 1.0, 1.0), metallic=1.0, roughness=0.1)
+    gold.photon_lightmaps.conductor = "AU"
+    _mat_objects([metallic("physical", "PHYSICAL_CONDUCTOR"), metallic("f82", "F82"), gold])
+    scene, _, _ = export_current()
+    m = {mm.name: mm for mm in scene.materials}
+    n, k = m["physical"].conductor
+    np.testing.assert_allclose(n, [0.2, 0.4, 1.4], rtol=1e-6)
+    np.testing.assert_allclose(k, [3.4, 2.4, 1.8], rtol=1e-6)
+    assert m["physical"].metallic == 1.0 and m["physical"].roughness == pytest.approx(0.2)
+    assert m["f82"].conductor == "" and m["f82"].metal_fresnel
+    np.testing.assert_allclose(m["f82"].specular, [0.9, 0.6, 0.3], rtol=1e-6)
+    assert m["gold"].conductor == "Au"
+    from photon_lightmaps.engine.shading import bsdf
+    bt = compile_scene(scene).bsdf
+    idx = {mm.name: i for i, mm in enumerate(scene.materials)}
+    assert bt.metal_fresnel[idx["physical"]] == bsdf.METAL_CONDUCTOR == bt.metal_fresnel[idx["gold"]]
+    np.testing.assert_allclose(bt.conductor[idx["physical"], :, :2], np.array([n, k]).T)
+
+
 def test_blackbody_node_on_an_emission_colour():
     """A Blackbody node (3000 K) on an Emission shader's colour: RGB mode glows its colour
     (within 2 % of Blender's own blackbody colour, here a light's at that temperature;

@@ -267,6 +267,7 @@ def test_panels_draw_existing_properties():
     ob = bpy.data.objects["floor"]
     ctx = types.SimpleNamespace(engine=ENGINE, scene=scene, object=ob, material=ob.active_material,
                                 world=scene.world, light=None, space_data=None, camera=scene.camera.data)
+    ob.active_material.photon_lightmaps.conductor = "AU"          # draws the preset's index too
     drawn = {}
     for light_type in ("POINT", "SPOT", "SUN", "AREA"):
         ctx.light = bpy.data.lights.new(f"l_{light_type}", light_type)
@@ -286,6 +287,7 @@ def test_panels_draw_existing_properties():
         drawn["PHOTON_LIGHTMAPS_PT_light"]
     assert {"dispersion"} <= drawn["PHOTON_LIGHTMAPS_PT_material_dispersion"]
     assert {"fluorescence"} <= drawn["PHOTON_LIGHTMAPS_PT_material_fluorescence"]
+    assert {"conductor"} <= drawn["PHOTON_LIGHTMAPS_PT_material_conductor"]
     assert {"polarizer_angle"} <= drawn["PHOTON_LIGHTMAPS_PT_camera_polarizer"]
     ctx.engine = "CYCLES"
     assert not any(cls.poll(ctx) for cls in panels.classes)

@@ -10,8 +10,9 @@ import bpy
 from ..engine.shading.dispersion import PRESETS
 from ..engine.shading.fluorescence import PRESETS as FL
 from ..export.lights import LIGHT_LINE
-from ..export.materials import DISPERSION_ABBE, DISPERSION_NONE, FLUORESCENCE_CUSTOM, FLUORESCENCE_IDS, \
-    FLUORESCENCE_NONE, GLASS_IDS
+from ..engine.shading import conductor
+from ..export.materials import CONDUCTOR_IDS, CONDUCTOR_NONE, DISPERSION_ABBE, DISPERSION_NONE, \
+    FLUORESCENCE_CUSTOM, FLUORESCENCE_IDS, FLUORESCENCE_NONE, GLASS_IDS
 from ..operators.render_engine import ENGINE_ID
 
 
@@ -412,7 +413,7 @@ class PHOTON_LIGHTMAPS_PT_material_surface(_MaterialPanel, bpy.types.Panel):
 
     def draw(self, context):
         _draw_surface(self.layout, context.material, "ShaderNodeOutputMaterial",
-                      "Principled, Diffuse, Glossy, Glass or Emission", "diffuse_color")
+                      "Principled, Diffuse, Glossy, Metallic, Glass or Emission", "diffuse_color")
 
 
 class PHOTON_LIGHTMAPS_PT_material_dispersion(_MaterialPanel, bpy.types.Panel):
@@ -458,6 +459,21 @@ class PHOTON_LIGHTMAPS_PT_material_fluorescence(_MaterialPanel, bpy.types.Panel)
             layout.label(text=f"Quantum yield {fl.quantum_yield}")
         if not context.scene.photon_lightmaps.spectral:
             layout.label(text="Seen with Spectral on (Render properties)", icon='INFO')
+
+
+class PHOTON_LIGHTMAPS_PT_material_conductor(_MaterialPanel, bpy.types.Panel):
+    bl_label = "Conductor"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout, s = _material_settings(self.layout, context)
+        layout.prop(s, "conductor")
+        if s.conductor == CONDUCTOR_NONE:
+            return
+        nk = conductor.rgb_index(CONDUCTOR_IDS[s.conductor])
+        layout.label(text="n " + ", ".join(f"{v:.2f}" for v in nk[:, 0])
+                          + "   k " + ", ".join(f"{v:.2f}" for v in nk[:, 1]) + " (R, G, B)")
+        layout.label(text="Weighted by the shader's Metallic", icon='INFO')
 
 
 class PHOTON_LIGHTMAPS_PT_light(_EnginePanel, bpy.types.Panel):
@@ -545,6 +561,7 @@ classes = (
     PHOTON_LIGHTMAPS_PT_material_surface,
     PHOTON_LIGHTMAPS_PT_material_dispersion,
     PHOTON_LIGHTMAPS_PT_material_fluorescence,
+    PHOTON_LIGHTMAPS_PT_material_conductor,
     PHOTON_LIGHTMAPS_PT_light,
     PHOTON_LIGHTMAPS_PT_camera_polarizer,
     PHOTON_LIGHTMAPS_PT_world,

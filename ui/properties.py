@@ -17,8 +17,9 @@ from ..engine.shading.dispersion import PRESETS
 from ..engine.shading.fluorescence import PRESETS as FL
 from ..export.lights import LIGHT_COLOUR, LIGHT_LINE
 from ..export.lsystems import MAX_PREVIEW_DEPTH, LSystemSettings
-from ..export.materials import (DISPERSION_ABBE, DISPERSION_NONE, FLUORESCENCE_CUSTOM, FLUORESCENCE_IDS,
-                                FLUORESCENCE_NONE, GLASS_IDS)
+from ..engine.shading import conductor
+from ..export.materials import (CONDUCTOR_IDS, CONDUCTOR_NONE, DISPERSION_ABBE, DISPERSION_NONE, FLUORESCENCE_CUSTOM,
+                                FLUORESCENCE_IDS, FLUORESCENCE_NONE, GLASS_IDS)
 
 _D = Settings()
 _L = LSystemSettings()
@@ -257,6 +258,14 @@ class PhotonLightmapsMaterialSettings(bpy.types.PropertyGroup):
     fl_quantum_yield: FloatProperty(
         name="Quantum Yield", default=0.9, min=0.0, max=1.0, subtype='FACTOR',
         description="Photons re-emitted per photon absorbed (the rest becomes heat)")
+    conductor: EnumProperty(
+        name="Conductor", default=CONDUCTOR_NONE,
+        items=[(CONDUCTOR_NONE, "None", "The shader's own metal colour (Schlick's Fresnel)")]
+              + [(key, conductor.NAMES[name], f"{conductor.NAMES[name]} ({name}) at its measured complex index")
+                 for key, name in CONDUCTOR_IDS.items()],
+        description="A measured metal: its complex index of refraction gives the metal's colour, how it "
+                    "changes toward grazing angles, and what it does to polarized light. Replaces the "
+                    "colour of the shader's metal, weighted by its Metallic")
 
 
 class PhotonLightmapsLightSettings(bpy.types.PropertyGroup):

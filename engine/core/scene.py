@@ -123,6 +123,10 @@ class Material:
     # > 0: the emission is a blackbody's at this many kelvin (Blender's Blackbody node);
     # `emission` holds its RGB times the tint, and spectral mode emits Planck's spectrum
     emission_temperature: float = 0.0
+    # A metal at a complex index (engine/shading/conductor.py): a preset name ('Ag', 'Al',
+    # 'Au', 'Cu') or an (n, k) pair (scalars or per RGB channel). The specular lobe's
+    # Fresnel is then the conductor's times `metallic`, whatever its colour.
+    conductor: object = ""
 
 
 @dataclass

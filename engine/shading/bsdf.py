@@ -9,7 +9,8 @@ as Blender maps it):
   GGX reflection with the exact dielectric Fresnel of the level-adjusted IOR,
   white, weight w_layer;
 * metal: GGX reflection of colour ks, Schlick Fresnel with F0 = ks (Principled
-  metal with a white F82 tint) or a constant ks (the Glossy BSDF), with
+  metal with a white F82 tint), a constant ks (the Glossy BSDF), or a
+  conductor's exact Fresnel at its complex index per band (conductor.py), with
   Kulla–Conty style energy compensation (Cycles' multiscatter GGX: weight
   1 + F_avg (1 - E)/E, so a white metal furnace reflects all it receives);
 * glass: rough dielectric (Walter et al. 2007) reflection and refraction,
@@ -32,17 +33,29 @@ from numba import njit
 
 from ..core.jit import CORE
 from ..core.sampling import cosine_hemisphere, orthonormal_basis
+from . import conductor
 
 DELTA_ALPHA = 3.2e-4
 
 # closure scalars (one small float64 array per hit, filled by closure_scalars)
 (P_ALPHA, P_ETA, P_LAYER_F0, P_LAYER_ETA, P_LAYER_W, P_SCHLICK, P_E_LAYER, P_E_METAL, P_METAL,
  P_SIZE) = range(10)
+# P_SCHLICK's values: the metal lobe's Fresnel
+METAL_CONSTANT, METAL_SCHLICK, METAL_CONDUCTOR = 0.0, 1.0, 2.0
+# a conductor's (n, k, F_avg) per band follow the scalars: p[P_SIZE + 3 b + i]
+P_COND = P_SIZE
+
+
+@njit(cache=True)
+def closure_size(nb):
+    """Length of a closure array for nb bands."""
+    return P_SIZE + 3 * nb
 
 # selected lobe
 ABSORB, DIFFUSE, GLOSSY = 0, 1, 2
 
-BsdfTables = namedtuple("BsdfTables", "e_metal e_layer layer_f0 layer_eta layer_weight metal_fresnel metallic")
+BsdfTables = namedtuple("BsdfTables", "e_metal e_layer layer_f0 layer_eta layer_weight metal_fresnel metallic "
+                                      "conductor")
 
 # albedo tables: cos_o, alpha and F0 on sqrt-spaced grids (resolution at grazing
 # angles, low roughness and the small F0 of common dielectrics, where the albedo
@@ -128,8 +141,9 @@ def _fresnel_np(c, eta):
 _TABLES = None
 
 
-def compile_bsdf(materials):
-    """Albedo tables and each material's layer and Fresnel parameters (scene.Material list)."""
+def compile_bsdf(materials, n_bands=3, bands=None):
+    """Albedo tables and each material's layer and Fresnel parameters (scene.Material list;
+    bands: spectrum.Bands in spectral mode). A bad conductor raises ValueError."""
     global _TABLES
     if _TABLES is None:
         _TABLES = _albedo_tables()
@@ -137,8 +151,9 @@ def compile_bsdf(materials):
     f0 = np.zeros(n)
     eta = np.ones(n)
     weight = np.zeros(n)
-    schlick = np.zeros(n, np.bool_)
+    mode = np.zeros(n)
     metallic = np.zeros(n)
+    cond = np.zeros((n, n_bands, 3))
     for i, m in enumerate(materials):
         level = float(getattr(m, "specular_level", 0.0))
         if not math.isfinite(level):
@@ -148,9 +163,17 @@ def compile_bsdf(materials):
         trans = min(max(float(getattr(m, "transmission_weight", 0.0)), 0.0), 1.0)
         # legacy materials (no Principled weights) put the layer over all of their diffuse
         weight[i] = (1.0 - metal) * (1.0 - trans)
-        schlick[i] = bool(getattr(m, "metal_fresnel", False))
+        mode[i] = METAL_SCHLICK if getattr(m, "metal_fresnel", False) else METAL_CONSTANT
         metallic[i] = metal
-    return BsdfTables(_TABLES[0], _TABLES[1], f0, eta, weight, schlick, metallic)
+        if getattr(m, "conductor", ""):
+            try:
+                nk = conductor.band_index(m.conductor, n_bands, bands)
+            except ValueError as e:
+                raise ValueError(f"material '{m.name}': {e}") from None
+            mode[i] = METAL_CONDUCTOR
+            cond[i, :, :2] = nk
+            cond[i, :, 2] = [conductor.mean_reflectance(a, b) for a, b in nk]
+    return BsdfTables(_TABLES[0], _TABLES[1], f0, eta, weight, mode, metallic, cond)
 
 
 # --------------------------------------------------------------------------------------
@@ -277,8 +300,12 @@ def closure_scalars(bt, m, roughness, ior, entering, cos_o, p):
     p[P_LAYER_F0] = bt.layer_f0[m]
     p[P_LAYER_ETA] = bt.layer_eta[m]
     p[P_LAYER_W] = bt.layer_weight[m] if bt.layer_f0[m] > 0.0 else 0.0
-    p[P_SCHLICK] = 1.0 if bt.metal_fresnel[m] else 0.0
+    p[P_SCHLICK] = bt.metal_fresnel[m]
     p[P_METAL] = bt.metallic[m]
+    if p[P_SCHLICK] == METAL_CONDUCTOR:
+        for b in range(min(bt.conductor.shape[1], (p.shape[0] - P_COND) // 3)):
+            for i in range(3):
+                p[P_COND + 3 * b + i] = bt.conductor[m, b, i]
     mu = min(max(cos_o, 0.0), 1.0)
     if p[P_LAYER_W] > 0.0:
         if a <= DELTA_ALPHA:
@@ -299,7 +326,10 @@ def diffuse_scale(p):
 @njit(cache=True)
 def _metal_fresnel(p, ks, b, c):
     """ks = B M (Principled): the metal's share M times Schlick of F0 = B, so a
-    dielectric (M = 0) has no metal lobe even at grazing angles."""
+    dielectric (M = 0) has no metal lobe even at grazing angles. A conductor: M times
+    its Fresnel at its index in band b."""
+    if p[P_SCHLICK] == METAL_CONDUCTOR:
+        return p[P_METAL] * conductor.reflectance(c, p[P_COND + 3 * b], p[P_COND + 3 * b + 1])
     if p[P_SCHLICK] > 0.0:
         m = 1.0 - c
         m2 = m * m
@@ -311,7 +341,10 @@ def _metal_fresnel(p, ks, b, c):
 def _metal_compensation(p, ks, b):
     """1 + F_avg (1 - E) / E: the energy of multiply scattered light, re-added (Cycles)."""
     e = p[P_E_METAL]
-    f_avg = ks[b] + (p[P_METAL] - ks[b]) / 21.0 if p[P_SCHLICK] > 0.0 else ks[b]
+    if p[P_SCHLICK] == METAL_CONDUCTOR:
+        f_avg = p[P_METAL] * p[P_COND + 3 * b + 2]
+    else:
+        f_avg = ks[b] + (p[P_METAL] - ks[b]) / 21.0 if p[P_SCHLICK] > 0.0 else ks[b]
     return 1.0 + f_avg * (1.0 - e) / e
 
 

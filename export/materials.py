@@ -223,6 +223,7 @@ def _convert(ctx, mat, driven):
         baked = set(textures.TEXTURE_SOCKETS.get(node.bl_idname, {}).values())
         driven["inputs"] = textures.driven_inputs(ctx, node, owner)
         driven["node"] = node.name
+
         def inp(key, what=None):
             return node_input(ctx, node.inputs[key], what or key, owner, baked=key in baked)
         inp.node = node

@@ -51,6 +51,7 @@ def closure_size(nb):
     """Length of a closure array for nb bands."""
     return P_SIZE + 3 * nb
 
+
 # selected lobe
 ABSORB, DIFFUSE, GLOSSY = 0, 1, 2
 

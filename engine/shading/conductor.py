@@ -18,7 +18,6 @@ An index given per RGB channel (the Metallic BSDF's IOR and Extinction) is
 taken at `RGB_NM` and interpolated between them in spectral mode.
 """
 import functools
-import math
 import pathlib
 
 import numpy as np

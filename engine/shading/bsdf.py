@@ -34,6 +34,7 @@ from numba import njit
 from ..core.jit import CORE
 from ..core.sampling import cosine_hemisphere, orthonormal_basis
 from . import conductor
+from . import polarization
 
 DELTA_ALPHA = 3.2e-4
 
@@ -518,6 +519,42 @@ def sample_glossy(p, ks, kt, ps, pm, pg, ox, oy, oz, u0, u1, u2, u3, weight):
     for b in range(nb):
         weight[b] /= pdf
     return True, ix, iy, iz, pdf, False
+
+
+@njit(cache=True)
+def mueller_terms(p, ks, kt, ps, pm, pg, c, reflect, out, at):
+    """The Mueller terms (A, B, C, S) per band, in the s frame (polarization.py), of a smooth
+    closure's mirror reflection (`reflect`) or refraction at incidence cos c, into out[at +
+    4 b ...]: the sum of what its lobes reflect (the layer's and glass's dielectric Fresnel,
+    the metal's conductor Fresnel, a Schlick metal's colour as polarization-neutral) or the
+    glass transmits. A equals the weight sample_glossy gives that direction."""
+    nb = kt.shape[0]
+    if reflect:
+        la, lb, lc, ls_ = 0.0, 0.0, 0.0, 0.0
+        if ps > 0.0:
+            la, lb, lc, ls_ = polarization.reflection_terms(*polarization.fresnel(c, p[P_LAYER_ETA], 0.0))
+            w = p[P_LAYER_W]
+            la, lb, lc, ls_ = w * la, w * lb, w * lc, w * ls_
+        ga, gb, gc, gs = 0.0, 0.0, 0.0, 0.0
+        if pg > 0.0:
+            ga, gb, gc, gs = polarization.reflection_terms(*polarization.fresnel(c, p[P_ETA], 0.0))
+        for b in range(nb):
+            A, B, C, S = la + kt[b] * ga, lb + kt[b] * gb, lc + kt[b] * gc, ls_ + kt[b] * gs
+            if pm > 0.0:
+                if p[P_SCHLICK] == METAL_CONDUCTOR:
+                    ma, mb, mc, ms = polarization.reflection_terms(
+                        *polarization.fresnel(c, p[P_COND + 3 * b], p[P_COND + 3 * b + 1]))
+                    M = p[P_METAL]
+                    A, B, C, S = A + M * ma, B + M * mb, C + M * mc, S + M * ms
+                else:
+                    f = _metal_fresnel(p, ks, b, c)
+                    A, C = A + f, C + f
+            out[at + 4 * b], out[at + 4 * b + 1], out[at + 4 * b + 2], out[at + 4 * b + 3] = A, B, C, S
+    else:
+        ta, tb, tc, ts = polarization.transmission_terms(*polarization.fresnel(c, p[P_ETA], 0.0)[:2])
+        for b in range(nb):
+            out[at + 4 * b], out[at + 4 * b + 1] = kt[b] * ta, kt[b] * tb
+            out[at + 4 * b + 2], out[at + 4 * b + 3] = kt[b] * tc, kt[b] * ts
 
 
 @njit(cache=True, inline="always")

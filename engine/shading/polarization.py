@@ -159,77 +159,160 @@ def degree_of_polarization(S):
     return float(np.sqrt(S[1] ** 2 + S[2] ** 2 + S[3] ** 2) / S[0]) if S[0] > 0.0 else 0.0
 
 
-# ------------------------------------------------------------------ along camera paths
-# A camera path that traces polarization (behind a polarizing filter, or with the
-# scene's Polarization on) carries what the camera measures as a row
-# vector w over the Stokes vector of the light arriving along its current segment,
-# in that segment's frame: the measured value is w · S. It starts as the filter's
-# first row and meets every interaction from the camera's side, w <- w · R · M (the
-# interaction's Mueller matrix M in its s frame, R turning that frame into the
-# segment's). Lights and lightmaps send unpolarized light, w · (L, 0, 0, 0) = w0 L:
-# so w is kept with w0 = 1 and its scale moved into the path's throughput, and the
-# rest of the renderer is unchanged. pol (7 floats): w0..w3, then the frame's x.
+# ------------------------------------------------------------------ along paths
+# A path that traces polarization keeps, per band, a Stokes vector (a photon) or
+# what the camera measures as a row vector over the Stokes vector of the light
+# arriving along its current segment (a camera path: the measured value is w · S),
+# in one frame across the segment. Both are kept with their first entry 1 and their
+# scale in the path's throughput per band, so the rest of the tracer is unchanged:
+# lights, lightmaps and the world send unpolarized light, which a camera row meets
+# as w0 L. Bands differ where a conductor's index does.
+#
+# pol (8 nb + 3 floats, `pol_size`): nb rows of 4, then the frame's x, then the
+# Mueller terms (A, B, C, S) per band of the interaction at hand (`TERMS`).
+
+@njit(cache=True)
+def pol_size(nb):
+    return 8 * nb + 3
+
+
+@njit(cache=True)
+def frame_at(nb):
+    """Where pol keeps its frame's x."""
+    return 4 * nb
+
+
+@njit(cache=True)
+def terms_at(nb):
+    """Where pol keeps an interaction's (A, B, C, S) per band."""
+    return 4 * nb + 3
+
+
+@njit(cache=True)
+def _set_frame(pol, nb, x, d):
+    """The frame's x: x made perpendicular to d, unit."""
+    k = x[0] * d[0] + x[1] * d[1] + x[2] * d[2]
+    x0, x1, x2 = x[0] - k * d[0], x[1] - k * d[1], x[2] - k * d[2]
+    ln = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    f = frame_at(nb)
+    pol[f], pol[f + 1], pol[f + 2] = x0 / ln, x1 / ln, x2 / ln
+
 
 @njit(cache=True)
 def start_row(pol, tp, angle, filtered, xaxis, d):
     """A camera ray d, through a linear polarizer at `angle` from the camera's x axis
-    (xaxis) where `filtered`: pol = the filter's first row, normalised (without a
-    filter, what the camera measures is S0: (1, 0, 0, 0)), the frame x the camera's x
-    across d; tp takes the row's scale (1/2: a filter passes half of unpolarized light)."""
-    if filtered:
-        c, s = math.cos(2.0 * angle), math.sin(2.0 * angle)
-        pol[0], pol[1], pol[2], pol[3] = 1.0, c, s, 0.0
-        for b in range(tp.shape[0]):
+    (xaxis) where `filtered`: every band's row = the filter's first row, normalised
+    (without a filter, what the camera measures is S0: (1, 0, 0, 0)), the frame x the
+    camera's x across d; tp takes the row's scale (1/2: a filter passes half of
+    unpolarized light)."""
+    nb = tp.shape[0]
+    c, s = (math.cos(2.0 * angle), math.sin(2.0 * angle)) if filtered else (0.0, 0.0)
+    for b in range(nb):
+        pol[4 * b], pol[4 * b + 1], pol[4 * b + 2], pol[4 * b + 3] = 1.0, c, s, 0.0
+        if filtered:
             tp[b] *= 0.5
-    else:
-        pol[0], pol[1], pol[2], pol[3] = 1.0, 0.0, 0.0, 0.0
-    k = xaxis[0] * d[0] + xaxis[1] * d[1] + xaxis[2] * d[2]
-    x0, x1, x2 = xaxis[0] - k * d[0], xaxis[1] - k * d[1], xaxis[2] - k * d[2]
-    ln = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
-    pol[4], pol[5], pol[6] = x0 / ln, x1 / ln, x2 / ln
+    _set_frame(pol, nb, xaxis, d)
 
 
 @njit(cache=True)
-def depolarize(pol):
-    """A rough or diffuse interaction: the light it sends is taken as unpolarized."""
-    pol[1], pol[2], pol[3] = 0.0, 0.0, 0.0
-
-
-@njit(cache=True)
-def specular_vertex(pol, tp, d_cam, d_next, n, eta):
-    """The camera path went along d_cam, met a smooth dielectric interface (normal n on the
-    camera's side, relative index eta from that side) and goes on along d_next: reflected
-    when d_next leaves on n's side, refracted otherwise. w <- w · R · M / A (A: M's
-    unpolarized weight, which the path's throughput already has), the scale of w0 into
-    tp, the frame to the s direction."""
-    rx, ry, rz = -d_cam[0], -d_cam[1], -d_cam[2]            # the light's way to the camera
-    cos_c = rx * n[0] + ry * n[1] + rz * n[2]
-    lx, ly, lz = -d_next[0], -d_next[1], -d_next[2]          # the light's way in
-    reflect = d_next[0] * n[0] + d_next[1] * n[1] + d_next[2] * n[2] > 0.0
-    f_s, f_p, d_s, d_p = fresnel(cos_c, eta, 0.0)
-    # the s direction: across the plane of incidence (light in x normal)
-    sx, sy, sz = ly * n[2] - lz * n[1], lz * n[0] - lx * n[2], lx * n[1] - ly * n[0]
-    ln = math.sqrt(sx * sx + sy * sy + sz * sz)
-    if ln < 1e-9:            # normal incidence: s and p are one, any direction across the ray
-        sx, sy, sz = pol[4], pol[5], pol[6]
-    else:
-        sx, sy, sz = sx / ln, sy / ln, sz / ln
-    # R: from the s frame to the frame of the segment toward the camera (about rx, ry, rz)
-    phi = turn_angle(sx, sy, sz, pol[4], pol[5], pol[6], rx, ry, rz)
-    c2, s2 = math.cos(2.0 * phi), math.sin(2.0 * phi)
-    v0, v1, v2, v3 = pol[0], pol[1] * c2 - pol[2] * s2, pol[1] * s2 + pol[2] * c2, pol[3]
-    if reflect:
-        A, B, C, S = reflection_terms(f_s, f_p, d_s, d_p)
-    else:
-        A, B, C, S = transmission_terms(f_s, f_p)
-    if not A > 0.0:
+def start_stokes(pol, power, polarized, axis, d):
+    """A photon leaving a light along d: unpolarized, or where `polarized`, through a linear
+    polarizer whose axis is `axis` (a world direction; the light passes along its part
+    across d), which passes half the power: S = (1, 1, 0, 0) in the frame of that part."""
+    nb = power.shape[0]
+    for b in range(nb):
+        pol[4 * b], pol[4 * b + 1], pol[4 * b + 2], pol[4 * b + 3] = 1.0, 1.0 if polarized else 0.0, 0.0, 0.0
+        if polarized:
+            power[b] *= 0.5
+    k = axis[0] * d[0] + axis[1] * d[1] + axis[2] * d[2]
+    if polarized and (axis[0] - k * d[0]) ** 2 + (axis[1] - k * d[1]) ** 2 + (axis[2] - k * d[2]) ** 2 < 1e-18:
+        depolarize(pol, nb)          # along the axis: every direction across is the axis's
+        x = (1.0, 0.0, 0.0) if abs(d[0]) < 0.9 else (0.0, 1.0, 0.0)
+        _set_frame(pol, nb, x, d)
         return
-    w0 = (v0 * A + v1 * B) / A
-    w1 = (v0 * B + v1 * A) / A
-    w2 = (v2 * C + v3 * S) / A
-    w3 = (-v2 * S + v3 * C) / A
-    for b in range(tp.shape[0]):
+    _set_frame(pol, nb, axis, d)
+
+
+@njit(cache=True)
+def depolarize(pol, nb):
+    """A rough or diffuse interaction: the light it sends is taken as unpolarized."""
+    for b in range(nb):
+        pol[4 * b + 1], pol[4 * b + 2], pol[4 * b + 3] = 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def s_frame(pol, nb, d_in, n):
+    """The s direction of light travelling along d_in onto normal n: across the plane of
+    incidence (the frame's own x at normal incidence, where s and p are one)."""
+    sx, sy, sz = d_in[1] * n[2] - d_in[2] * n[1], d_in[2] * n[0] - d_in[0] * n[2], d_in[0] * n[1] - d_in[1] * n[0]
+    ln = math.sqrt(sx * sx + sy * sy + sz * sz)
+    if ln < 1e-9:
+        f = frame_at(nb)
+        return pol[f], pol[f + 1], pol[f + 2]
+    return sx / ln, sy / ln, sz / ln
+
+
+@njit(cache=True)
+def camera_vertex(pol, tp, d_cam, d_next, n):
+    """The camera path went along d_cam, met a smooth interface (normal n) and goes on along
+    d_next, with the interaction's Mueller terms per band in pol (`terms_at`), in its s
+    frame. w <- w · R · M / A (R turns the s frame into the segment's; A is M's
+    unpolarized weight, which the path's throughput already has), the scale of w0
+    into tp, the frame to the s direction."""
+    nb = tp.shape[0]
+    f, t = frame_at(nb), terms_at(nb)
+    rx, ry, rz = -d_cam[0], -d_cam[1], -d_cam[2]            # the light's way to the camera
+    sx, sy, sz = s_frame(pol, nb, (-d_next[0], -d_next[1], -d_next[2]), n)
+    phi = turn_angle(sx, sy, sz, pol[f], pol[f + 1], pol[f + 2], rx, ry, rz)
+    c2, s2 = math.cos(2.0 * phi), math.sin(2.0 * phi)
+    for b in range(nb):
+        A, B, C, S = pol[t + 4 * b], pol[t + 4 * b + 1], pol[t + 4 * b + 2], pol[t + 4 * b + 3]
+        if not A > 0.0:
+            continue
+        r = 4 * b
+        v0, v1, v2, v3 = pol[r], pol[r + 1] * c2 - pol[r + 2] * s2, pol[r + 1] * s2 + pol[r + 2] * c2, pol[r + 3]
+        w0 = (v0 * A + v1 * B) / A
         tp[b] *= w0
-    if w0 > 0.0:
-        pol[0], pol[1], pol[2], pol[3] = 1.0, w1 / w0, w2 / w0, w3 / w0
-    pol[4], pol[5], pol[6] = sx, sy, sz
+        if w0 > 0.0:
+            pol[r], pol[r + 1] = 1.0, (v0 * B + v1 * A) / (A * w0)
+            pol[r + 2], pol[r + 3] = (v2 * C + v3 * S) / (A * w0), (-v2 * S + v3 * C) / (A * w0)
+    pol[f], pol[f + 1], pol[f + 2] = sx, sy, sz
+
+
+@njit(cache=True)
+def photon_vertex(pol, power, d_in, d_out, n):
+    """A photon came along d_in, met a smooth interface (normal n) and goes on along d_out,
+    with the interaction's Mueller terms per band in pol. S <- M · R · S / A (R turns the
+    photon's frame into the s frame), the scale of S0 into power, the frame to the s
+    direction (across d_out too)."""
+    nb = power.shape[0]
+    f, t = frame_at(nb), terms_at(nb)
+    sx, sy, sz = s_frame(pol, nb, d_in, n)
+    phi = turn_angle(pol[f], pol[f + 1], pol[f + 2], sx, sy, sz, d_in[0], d_in[1], d_in[2])
+    c2, s2 = math.cos(2.0 * phi), math.sin(2.0 * phi)
+    for b in range(nb):
+        A, B, C, S = pol[t + 4 * b], pol[t + 4 * b + 1], pol[t + 4 * b + 2], pol[t + 4 * b + 3]
+        if not A > 0.0:
+            continue
+        r = 4 * b
+        v0, v1, v2, v3 = pol[r], pol[r + 1] * c2 + pol[r + 2] * s2, -pol[r + 1] * s2 + pol[r + 2] * c2, pol[r + 3]
+        s0 = (A * v0 + B * v1) / A
+        power[b] *= s0
+        if s0 > 0.0:
+            pol[r], pol[r + 1] = 1.0, (B * v0 + A * v1) / (A * s0)
+            pol[r + 2], pol[r + 3] = (C * v2 - S * v3) / (A * s0), (S * v2 + C * v3) / (A * s0)
+    pol[f], pol[f + 1], pol[f + 2] = sx, sy, sz
+
+
+@njit(cache=True)
+def arriving_light(pol, nb, b, axis, d):
+    """What band b's camera row (frame in pol) measures of light that left a linear
+    polarizer of world axis `axis` (see start_stokes) travelling along d, per unit of its
+    S0: w · S, with S = (1, cos 2θ, sin 2θ, 0) and θ the axis's angle in the row's frame."""
+    f = frame_at(nb)
+    k = axis[0] * d[0] + axis[1] * d[1] + axis[2] * d[2]
+    x0, x1, x2 = axis[0] - k * d[0], axis[1] - k * d[1], axis[2] - k * d[2]
+    if x0 * x0 + x1 * x1 + x2 * x2 < 1e-18:
+        return pol[4 * b]
+    th = turn_angle(pol[f], pol[f + 1], pol[f + 2], x0, x1, x2, d[0], d[1], d[2])
+    return pol[4 * b] + pol[4 * b + 1] * math.cos(2.0 * th) + pol[4 * b + 2] * math.sin(2.0 * th)

@@ -17,6 +17,7 @@ from ..shading import bsdf
 from ..shading import dispersion
 from ..shading import fluorescence
 from ..shading import materials
+from ..shading import polarization
 
 PathScratch = namedtuple("PathScratch", [
     "kd", "ks", "kt",   # the closure's diffuse, specular and transmission colours, per band
@@ -30,7 +31,7 @@ PathScratch = namedtuple("PathScratch", [
     "count",            # count[0]: rays traced
     "bands",            # the nine band arrays above as the rows of one array (a 2-D argument where one is due)
     "wave",             # the path's wavelength state (dispersion.WAVE_*): the band it keeps (-1: all), nm
-    "pol",              # a camera path's Stokes row and frame behind a polarizing filter (polarization.py)
+    "pol",              # Stokes vectors (photons) or rows (camera paths) per band, and a frame (polarization.py)
 ])
 
 
@@ -40,7 +41,7 @@ def path_scratch(nb, stack, count):
     (two paths of one thread, a camera path and its gathers, share both)."""
     r = np.empty((9, nb))
     return PathScratch(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], np.empty(bsdf.closure_size(nb)), stack, count, r,
-                       np.full(2, -1.0), np.zeros(7))
+                       np.full(2, -1.0), np.zeros(polarization.pol_size(nb)))
 
 
 @njit(cache=True)

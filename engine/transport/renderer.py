@@ -90,9 +90,9 @@ def _polarizer_start(pol, w, tp, cam, d):
 
 
 def _polarizer_vertex(pol, w, tp, d_cam, d_next, fn, lobes, delta):
-    """A camera path that traces polarization meets a glossy interaction: polarized by a
-    smooth dielectric one (glass, or a coat), depolarized by a rough one; a smooth metal
-    (Schlick's colour, no complex index) is taken as keeping the polarization."""
+    """A camera path that traces polarization meets a glossy interaction: a smooth one
+    (glass, a coat, a metal: its Mueller matrix, bsdf.mueller_terms) polarizes, a rough
+    one depolarizes."""
 
 
 @overload(_polarizer_start)
@@ -109,13 +109,16 @@ def _polarizer_start_gate(pol, w, tp, cam, d):
 def _polarizer_vertex_gate(pol, w, tp, d_cam, d_next, fn, lobes, delta):
     if pol.ndim == 2:
         def vertex(pol, w, tp, d_cam, d_next, fn, lobes, delta):
-            _, ps, pm, pg = lobes
+            nb = tp.shape[0]
             if not delta:
-                polarization.depolarize(w.pol)
-            elif pg > 0.0:
-                polarization.specular_vertex(w.pol, tp, d_cam, d_next, fn, w.closure[bsdf.P_ETA])
-            elif ps > 0.0:
-                polarization.specular_vertex(w.pol, tp, d_cam, d_next, fn, w.closure[bsdf.P_LAYER_ETA])
+                polarization.depolarize(w.pol, nb)
+                return
+            _, ps, pm, pg = lobes
+            cos_c = -(d_cam[0] * fn[0] + d_cam[1] * fn[1] + d_cam[2] * fn[2])
+            reflect = d_next[0] * fn[0] + d_next[1] * fn[1] + d_next[2] * fn[2] > 0.0
+            bsdf.mueller_terms(w.closure, w.ks, w.kt, ps, pm, pg, abs(cos_c), reflect, w.pol,
+                               polarization.terms_at(nb))
+            polarization.camera_vertex(w.pol, tp, d_cam, d_next, fn)
         return vertex
     return lambda pol, w, tp, d_cam, d_next, fn, lobes, delta: None
 

@@ -53,6 +53,9 @@ class CompiledScene:
     lightmaps_hold_direct: bool = False   # ... and recorded first hits (final gather, bakes of OLs)
     gather_light_set: object = None       # lights.LightSet a final gather samples at its hits (None: none)
     spectral: object = None               # spectrum.Bands of a spectral scene (engine/spectral.py), else None
+    # photons carry Stokes vectors along specular paths (the scene's Polarization, or a
+    # light with a polarizer): photon_tracer compiles its polarized kind
+    polarization: bool = False
     bsdf: object = None             # bsdf.BsdfTables: albedo tables, layer and Fresnel per material
     # material textures (engine/shading/texture.py TextureSet; empty when the scene has none)
     textures: object = None
@@ -604,6 +607,7 @@ def compile_scene(scene, texel_density=None, max_resolution=1024, csg_split=True
                        env, info, instance_lightmaps=per_instance, orientation=ol_maps,
                        textures=textures, bsdf=bsdf_tables, caustics=caustics)
     cs.spectral = getattr(scene, "spectral", None)
+    cs.polarization = bool(getattr(scene.camera, "polarized", False)) or bool(np.any(lights.pol[:, 3] > 0.0))
     cs.timings.update(unwrap=t_unwrap - t0, geometry=t_geo - t0, lightmap_setup=t_lm - t_geo,
                       setup=time.perf_counter() - t0)
     return cs

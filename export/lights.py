@@ -32,6 +32,8 @@ def light(ctx, ob, xf):
         rgb = spectrum.to_rgb(spectrum.line_spectrum(settings.line_nm, settings.line_width, bands), bands)
         kw.update(color=ctx.bands(np.maximum(rgb, 0.0)), temperature=0.0, line_nm=float(settings.line_nm),
                   line_width=float(settings.line_width))
+    if getattr(settings, "use_polarizer", False):
+        kw["polarizer"] = float(settings.polarizer_angle)
     scale = np.linalg.norm(xf[:, :3], axis=0)
     # normalize=False (measured against Cycles 5.0): the power is per unit of the
     # light's area, 4 pi r² for point/spot (4 when r = 0), the shape's area for area

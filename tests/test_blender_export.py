@@ -509,6 +509,28 @@ def test_line_spectrum_light_is_exported():
     assert np.all(c >= 0.0) and c[2] > 5.0 * max(c[0], c[1])
 
 
+def test_light_polarizer_is_exported():
+    """The light panel's Polarizer: its angle when on (None when off); the compiled light
+    passes half its power, polarized along the light's local axis at that angle."""
+    sc = bpy.context.scene
+    lamp = demo_blend.add_light(sc, "SPOT", "lamp", power=10.0)
+    lamp.rotation_euler = (0.0, 0.0, math.radians(30.0))
+    lamp.data.photon_lightmaps.use_polarizer = True
+    lamp.data.photon_lightmaps.polarizer_angle = math.radians(60.0)
+    plain = demo_blend.add_light(sc, "SPOT", "plain", power=10.0)
+    plain.data.photon_lightmaps.polarizer_angle = math.radians(60.0)     # not on: none
+    scene, _, _ = export_current()
+    L = {l.name: l for l in scene.lights}
+    assert L["lamp"].polarizer == pytest.approx(math.radians(60.0)) and L["plain"].polarizer is None
+    ls = compile_scene(scene).lights
+    i = [l.name for l in scene.lights].index("lamp")
+    j = [l.name for l in scene.lights].index("plain")
+    np.testing.assert_allclose(ls.flux[i], 0.5 * ls.flux[j], rtol=1e-12)
+    # local x turned 30° about z, then the axis 60° from it: 90° from the world's x
+    np.testing.assert_allclose(ls.pol[i], [0.0, 1.0, 0.0, 1.0], atol=1e-6)
+    assert not ls.pol[j].any()
+
+
 def test_camera_polarizing_filter_is_exported():
     """The camera panel's Polarizing Filter: its angle when on, None when off; the render
     panel's Polarization reaches the camera too."""

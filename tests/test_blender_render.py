@@ -288,6 +288,7 @@ def test_panels_draw_existing_properties():
     assert {"dispersion"} <= drawn["PHOTON_LIGHTMAPS_PT_material_dispersion"]
     assert {"fluorescence"} <= drawn["PHOTON_LIGHTMAPS_PT_material_fluorescence"]
     assert {"conductor"} <= drawn["PHOTON_LIGHTMAPS_PT_material_conductor"]
+    assert {"polarizer_angle"} <= drawn["PHOTON_LIGHTMAPS_PT_light_polarizer"]
     assert {"polarizer_angle"} <= drawn["PHOTON_LIGHTMAPS_PT_camera_polarizer"]
     ctx.engine = "CYCLES"
     assert not any(cls.poll(ctx) for cls in panels.classes)

@@ -526,6 +526,25 @@ class PHOTON_LIGHTMAPS_PT_light(_EnginePanel, bpy.types.Panel):
             col.prop(light, "show_cone")
 
 
+class PHOTON_LIGHTMAPS_PT_light_polarizer(_EnginePanel, bpy.types.Panel):
+    bl_label = "Polarizer"
+    bl_context = "data"
+    bl_parent_id = "PHOTON_LIGHTMAPS_PT_light"
+    needs = "light"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw_header(self, context):
+        self.layout.prop(context.light.photon_lightmaps, "use_polarizer", text="")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        s = context.light.photon_lightmaps
+        layout.active = s.use_polarizer
+        layout.prop(s, "polarizer_angle")
+        layout.label(text="Passes half of the power", icon='INFO')
+
+
 class PHOTON_LIGHTMAPS_PT_camera_polarizer(_EnginePanel, bpy.types.Panel):
     bl_label = "Polarizing Filter"
     bl_context = "data"
@@ -563,6 +582,7 @@ classes = (
     PHOTON_LIGHTMAPS_PT_material_fluorescence,
     PHOTON_LIGHTMAPS_PT_material_conductor,
     PHOTON_LIGHTMAPS_PT_light,
+    PHOTON_LIGHTMAPS_PT_light_polarizer,
     PHOTON_LIGHTMAPS_PT_camera_polarizer,
     PHOTON_LIGHTMAPS_PT_world,
 )

@@ -280,6 +280,13 @@ class PhotonLightmapsLightSettings(bpy.types.PropertyGroup):
     line_width: FloatProperty(
         name="Width", default=15.0, min=0.1, max=200.0,
         description="Full width at half maximum of the line, nm (LEDs 10-30, lasers below 1)")
+    use_polarizer: BoolProperty(
+        name="Polarizer", default=False,
+        description="A linear polarizer in front of the light: it passes half of the power, polarized "
+                    "along its axis. Photons carry it through smooth glass, coats and metals")
+    polarizer_angle: FloatProperty(
+        name="Angle", default=0.0, subtype='ANGLE', soft_min=-math.pi, soft_max=math.pi,
+        description="The polarizer's axis, from the light's local X axis toward its Y")
 
 
 class PhotonLightmapsCameraSettings(bpy.types.PropertyGroup):

@@ -269,6 +269,10 @@ class Light:
     # then what RGB mode uses
     line_nm: float = 0.0
     line_width: float = 10.0
+    # a linear polarizer in front of the light, its axis at this angle (radians, from the
+    # light's x axis toward its y); None: none. It passes half of the power, polarized
+    # (engine/shading/polarization.py)
+    polarizer: object = None
     name: str = "light"
 
 

@@ -40,7 +40,8 @@ LightSet = namedtuple("LightSet", [
     "radiance", "flux", "area", "two_sided", "inst", "shape_id",
     "cell_start", "cell_count", "cell_face", "cell_u0", "cell_v0", "cell_du", "cell_dv",
     "cell_cdf", "power_cdf", "center", "bound_radius", "total_power",
-    "aim_center", "aim_radius", "aim_fraction"]     # importance emission (photon_aim.py)
+    "aim_center", "aim_radius", "aim_fraction",     # importance emission (photon_aim.py)
+    "pol"]          # per light: a polarizer's world axis and 1, or zeros (polarization.start_stokes)
     # the world (environment.EnvMap) field by field: parallel kernels take no nested tuples
     + ["env_" + f for f in environment.FIELDS])
 
@@ -58,6 +59,20 @@ def spot_flux_factor(cos_half, smooth):
 
 def _transform_dir(xf, v):
     return xf[:, :3] @ v
+
+
+def _polarizer(light, xf, name):
+    """(world axis, 1) of the light's linear polarizer, or zeros without one."""
+    angle = getattr(light, "polarizer", None)
+    if angle is None:
+        return np.zeros(4)
+    if not math.isfinite(float(angle)):
+        raise SceneError(f"{name}: the polarizer's angle must be finite, got {angle}")
+    axis = _transform_dir(xf, np.array([math.cos(float(angle)), math.sin(float(angle)), 0.0]))
+    ln = float(np.linalg.norm(axis))
+    if not ln > 0.0:
+        raise SceneError(f"{name}: its transform has no x-y plane for the polarizer")
+    return np.append(axis / ln, 1.0)
 
 
 def compile_lights(scene, geom, materials, bounds):
@@ -80,7 +95,7 @@ def compile_lights(scene, geom, materials, bounds):
         r = dict(kind=0, pos=np.zeros(3), axis_u=np.zeros(3), axis_v=np.zeros(3),
                  normal=np.array([0.0, 0.0, -1.0]), shape=RECT, radius=0.0, soft=False, cos_half=-1.0,
                  smooth=0.0, radiance=np.zeros(nb), flux=np.zeros(nb), area=0.0, two_sided=False,
-                 inst=-1, shape_id=-1, cell_start=0, cell_count=0)
+                 inst=-1, shape_id=-1, cell_start=0, cell_count=0, pol=np.zeros(4))
         r.update(kw)
         rows.append(r)
 
@@ -95,6 +110,9 @@ def compile_lights(scene, geom, materials, bounds):
         strength = color * float(light.power)
         if not np.any(strength > 0):
             continue  # a dark light emits nothing; it is not an error
+        pol = _polarizer(light, xf, name)
+        if pol[3] > 0.0:
+            strength = 0.5 * strength          # what passes the polarizer
         pos = xf[:, 3].copy()
         down = _transform_dir(xf, np.array([0.0, 0.0, -1.0]))
         down /= np.linalg.norm(down)
@@ -104,16 +122,16 @@ def compile_lights(scene, geom, materials, bounds):
             soft = bool(getattr(light, "soft_falloff", False)) and radius > 0.0
             if light.kind == "point":
                 row(kind=POINT, pos=pos, radius=radius, soft=soft, radiance=intensity,
-                    flux=intensity * 4.0 * math.pi)
+                    flux=intensity * 4.0 * math.pi, pol=pol)
             else:
                 cos_half = math.cos(min(max(float(light.spot_size), 1e-6), math.pi) / 2.0)
                 smooth = (1.0 - cos_half) * min(max(float(light.spot_blend), 0.0), 1.0)
                 row(kind=SPOT, pos=pos, normal=down, radius=radius, soft=soft, cos_half=cos_half, smooth=smooth,
-                    radiance=intensity, flux=intensity * spot_flux_factor(cos_half, smooth))
+                    radiance=intensity, flux=intensity * spot_flux_factor(cos_half, smooth), pol=pol)
         elif light.kind == "sun":
             half = 0.5 * max(float(light.angle), 0.0)
             row(kind=SUN, normal=down, cos_half=math.cos(half), radiance=strength,
-                flux=strength * math.pi * bound_radius ** 2)
+                flux=strength * math.pi * bound_radius ** 2, pol=pol)
         else:
             if light.shape not in AREA_SHAPES:
                 raise SceneError(f"{name}: unknown area shape '{light.shape}'")
@@ -129,7 +147,7 @@ def compile_lights(scene, geom, materials, bounds):
             normal /= np.linalg.norm(normal)
             radiance = strength / (math.pi * area)
             row(kind=AREA, pos=pos, axis_u=au, axis_v=av, normal=normal,
-                shape=ELLIPSE if ellipse else RECT, radiance=radiance, flux=strength, area=area)
+                shape=ELLIPSE if ellipse else RECT, radiance=radiance, flux=strength, area=area, pol=pol)
 
     _emissive_rows(scene, geom, materials, row, cells)
 
@@ -169,6 +187,7 @@ def compile_lights(scene, geom, materials, bounds):
         total_power=float(cdf[-1]) if n else 0.0,
         # aimed at the scene itself: only lights outside it aim (a bake narrows it)
         aim_center=center.copy(), aim_radius=float(bound_radius), aim_fraction=photon_aim.AIMED,
+        pol=f64("pol", (0, 4)).reshape(n, 4),
         **{"env_" + f: v for f, v in zip(environment.FIELDS, ev)})
 
 
@@ -190,7 +209,7 @@ def light_subset(ls, keep):
     power among themselves; the same types as `ls`, so kernels compile once."""
     keep = np.asarray(keep, bool)
     per_light = {"kind", "pos", "axis_u", "axis_v", "normal", "shape", "radius", "soft", "cos_half", "smooth",
-                 "radiance", "flux", "area", "two_sided", "inst", "shape_id", "cell_start", "cell_count"}
+                 "radiance", "flux", "area", "two_sided", "inst", "shape_id", "cell_start", "cell_count", "pol"}
     sub = {f: (np.ascontiguousarray(getattr(ls, f)[keep]) if f in per_light else getattr(ls, f))
            for f in LightSet._fields}
     cdf = np.cumsum(sub["flux"].mean(axis=1)) if keep.any() else np.zeros(0)

@@ -218,19 +218,19 @@ def start_row(pol, tp, angle, filtered, xaxis, d):
 def start_stokes(pol, power, polarized, axis, d):
     """A photon leaving a light along d: unpolarized, or where `polarized`, through a linear
     polarizer whose axis is `axis` (a world direction; the light passes along its part
-    across d), which passes half the power: S = (1, 1, 0, 0) in the frame of that part."""
+    across d): S = (1, 1, 0, 0) in the frame of that part. (The light's power is what
+    passes the polarizer: compile_lights halves it.)"""
     nb = power.shape[0]
+    k = axis[0] * d[0] + axis[1] * d[1] + axis[2] * d[2]
+    across = (axis[0] - k * d[0]) ** 2 + (axis[1] - k * d[1]) ** 2 + (axis[2] - k * d[2]) ** 2
+    # along the axis every direction across is the axis's: unpolarized as seen from there
+    polarized = polarized and across > 1e-18
     for b in range(nb):
         pol[4 * b], pol[4 * b + 1], pol[4 * b + 2], pol[4 * b + 3] = 1.0, 1.0 if polarized else 0.0, 0.0, 0.0
-        if polarized:
-            power[b] *= 0.5
-    k = axis[0] * d[0] + axis[1] * d[1] + axis[2] * d[2]
-    if polarized and (axis[0] - k * d[0]) ** 2 + (axis[1] - k * d[1]) ** 2 + (axis[2] - k * d[2]) ** 2 < 1e-18:
-        depolarize(pol, nb)          # along the axis: every direction across is the axis's
-        x = (1.0, 0.0, 0.0) if abs(d[0]) < 0.9 else (0.0, 1.0, 0.0)
-        _set_frame(pol, nb, x, d)
-        return
-    _set_frame(pol, nb, axis, d)
+    if polarized:
+        _set_frame(pol, nb, axis, d)
+    else:
+        _set_frame(pol, nb, (1.0, 0.0, 0.0) if abs(d[0]) < 0.9 else (0.0, 1.0, 0.0), d)
 
 
 @njit(cache=True)

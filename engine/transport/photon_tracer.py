@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 
 from ..core.errors import Cancelled
 from ..core.jit import CORE, INLINE
@@ -32,6 +33,7 @@ from ..shading.lights import emit_photon, photon_tint
 from ..shading import bsdf
 from ..shading import dispersion
 from ..shading import fluorescence
+from ..shading import polarization
 from ..geometry.raycast import intersect_closest
 from .kernel_scene import kernel_scene
 from .path_vertex import leave_surface, new_path_scratch, surface_closure
@@ -79,6 +81,8 @@ PhotonPass = namedtuple("PhotonPass", [
     "record_from",            # int64 per light: the first bounce its photons record (1: direct light is sampled)
     "main_last",              # the last bounce the main lightmaps and OLs keep (one less under a final gather)
     "caustics_twice",         # a caustic hit goes to the main lightmaps too: gather rays read them there
+    "pol",                    # polarization as a type the kernel specialises on: (1, 1) traces Stokes
+                              # vectors (polarization.py), an empty 1-D array compiles none of it
 ])
 
 # A chunk's output, one row per photon: the texel rows it recorded into (-1: none)
@@ -106,6 +110,7 @@ def _trace_chunk_core(scene, job, out, start, stop, w):
         # at every inlining, with everything inlined into it (see docs/kernels.md)
         state, li, ox, oy, oz, dx, dy, dz, wl = emit_photon(ls, g, stream_state(job.seed, job.first + i))
         _start(ls, job, out, i, w, li, (dx, dy, dz), wl)
+        _polarized_start(job.pol, ls, li, w, (dx, dy, dz))
         first = job.record_from[li]
         n_rays = 0
         caustic = scene.caustics
@@ -131,7 +136,7 @@ def _trace_chunk_core(scene, job, out, start, stop, w):
             # photons read textures at their finest level: the albedo at the hit itself
             fn, sn, _, _, lobes = surface_closure(ms, ts, bt, g, w, m, surf, (nx, ny, nz), (dx, dy, dz), 0.0)
             alive, o, d, caustic, state = _scatter(w, out, i, lobes, (fn, sn), ((nx, ny, nz), p), (dx, dy, dz),
-                                                   caustic, state, ms, m)
+                                                   caustic, state, ms, m, job.pol)
             if not alive:
                 break
             ox, oy, oz = o
@@ -236,14 +241,59 @@ def _set_power(out, i, rec, power):
         out.power[i, rec, b] = power[b]
 
 
+def _polarized_start(pol, ls, li, w, d):
+    """A photon that traces polarization leaves light li along d: unpolarized, or through its polarizer."""
+
+
+def _polarized_vertex(pol, w, out, i, d_in, d_out, fn, lobes, delta):
+    """A photon that traces polarization has scattered off a lobe: a smooth glossy one (glass,
+    a coat, a metal: its Mueller matrix, bsdf.mueller_terms) polarizes it, a diffuse or rough
+    one depolarizes it; what the Mueller matrix changes in its power is booked absorbed."""
+
+
+@overload(_polarized_start)
+def _polarized_start_gate(pol, ls, li, w, d):
+    if pol.ndim == 2:
+        def start(pol, ls, li, w, d):
+            polarization.start_stokes(w.pol, w.tp, ls.pol[li, 3] > 0.0, (ls.pol[li, 0], ls.pol[li, 1], ls.pol[li, 2]),
+                                      d)
+        return start
+    return lambda pol, ls, li, w, d: None
+
+
+@overload(_polarized_vertex)
+def _polarized_vertex_gate(pol, w, out, i, d_in, d_out, fn, lobes, delta):
+    if pol.ndim == 2:
+        def vertex(pol, w, out, i, d_in, d_out, fn, lobes, delta):
+            power = w.tp
+            nb = power.shape[0]
+            if not delta:
+                polarization.depolarize(w.pol, nb)
+                return
+            _, ps, pm, pg = lobes
+            cos_i = -(d_in[0] * fn[0] + d_in[1] * fn[1] + d_in[2] * fn[2])
+            reflect = d_out[0] * fn[0] + d_out[1] * fn[1] + d_out[2] * fn[2] > 0.0
+            bsdf.mueller_terms(w.closure, w.ks, w.kt, ps, pm, pg, abs(cos_i), reflect, w.pol,
+                               polarization.terms_at(nb))
+            for b in range(nb):
+                out.ledger[i, ABSORBED, b] += power[b]
+            polarization.photon_vertex(w.pol, power, d_in, d_out, fn)
+            for b in range(nb):
+                out.ledger[i, ABSORBED, b] -= power[b]
+        return vertex
+    return lambda pol, w, out, i, d_in, d_out, fn, lobes, delta: None
+
+
 @njit(**INLINE)
-def _scatter(w, out, i, lobes, frame, hit, d, caustic, state, ms, m):
+def _scatter(w, out, i, lobes, frame, hit, d, caustic, state, ms, m, pol):
     """Russian roulette on the closure in w (lobe probabilities `lobes`) of material m
     at photon i's hit = (n, point), thesis 3.4.3: a lobe or absorption. frame: the
     face and shading normals facing where the photon came from. A survivor keeps
     power k/p <= its power per band, the rest is booked absorbed here; a
     fluorescent diffuse lobe moves power between bands (fluorescence.py), and
     the absorbed column books what each band lost or gained
+    pol: PhotonPass.pol (a photon that traces polarization carries it through the
+    lobe, _polarized_vertex)
     -> (alive, origin, direction, still a caustic path, state)."""
     n, p = hit
     fn, sn = frame
@@ -255,6 +305,7 @@ def _scatter(w, out, i, lobes, frame, hit, d, caustic, state, ms, m):
     state, u2 = next_float(state)
     state, u3 = next_float(state)
     ok = True
+    delta = False
     moved = False       # the new power is in w.rad (fluorescence), not power times wt
     # a diffuse or rough bounce spreads the focus: the rest of the path is no caustic
     caustic = caustic and ur >= pd and w.closure[bsdf.P_ALPHA] <= CAUSTIC_ALPHA
@@ -271,8 +322,8 @@ def _scatter(w, out, i, lobes, frame, hit, d, caustic, state, ms, m):
     elif ur < pd + ps + pm + pg:
         q = ps + pm + pg
         lox, loy, loz = bsdf.to_local(-d[0], -d[1], -d[2], sn[0], sn[1], sn[2])
-        ok, ix, iy, iz, _, _ = bsdf.sample_glossy(w.closure, w.ks, w.kt, ps, pm, pg, lox, loy, loz,
-                                                  (ur - pd) / q, u1, u2, u3, wt)
+        ok, ix, iy, iz, _, delta = bsdf.sample_glossy(w.closure, w.ks, w.kt, ps, pm, pg, lox, loy, loz,
+                                                      (ur - pd) / q, u1, u2, u3, wt)
         for b in range(nb):
             wt[b] /= q
     else:
@@ -281,6 +332,7 @@ def _scatter(w, out, i, lobes, frame, hit, d, caustic, state, ms, m):
     if not ok:
         _book(out, i, ABSORBED, power)
         return False, p, d, caustic, state
+    d_in = d
     for b in range(nb):
         kept = w.rad[b] if moved else power[b] * wt[b]
         out.ledger[i, ABSORBED, b] += power[b] - kept
@@ -291,6 +343,7 @@ def _scatter(w, out, i, lobes, frame, hit, d, caustic, state, ms, m):
         # normal map never leaks light through the surface
         _book(out, i, ABSORBED, power)
         return False, p, d, caustic, state
+    _polarized_vertex(pol, w, out, i, d_in, d, fn, lobes, delta)
     # Leave the surface on the side the new direction points to.
     return True, leave_surface(p, n, d), d, caustic, state
 
@@ -368,7 +421,8 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     while done < n_photons:
         c = min(chunk, n_photons - done)
         job = PhotonPass(np.uint64(seed), done, n_photons, int(max_bounces), record_from,
-                         int(max_bounces) - 1 if gather else int(max_bounces), bool(record_direct))
+                         int(max_bounces) - 1 if gather else int(max_bounces), bool(record_direct),
+                         np.zeros((1, 1)) if getattr(cs, "polarization", False) else np.zeros(0))
         parallel.run(_trace_chunk, c, scene, job, out, min_block=64)
         # the threads wait for this serial step: one pass, no masked copies
         stats.records += lightmap.accumulate_records(lm, lmc, rec_texel, rec_power, c, n_main)

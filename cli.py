@@ -8,6 +8,7 @@ line "error: <culprit>: <what to do>" and exit code 2, a bug is one line
 """
 import argparse
 import json
+import math
 import os
 import pathlib
 import re
@@ -59,6 +60,12 @@ def _open_interval(below, above, what):
 # a relative error (0.01 is 1 %) and a time budget
 _fraction = _open_interval(0.0, 1.0, "a fraction above 0 and below 1 (0.01 is 1 %)")
 _seconds = _open_interval(0.0, 1e6, "a number of seconds above 0")
+_degrees = _open_interval(-360.0, 360.0, "an angle in degrees between -360 and 360")
+
+
+def _polarizer_angle(text):
+    """A filter angle in degrees, or 'off'."""
+    return "off" if text.strip().lower() == "off" else _degrees(text)
 
 
 def _size(text):
@@ -143,6 +150,10 @@ def build_parser():
                    help="render frames A to B (one image each: a run of '#' in --out is the frame "
                         "number, else _#### goes before the extension); where only the camera moves, "
                         "the first frame's photon pass is reused")
+    r.add_argument("--polarizer", type=_polarizer_angle, default=None, metavar="DEGREES",
+                   help="put the camera's polarizing filter in at this angle (from the image's horizontal "
+                        "toward its vertical: 90 takes the glare off level water), or 'off'; "
+                        "default: the camera's setting")
     r.add_argument("--polarization", action=argparse.BooleanOptionalAction, default=None,
                    help="camera paths carry polarization through smooth glass and coats (the camera's "
                         "polarizing filter traces it either way; default: scene setting)")
@@ -355,10 +366,18 @@ def render_main(args):
             setattr(settings, name, value)
     if getattr(args, "indirect", None):
         settings.indirect = args.indirect.upper()
+    if getattr(args, "polarizer", None) is not None:
+        cam_settings = scene.camera.data.photon_lightmaps
+        cam_settings.use_polarizer = args.polarizer != "off"
+        if args.polarizer != "off":
+            cam_settings.polarizer_angle = math.radians(args.polarizer)
     t_load = time.perf_counter()
     used = {k: getattr(settings, k) for k in ("photons", "max_bounces", "texel_density", "reconstruction",
                                               "samples", "seed", "indirect", "gather_rays", "denoise",
                                               "irradiance_cache", "spectral", "polarization")}
+    cam_settings = getattr(scene.camera.data, "photon_lightmaps", None)
+    used["polarizer"] = (round(math.degrees(cam_settings.polarizer_angle), 3)
+                         if cam_settings is not None and cam_settings.use_polarizer else None)
     if args.frames is not None:
         report = _render_frames(scene, out, args.frames)
     else:
@@ -536,12 +555,15 @@ def demo_main(args):
     demo_blend.build_cornell_blend(blend, width=width, height=height, spheres=True, csg=True, ol=True)
     spectral_blend = os.path.join(out, "spectral.blend")
     demo_blend.build_spectral_blend(spectral_blend, width=width, height=height)
+    polarization_blend = os.path.join(out, "polarization.blend")
+    demo_blend.build_polarization_blend(polarization_blend, width=width, height=height)
     common = [f"--{name}={getattr(args, name)}" for name in ("photons", "seed")
               if getattr(args, name) is not None]
     render_json = os.path.join(out, "render.json")
     bake_json = os.path.join(out, "bake.json")
     ol_json = os.path.join(out, "orientation_lightmaps.json")
     spectral_json = os.path.join(out, "spectral.json")
+    polarizer_json = {a: os.path.join(out, f"polarizer_{a}.json") for a in (0, 90)}
     lightmaps = os.path.join(out, "lightmaps")
     samples = [f"--samples={args.samples}"] if args.samples is not None else []
     samples += ["--denoise"] if args.denoise else []
@@ -555,7 +577,10 @@ def demo_main(args):
                  ["bake-ol", blend, "--out", lightmaps, "--json", ol_json, *common],
                  # the prism's rainbow and a brightener under a UV lamp, in 16 wavelength bands
                  ["render", spectral_blend, "--out", os.path.join(out, "spectral.png"), "--json", spectral_json,
-                  "--spectral", *samples, *common]):
+                  "--spectral", *samples, *common],
+                 # water under a bright sky through the camera's polarizing filter: with the glare, without
+                 *(["render", polarization_blend, "--out", os.path.join(out, f"polarizer_{a}.png"),
+                    "--json", polarizer_json[a], "--polarizer", str(a), *samples, *common] for a in (0, 90))):
         step = build_parser().parse_args(argv)
         step.func(step)
     with open(render_json) as f:
@@ -566,12 +591,18 @@ def demo_main(args):
         ol_report = json.load(f)
     with open(spectral_json) as f:
         spectral_report = json.load(f)
+    polarizer_reports = {}
+    for a, path in polarizer_json.items():
+        with open(path) as f:
+            polarizer_reports[f"{a} deg"] = json.load(f)
     report = {"blend": blend, "render": render_report, "bake": bake_report, "orientation_lightmaps": ol_report,
-              "spectral": spectral_report, "seconds": {"total": time.perf_counter() - t0}}
+              "spectral": spectral_report, "polarizer": polarizer_reports,
+              "seconds": {"total": time.perf_counter() - t0}}
     if args.json:
         with open(args.json, "w") as f:
             json.dump(report, f, indent=2)
-    print(f"demo: {render_report['image']}, {spectral_report['image']} and {len(bake_report['objects'])} baked "
+    print(f"demo: {render_report['image']}, {spectral_report['image']}, "
+          f"{' and '.join(r['image'] for r in polarizer_reports.values())} and {len(bake_report['objects'])} baked "
           f"lightmaps in {os.path.join(out, 'lightmaps')} ({report['seconds']['total']:.1f} s)")
     return 0
 

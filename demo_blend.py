@@ -344,6 +344,43 @@ def build_spectral_blend(path=None, *, width=128, height=96, engine=ENGINE_ID, p
     return _finish(scene, path, width, height, engine, photons, samples)
 
 
+def build_polarization_blend(path=None, *, width=128, height=96, engine=ENGINE_ID, photons=None, samples=None):
+    """A polarizing filter over water (thesis Appendix A.2): a pool of clear water under a
+    bright sky, seen near Brewster's angle (53° from the vertical for an index of 1.33).
+    The sky's reflection off the water is polarized across the plane of incidence, which
+    is the image's horizontal: the camera's filter at 0° passes it, at 90° it takes the
+    glare off and shows the tiled floor under the water. The filter starts at 90°; render
+    with `--polarizer 0` for the glare. Saves to `path` when given; returns the scene."""
+    scene = _reset()
+    water = principled("water", (1.0, 1.0, 1.0), transmission=1.0, roughness=0.0, ior=1.33)
+    tiles = (principled("tile light", (0.5, 0.55, 0.55)), principled("tile blue", (0.05, 0.15, 0.35)))
+    wall = principled("pool wall", (0.4, 0.5, 0.55))
+    stone = principled("stone", (0.45, 0.42, 0.38))
+    depth, half, n = 0.6, 2.0, 8
+    step = 2.0 * half / n
+    for i in range(n):
+        for j in range(n):
+            x0, y0 = -half + i * step, -half + j * step
+            mesh_object(f"tile_{i}_{j}", [(x0, y0, -depth), (x0 + step, y0, -depth), (x0 + step, y0 + step, -depth),
+                                          (x0, y0 + step, -depth)], [(0, 1, 2, 3)], tiles[(i + j) % 2],
+                        uvs=quad_uvs())
+    for name, (a, b) in {"wall_n": ((-half, half), (half, half)), "wall_s": ((half, -half), (-half, -half)),
+                         "wall_e": ((half, half), (half, -half)), "wall_w": ((-half, -half), (-half, half))}.items():
+        mesh_object(name, [(*a, -depth), (*b, -depth), (*b, 0.0), (*a, 0.0)], [(0, 1, 2, 3)], wall, uvs=quad_uvs())
+    mesh_object("water", [(-half, -half, 0), (half, -half, 0), (half, half, 0), (-half, half, 0)], [(0, 1, 2, 3)],
+                water, uvs=quad_uvs())
+    v, f = box_mesh_data()
+    block = mesh_object("stone", v, f, stone)
+    block.location, block.scale = (0.0, half + 0.6, 0.3), (1.2, 0.4, 0.3)
+    add_light(scene, "SUN", "sun", power=1.0, rotation=(math.radians(25.0), 0.0, math.radians(30.0)),
+              angle=math.radians(1.0), location=(0.0, 0.0, 4.0))
+    cam = add_camera(scene, (0.0, -3.2, 2.4), (math.radians(53.0), 0.0, 0.0), lens=30.0)
+    cam.data.photon_lightmaps.use_polarizer = True
+    cam.data.photon_lightmaps.polarizer_angle = math.radians(90.0)
+    set_world(scene, (0.6, 0.7, 0.9), strength=3.0)
+    return _finish(scene, path, width, height, engine, photons, samples)
+
+
 def build_light_test_blend(light_type, path=None, *, width=32, height=32, albedo=0.8, engine=ENGINE_ID,
                            photons=None, samples=None):
     """A white Lambertian floor (6 x 6 m, 'Lightmap' UVs), one light from LIGHT_TESTS

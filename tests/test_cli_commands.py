@@ -65,13 +65,17 @@ def demo(tmp_path_factory):
 
 def test_make_demo_renders_and_bakes(demo):
     out, r = demo
-    assert re.search(r"^demo: .*render\.png, .*spectral\.png and \d+ baked lightmaps", r.stdout, re.M), \
-        r.stdout[-2000:]
+    assert re.search(r"^demo: .*render\.png, .*spectral\.png, .*polarizer_0\.png and .*polarizer_90\.png and "
+                     r"\d+ baked lightmaps", r.stdout, re.M), r.stdout[-2000:]
     assert (out / "demo.blend").is_file() and (out / "spectral.blend").is_file()
     assert read_png(out / "render.png") == (24, 16) and read_png(out / "spectral.png") == (24, 16)
     report = json.loads((out / "demo.json").read_text())
-    assert set(report) >= {"blend", "render", "bake", "orientation_lightmaps", "spectral", "seconds"}
+    assert set(report) >= {"blend", "render", "bake", "orientation_lightmaps", "spectral", "polarizer", "seconds"}
     assert report["spectral"]["photons"] > 0
+    # the filter at 0° and 90° over water (the glare it takes off: tests/test_polarization_mitsuba.py)
+    pol = report["polarizer"]
+    assert (pol["0 deg"]["settings"]["polarizer"], pol["90 deg"]["settings"]["polarizer"]) == (0.0, 90.0)
+    assert read_png(out / "polarizer_0.png") == (24, 16) and read_png(out / "polarizer_90.png") == (24, 16)
     assert report["render"]["photons"] > 0 and report["render"]["width"] == 24
     assert report["bake"]["indirect"] == "gather" and report["bake"]["photons"] > 0
     baked = report["bake"]["objects"]

@@ -275,11 +275,8 @@ def _chain_expected(indices, polarizer):
     return out
 
 
-@pytest.mark.parametrize("pair", [("Au", "Au"), ("Cu", "glass"), ("glass", "Al")])
-def test_two_mirror_chain_matches_jones_calculus(pair):
-    """Camera paths through two smooth mirrors in planes of incidence 65° apart (metals at
-    their complex index, or a glass coat), behind filters at 0°, 45°, 90°, 135° and none: the
-    Mueller path (frame turns, retardance) equals 3-D Jones calculus within 1e-9 per band."""
+def _mirrors(pair):
+    """Materials of mirrors named 'glass' (a clear coat) or a conductor preset, and their (n, k) per RGB band."""
     from photon_lightmaps.engine.core.scene import Material
     from photon_lightmaps.engine.shading import conductor
     mats, idx = [], []
@@ -290,6 +287,15 @@ def test_two_mirror_chain_matches_jones_calculus(pair):
         else:
             mats.append(Material(name, diffuse=0.0, roughness=0.0, metallic=1.0, conductor=name))
             idx.append([tuple(x) for x in conductor.rgb_index(name)])
+    return mats, idx
+
+
+@pytest.mark.parametrize("pair", [("Au", "Au"), ("Cu", "glass"), ("glass", "Al")])
+def test_two_mirror_chain_matches_jones_calculus(pair):
+    """Camera paths through two smooth mirrors in planes of incidence 65° apart (metals at
+    their complex index, or a glass coat), behind filters at 0°, 45°, 90°, 135° and none: the
+    Mueller path (frame turns, retardance) equals 3-D Jones calculus within 1e-9 per band."""
+    mats, idx = _mirrors(pair)
     for pol in (None, 0.0, 45.0, 90.0, 135.0):
         got = _chain_render(mats, pol)
         want = [_chain_expected((idx[0][b], idx[1][b]), pol) for b in range(3)]
@@ -368,20 +374,6 @@ def _chain_transmits(indices, field=None):
         E = _jones_reflect(E, -D1, -D0, n2v, *P.fresnel_amplitudes(float(np.dot(D1, n2v)), n2, k2))
         out += float(np.vdot(E, E).real) / len(basis)
     return out
-
-
-def _mirrors(pair):
-    from photon_lightmaps.engine.core.scene import Material
-    from photon_lightmaps.engine.shading import conductor
-    mats, idx = [], []
-    for name in pair:
-        if name == "glass":
-            mats.append(Material("coat", diffuse=0.0, roughness=0.0, ior=1.5, specular_level=0.5))
-            idx.append([(1.5, 0.0)] * 3)
-        else:
-            mats.append(Material(name, diffuse=0.0, roughness=0.0, metallic=1.0, conductor=name))
-            idx.append([tuple(x) for x in conductor.rgb_index(name)])
-    return mats, idx
 
 
 @pytest.mark.parametrize("pair", [("glass", "glass"), ("Au", "Cu")])

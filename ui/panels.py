@@ -526,6 +526,15 @@ class PHOTON_LIGHTMAPS_PT_light(_EnginePanel, bpy.types.Panel):
             col.prop(light, "show_cone")
 
 
+def _draw_polarizer(layout, settings, note=None):
+    """A light's or camera's polarizer: its angle, active when it is on."""
+    layout.use_property_split = True
+    layout.active = settings.use_polarizer
+    layout.prop(settings, "polarizer_angle")
+    if note:
+        layout.label(text=note, icon='INFO')
+
+
 class PHOTON_LIGHTMAPS_PT_light_polarizer(_EnginePanel, bpy.types.Panel):
     bl_label = "Polarizer"
     bl_context = "data"
@@ -537,12 +546,7 @@ class PHOTON_LIGHTMAPS_PT_light_polarizer(_EnginePanel, bpy.types.Panel):
         self.layout.prop(context.light.photon_lightmaps, "use_polarizer", text="")
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        s = context.light.photon_lightmaps
-        layout.active = s.use_polarizer
-        layout.prop(s, "polarizer_angle")
-        layout.label(text="Passes half of the power", icon='INFO')
+        _draw_polarizer(self.layout, context.light.photon_lightmaps, "Passes half of the power")
 
 
 class PHOTON_LIGHTMAPS_PT_camera_polarizer(_EnginePanel, bpy.types.Panel):
@@ -555,11 +559,7 @@ class PHOTON_LIGHTMAPS_PT_camera_polarizer(_EnginePanel, bpy.types.Panel):
         self.layout.prop(context.camera.photon_lightmaps, "use_polarizer", text="")
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        s = context.camera.photon_lightmaps
-        layout.active = s.use_polarizer
-        layout.prop(s, "polarizer_angle")
+        _draw_polarizer(self.layout, context.camera.photon_lightmaps)
 
 
 class PHOTON_LIGHTMAPS_PT_world(_EnginePanel, bpy.types.Panel):

@@ -253,30 +253,38 @@ def s_frame(pol, nb, d_in, n):
 
 
 @njit(cache=True)
+def _mueller_step(pol, scale, s, d, sign):
+    """Every band's vector in pol (a Stokes vector, or a camera's row), turned from pol's
+    frame into the s frame s about the ray d, then met by the band's Mueller terms in pol
+    (sign -1: their transpose, what a row meets) and divided by their A; the scale of its
+    first entry goes into scale[b], and pol's frame becomes s."""
+    nb = scale.shape[0]
+    f, t = frame_at(nb), terms_at(nb)
+    phi = turn_angle(pol[f], pol[f + 1], pol[f + 2], s[0], s[1], s[2], d[0], d[1], d[2])
+    c2, s2 = math.cos(2.0 * phi), math.sin(2.0 * phi)
+    for b in range(nb):
+        A, B, C, S = pol[t + 4 * b], pol[t + 4 * b + 1], pol[t + 4 * b + 2], sign * pol[t + 4 * b + 3]
+        if not A > 0.0:
+            continue
+        r = 4 * b
+        v0, v1, v2, v3 = pol[r], pol[r + 1] * c2 + pol[r + 2] * s2, -pol[r + 1] * s2 + pol[r + 2] * c2, pol[r + 3]
+        x0 = (A * v0 + B * v1) / A
+        scale[b] *= x0
+        if x0 > 0.0:
+            pol[r], pol[r + 1] = 1.0, (B * v0 + A * v1) / (A * x0)
+            pol[r + 2], pol[r + 3] = (C * v2 - S * v3) / (A * x0), (S * v2 + C * v3) / (A * x0)
+    pol[f], pol[f + 1], pol[f + 2] = s[0], s[1], s[2]
+
+
+@njit(cache=True)
 def camera_vertex(pol, tp, d_cam, d_next, n):
     """The camera path went along d_cam, met a smooth interface (normal n) and goes on along
     d_next, with the interaction's Mueller terms per band in pol (`terms_at`), in its s
     frame. w <- w · R · M / A (R turns the s frame into the segment's; A is M's
     unpolarized weight, which the path's throughput already has), the scale of w0
     into tp, the frame to the s direction."""
-    nb = tp.shape[0]
-    f, t = frame_at(nb), terms_at(nb)
-    rx, ry, rz = -d_cam[0], -d_cam[1], -d_cam[2]            # the light's way to the camera
-    sx, sy, sz = s_frame(pol, nb, (-d_next[0], -d_next[1], -d_next[2]), n)
-    phi = turn_angle(sx, sy, sz, pol[f], pol[f + 1], pol[f + 2], rx, ry, rz)
-    c2, s2 = math.cos(2.0 * phi), math.sin(2.0 * phi)
-    for b in range(nb):
-        A, B, C, S = pol[t + 4 * b], pol[t + 4 * b + 1], pol[t + 4 * b + 2], pol[t + 4 * b + 3]
-        if not A > 0.0:
-            continue
-        r = 4 * b
-        v0, v1, v2, v3 = pol[r], pol[r + 1] * c2 - pol[r + 2] * s2, pol[r + 1] * s2 + pol[r + 2] * c2, pol[r + 3]
-        w0 = (v0 * A + v1 * B) / A
-        tp[b] *= w0
-        if w0 > 0.0:
-            pol[r], pol[r + 1] = 1.0, (v0 * B + v1 * A) / (A * w0)
-            pol[r + 2], pol[r + 3] = (v2 * C + v3 * S) / (A * w0), (-v2 * S + v3 * C) / (A * w0)
-    pol[f], pol[f + 1], pol[f + 2] = sx, sy, sz
+    s = s_frame(pol, tp.shape[0], (-d_next[0], -d_next[1], -d_next[2]), n)
+    _mueller_step(pol, tp, s, (-d_cam[0], -d_cam[1], -d_cam[2]), -1.0)     # about the light's way to the camera
 
 
 @njit(cache=True)
@@ -285,23 +293,7 @@ def photon_vertex(pol, power, d_in, d_out, n):
     with the interaction's Mueller terms per band in pol. S <- M · R · S / A (R turns the
     photon's frame into the s frame), the scale of S0 into power, the frame to the s
     direction (across d_out too)."""
-    nb = power.shape[0]
-    f, t = frame_at(nb), terms_at(nb)
-    sx, sy, sz = s_frame(pol, nb, d_in, n)
-    phi = turn_angle(pol[f], pol[f + 1], pol[f + 2], sx, sy, sz, d_in[0], d_in[1], d_in[2])
-    c2, s2 = math.cos(2.0 * phi), math.sin(2.0 * phi)
-    for b in range(nb):
-        A, B, C, S = pol[t + 4 * b], pol[t + 4 * b + 1], pol[t + 4 * b + 2], pol[t + 4 * b + 3]
-        if not A > 0.0:
-            continue
-        r = 4 * b
-        v0, v1, v2, v3 = pol[r], pol[r + 1] * c2 + pol[r + 2] * s2, -pol[r + 1] * s2 + pol[r + 2] * c2, pol[r + 3]
-        s0 = (A * v0 + B * v1) / A
-        power[b] *= s0
-        if s0 > 0.0:
-            pol[r], pol[r + 1] = 1.0, (B * v0 + A * v1) / (A * s0)
-            pol[r + 2], pol[r + 3] = (C * v2 - S * v3) / (A * s0), (S * v2 + C * v3) / (A * s0)
-    pol[f], pol[f + 1], pol[f + 2] = sx, sy, sz
+    _mueller_step(pol, power, s_frame(pol, power.shape[0], d_in, n), d_in, 1.0)
 
 
 @njit(cache=True)

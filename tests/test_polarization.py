@@ -244,6 +244,17 @@ def _chain_render(materials, polarizer, spectral=False):
     return renderer.render(compile_scene(s), samples=1, indirect=False)[0, 0]
 
 
+# a metal without an index (Schlick's colour, or a constant) reflects as a perfect conductor
+# does, without telling s from p: amplitudes -√F and √F
+CHROME = "chrome"
+
+
+def _amplitudes(c, index):
+    if isinstance(index, str):          # CHROME
+        return -math.sqrt(0.9), math.sqrt(0.9)
+    return P.fresnel_amplitudes(c, *index)
+
+
 def _jones_reflect(E, d_in, d_out, n, r_s, r_p):
     """The field E (3-D, across d_in) after a reflection off normal n with amplitudes r_s, r_p:
     s across the plane of incidence, p = s × d on each side (so that at normal incidence a
@@ -257,16 +268,15 @@ def _chain_expected(indices, polarizer):
     """What the camera sees of the wall (radiance 1, unpolarized) through both mirrors:
     the two orthogonal input polarizations' intensities after both reflections, halved,
     through the filter (|a · E|²) or not (|E|²). indices: (n, k) of mirror 2, mirror 1."""
-    (n2, k2), (n1, k1) = indices
     out = 0.0
     for e in (np.cross(D2, [0.0, 0.0, 1.0]), None):
         e = _unit(e) if e is not None else _unit(np.cross(D2, _unit(np.cross(D2, [0.0, 0.0, 1.0]))))
         # light runs backwards along the camera's path: wall -> mirror 1 -> mirror 2 -> camera
         n1v, n2v = _unit(D2 - D1), _unit(D1 - D0)
         c1 = float(np.dot(D2, n1v))
-        E = _jones_reflect(e.astype(complex), -D2, -D1, n1v, *P.fresnel_amplitudes(c1, n1, k1))
+        E = _jones_reflect(e.astype(complex), -D2, -D1, n1v, *_amplitudes(c1, indices[1]))
         c2 = float(np.dot(D1, n2v))
-        E = _jones_reflect(E, -D1, -D0, n2v, *P.fresnel_amplitudes(c2, n2, k2))
+        E = _jones_reflect(E, -D1, -D0, n2v, *_amplitudes(c2, indices[0]))
         if polarizer is None:
             out += 0.5 * float(np.vdot(E, E).real)
         else:
@@ -284,23 +294,27 @@ def _mirrors(pair):
         if name == "glass":
             mats.append(Material("coat", diffuse=0.0, roughness=0.0, ior=1.5, specular_level=0.5))
             idx.append([(1.5, 0.0)] * 3)
+        elif name == "chrome":          # a metal without an index: reflects 0.9 at every angle
+            mats.append(Material("chrome", diffuse=0.0, specular=0.9, roughness=0.0, metallic=1.0))
+            idx.append([CHROME] * 3)
         else:
             mats.append(Material(name, diffuse=0.0, roughness=0.0, metallic=1.0, conductor=name))
             idx.append([tuple(x) for x in conductor.rgb_index(name)])
     return mats, idx
 
 
-@pytest.mark.parametrize("pair", [("Au", "Au"), ("Cu", "glass"), ("glass", "Al")])
+@pytest.mark.parametrize("pair", [("Au", "Au"), ("Cu", "glass"), ("glass", "Al"), ("chrome", "glass")])
 def test_two_mirror_chain_matches_jones_calculus(pair):
     """Camera paths through two smooth mirrors in planes of incidence 65° apart (metals at
-    their complex index, or a glass coat), behind filters at 0°, 45°, 90°, 135° and none: the
-    Mueller path (frame turns, retardance) equals 3-D Jones calculus within 1e-9 per band."""
+    their complex index, a metal without one, or a glass coat), behind filters at 0°, 45°,
+    90°, 135° and none: the Mueller path (frame turns, retardance) equals 3-D Jones
+    calculus within 1e-9 per band."""
     mats, idx = _mirrors(pair)
     for pol in (None, 0.0, 45.0, 90.0, 135.0):
         got = _chain_render(mats, pol)
         want = [_chain_expected((idx[0][b], idx[1][b]), pol) for b in range(3)]
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
-    # the 45° and 135° filters see the retardance: they differ
+    # the 45° and 135° filters see the retardance, and a metal's mirroring of the field: they differ
     assert abs(_chain_render(mats, 45.0)[0] - _chain_render(mats, 135.0)[0]) > 1e-3
 
 
@@ -364,14 +378,13 @@ def _chain_photons(materials, polarized, light_polarizer=None, photons=4000):
 def _chain_transmits(indices, field=None):
     """Jones calculus of light from the spot through mirror 1 then mirror 2: the fraction of
     its S0 that comes out, unpolarized light (field None) or linearly polarized along `field`."""
-    (n2, k2), (n1, k1) = indices
     n1v, n2v = _unit(D2 - D1), _unit(D1 - D0)
     e1 = _unit(np.cross(D2, [0.0, 0.0, 1.0]))
     basis = [e1, np.cross(D2, e1)] if field is None else [_unit(field - np.dot(field, D2) * D2)]
     out = 0.0
     for e in basis:
-        E = _jones_reflect(e.astype(complex), -D2, -D1, n1v, *P.fresnel_amplitudes(float(np.dot(D2, n1v)), n1, k1))
-        E = _jones_reflect(E, -D1, -D0, n2v, *P.fresnel_amplitudes(float(np.dot(D1, n2v)), n2, k2))
+        E = _jones_reflect(e.astype(complex), -D2, -D1, n1v, *_amplitudes(float(np.dot(D2, n1v)), indices[1]))
+        E = _jones_reflect(E, -D1, -D0, n2v, *_amplitudes(float(np.dot(D1, n2v)), indices[0]))
         out += float(np.vdot(E, E).real) / len(basis)
     return out
 
@@ -416,3 +429,35 @@ def test_a_bad_light_polarizer_is_refused_by_name():
     s = Scene(lights=[Light("spot", name="lamp", polarizer=float("nan"))])
     with pytest.raises(SceneError, match="light 'lamp'.*polarizer"):
         compile_scene(s)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, 90.0, 135.0])
+def test_malus_law_through_a_mirror(angle):
+    """A camera behind a filter at 0° sees, in a chrome mirror, an area light behind a
+    polarizer at `angle`: half the light, mirrored (Jones calculus), then cos² of what is
+    left between the two axes, within 1e-9 of the light seen unpolarized without a filter."""
+    from photon_lightmaps.engine.compile import compile_scene
+    from photon_lightmaps.engine.core.scene import Camera, Light, Material, Scene, translate
+    from photon_lightmaps.engine.transport import renderer
+
+    def render(polarizer, light_polarizer):
+        s = Scene(n_bands=3)
+        m = s.add_material(Material("chrome", diffuse=0.0, specular=0.9, roughness=0.0, metallic=1.0))
+        s.add_object(_quad([0, 0, 0], D1 - D0, 0.5, m, "mirror"), name="mirror", lightmap_resolution=2)
+        xf = _frame_along(D1)             # emits along -D1, back at the mirror
+        xf[:3, 3] = 20.0 * D1
+        s.lights.append(Light("area", power=1000.0, size=4.0, transform=xf, name="panel",
+                              polarizer=None if light_polarizer is None else math.radians(light_polarizer)))
+        s.camera = Camera(transform=translate(0.0, 0.0, 5.0), fov=math.radians(0.01), width=1, height=1,
+                          polarizer=None if polarizer is None else math.radians(polarizer), polarized=True)
+        return renderer.render(compile_scene(s), samples=1, indirect=False)[0, 0], xf
+
+    plain, _ = render(None, None)
+    got, xf = render(0.0, angle)
+    t = math.radians(angle)
+    axis = xf[:3, 0] * math.cos(t) + xf[:3, 1] * math.sin(t)
+    E = _jones_reflect(_unit(axis - np.dot(axis, D1) * D1).astype(complex), -D1, -D0, _unit(D1 - D0),
+                       *_amplitudes(0.0, CHROME))
+    want = 0.5 * abs(E[0]) ** 2 / 0.9                 # the filter passes the field's x part
+    assert plain[0] > 0.0
+    np.testing.assert_allclose(got / plain, want, rtol=1e-9, atol=1e-12)

@@ -76,5 +76,7 @@ def test_stokes_vectors_match_mitsuba(name):
     got = _stokes(case)
     np.testing.assert_allclose(got, want, atol=0.012, err_msg=name)
     bright = want[0] > 0.02
-    dolp = lambda s: np.hypot(s[1], s[2])[bright] / s[0][bright]
+
+    def dolp(s):
+        return np.hypot(s[1], s[2])[bright] / s[0][bright]
     np.testing.assert_allclose(dolp(got), dolp(want), atol=0.03, err_msg=name)

@@ -526,7 +526,8 @@ def mueller_terms(p, ks, kt, ps, pm, pg, c, reflect, out, at):
     """The Mueller terms (A, B, C, S) per band, in the s frame (polarization.py), of a smooth
     closure's mirror reflection (`reflect`) or refraction at incidence cos c, into out[at +
     4 b ...]: the sum of what its lobes reflect (the layer's and glass's dielectric Fresnel,
-    the metal's conductor Fresnel, a Schlick metal's colour as polarization-neutral) or the
+    the metal's conductor Fresnel, a Schlick metal's colour with a perfect conductor's
+    phase and no s/p difference) or the
     glass transmits. A equals the weight sample_glossy gives that direction."""
     nb = kt.shape[0]
     if reflect:
@@ -547,8 +548,9 @@ def mueller_terms(p, ks, kt, ps, pm, pg, c, reflect, out, at):
                     M = p[P_METAL]
                     A, B, C, S = A + M * ma, B + M * mb, C + M * mc, S + M * ms
                 else:
+                    # no index: a perfect conductor's phase (r_p = -r_s), which mirrors the field
                     f = _metal_fresnel(p, ks, b, c)
-                    A, C = A + f, C + f
+                    A, C = A + f, C - f
             out[at + 4 * b], out[at + 4 * b + 1], out[at + 4 * b + 2], out[at + 4 * b + 3] = A, B, C, S
     else:
         ta, tb, tc, ts = polarization.transmission_terms(*polarization.fresnel(c, p[P_ETA], 0.0)[:2])

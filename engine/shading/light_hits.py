@@ -18,6 +18,7 @@ from numba import njit
 
 from ..core.jit import CORE
 from . import environment
+from . import polarization
 from .lights import AREA, ELLIPSE, EMISSIVE, ENVIRONMENT, POINT, SPOT, SUN, environment_of, spot_mask
 
 
@@ -119,13 +120,15 @@ def _sphere_hit(ls, li, ox, oy, oz, dx, dy, dz, tmax):
 
 
 @njit(**CORE)
-def add_seen_lights(ls, ox, oy, oz, dx, dy, dz, tmax, pdf_bsdf, delta, tp, acc):
+def add_seen_lights(ls, ox, oy, oz, dx, dy, dz, tmax, pdf_bsdf, delta, tp, acc, pol, polarized):
     """Adds into acc the radiance tp * L of every sized light the ray o + t d
     (t < tmax; inf: the ray escaped) passes, weighted against light sampling.
 
     pdf_bsdf is the density the path's glossy sampling chose d with; delta marks a
     mirror/refraction sample, which light sampling cannot produce (weight 1).
     The environment is left to the caller, which knows the world's radiance.
+    polarized: a camera path that traces polarization, its rows in pol: a light
+    behind a polarizer sends polarized light, which each band's row measures.
     """
     nb = acc.shape[0]
     for li in range(ls.kind.shape[0]):
@@ -164,6 +167,12 @@ def add_seen_lights(ls, ox, oy, oz, dx, dy, dz, tmax, pdf_bsdf, delta, tp, acc):
         if scale <= 0.0:
             continue
         w = 1.0 if delta else power_heuristic(pdf_bsdf, selection_factor(ls, li) * pdf_l)
+        if polarized and ls.pol[li, 3] > 0.0:
+            axis = (ls.pol[li, 0], ls.pol[li, 1], ls.pol[li, 2])
+            for b in range(nb):
+                acc[b] += (tp[b] * ls.radiance[li, b] * scale * w
+                           * polarization.arriving_light(pol, nb, b, axis, (-dx, -dy, -dz)))
+            continue
         for b in range(nb):
             acc[b] += tp[b] * ls.radiance[li, b] * scale * w
 

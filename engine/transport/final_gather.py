@@ -126,7 +126,7 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
             if k > 0 and not sharp:
                 # the "irradiance" here is radiance weighted by cos/pdf (tp): lights met count
                 light_hits.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf, 0.0, typed(True), tp,
-                                           dst)
+                                           dst, w.pol, False)
             if k == 0 and rings > 0 and hit:
                 cell_t[i] = t
             if not hit:

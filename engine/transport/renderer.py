@@ -308,7 +308,7 @@ def _render_tile_core(scene, cam, tile, rec, out, rays, start, stop, work):
                     g, w.stack, ox, oy, oz, dx, dy, dz, 0.0, math.inf)
                 if depth > 0:      # lights are invisible to the camera, as in Cycles
                     light_hits.add_seen_lights(ls, ox, oy, oz, dx, dy, dz, t if hit else math.inf, pdf_b, delta,
-                                               tp, acc)
+                                               tp, acc, w.pol, cam.pol.ndim == 2)
                 if not hit:
                     mis = 1.0
                     if not delta and env_li >= 0:

@@ -105,6 +105,12 @@ def frame_path(path, frame):
 def _add_common(p):
     p.add_argument("--photons", type=_count(0), default=None, help="photons to shoot (default: scene setting)")
     p.add_argument("--seed", type=_count(0), default=None, help="random seed (default: scene setting)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--cluster", metavar="ADDRESS", default=None,
+                       help="trace the photon pass on the Dask cluster whose scheduler is at ADDRESS "
+                            "(tcp://host:8786); the result is the same, bit for bit (default: scene setting)")
+    where.add_argument("--workers", type=_count(1, 256), default=None,
+                       help="trace the photon pass on N worker processes on this machine (a local Dask cluster)")
     p.add_argument("--json", metavar="REPORT", default=None, help="write a JSON report here")
     # Also accepted after the command; SUPPRESS keeps a global --debug from being reset.
     p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
@@ -202,6 +208,14 @@ def build_parser():
     w.add_argument("--json", metavar="REPORT", default=None, help="write a JSON report here")
     w.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     w.set_defaults(func=warmup_main)
+
+    wk = sub.add_parser("worker", help="run a Dask worker for photon passes (--cluster): it joins the scheduler "
+                                       "at ADDRESS and runs until stopped")
+    wk.add_argument("scheduler", metavar="ADDRESS", help="the scheduler's address, e.g. tcp://host:8786")
+    wk.add_argument("--nthreads", type=_count(1, 1024), default=None,
+                    help="threads of the worker (default: this machine's cores)")
+    wk.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    wk.set_defaults(func=worker_main)
 
     ls = sub.add_parser("lsystem", help="count an L-system grammar file through its scene graph (JSON)")
     ls.add_argument("grammar", metavar="FILE", help="grammar text (see docs/lsystems.md)")
@@ -353,6 +367,7 @@ def render_main(args):
     check_format(args.out)      # before the (slow) load
     ensure_registered()
     blend = open_blend(args.blend)
+    _use_cluster(args)
     import bpy
     scene = bpy.context.scene
     if scene.camera is None:
@@ -374,7 +389,7 @@ def render_main(args):
     t_load = time.perf_counter()
     used = {k: getattr(settings, k) for k in ("photons", "max_bounces", "texel_density", "reconstruction",
                                               "samples", "seed", "indirect", "gather_rays", "denoise",
-                                              "irradiance_cache", "spectral", "polarization")}
+                                              "irradiance_cache", "spectral", "polarization", "cluster")}
     cam_settings = getattr(scene.camera.data, "photon_lightmaps", None)
     used["polarizer"] = (round(math.degrees(cam_settings.polarizer_angle), 3)
                          if cam_settings is not None and cam_settings.use_polarizer else None)
@@ -399,6 +414,21 @@ def render_main(args):
     if args.json:
         write_report(args.json, json.dumps(report, indent=2))
     return 0
+
+
+def worker_main(args):
+    """CLI: a Dask worker process for photon passes (engine/cluster.py)."""
+    from .engine.cluster import run_worker
+    run_worker(args.scheduler, nthreads=args.nthreads)
+    return 0
+
+
+def _use_cluster(args):
+    """--cluster ADDRESS or --workers N onto the scene's Cluster setting, which passes read."""
+    import bpy
+    spec = args.cluster or (f"local:{args.workers}" if getattr(args, "workers", None) else None)
+    if spec is not None:
+        bpy.context.scene.photon_lightmaps.cluster = spec
 
 
 def _print_run(out, run):
@@ -444,6 +474,7 @@ def bake_main(args):
     t0 = time.perf_counter()
     ensure_registered()
     blend = open_blend(args.blend)
+    _use_cluster(args)
     context = bpy.context
     settings = Settings.read(context.scene.photon_lightmaps, photons=args.photons, seed=args.seed,
                              denoise=getattr(args, "denoise", None), spectral=getattr(args, "spectral", None),
@@ -517,6 +548,7 @@ def ol_bake_main(args):
     t0 = time.perf_counter()
     ensure_registered()
     blend = open_blend(args.blend)
+    _use_cluster(args)
     out_dir = os.path.abspath(args.out)
     check_writable(out_dir)
     res = bake_orientation_lightmaps(bpy.context, photons=args.photons, seed=args.seed,
@@ -557,7 +589,7 @@ def demo_main(args):
     demo_blend.build_spectral_blend(spectral_blend, width=width, height=height)
     polarization_blend = os.path.join(out, "polarization.blend")
     demo_blend.build_polarization_blend(polarization_blend, width=width, height=height)
-    common = [f"--{name}={getattr(args, name)}" for name in ("photons", "seed")
+    common = [f"--{name}={getattr(args, name)}" for name in ("photons", "seed", "cluster", "workers")
               if getattr(args, name) is not None]
     render_json = os.path.join(out, "render.json")
     bake_json = os.path.join(out, "bake.json")

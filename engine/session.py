@@ -54,6 +54,9 @@ class Settings:
     # camera paths trace polarization through smooth glass and coats even without the
     # camera's polarizing filter (engine/shading/polarization.py)
     polarization: bool = False
+    # photon passes on a Dask cluster (engine/cluster.py): a scheduler's address
+    # ("tcp://host:8786"), "local:N" for N worker processes here, "" for none
+    cluster: str = ""
 
     @classmethod
     def read(cls, props, **overrides):
@@ -141,9 +144,13 @@ def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=Non
     from .transport.photon_tracer import trace_photons
     open_area.estimate(cs, seed=int(settings.seed))
     n = settings.photons if photons is None else photons
+    cluster = None
+    if settings.cluster:
+        from .cluster import open_cluster
+        cluster = open_cluster(settings.cluster)
     return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
                          record_direct=record_direct, progress=progress, caustics=caustics, gather=gather,
-                         aim=aim, gather_lights=gather_lights)
+                         aim=aim, gather_lights=gather_lights, cluster=cluster)
 
 
 def render_photon_pass(cs, settings, *, progress=None):

@@ -280,7 +280,7 @@ def test_panels_draw_existing_properties():
             fake = types.SimpleNamespace(layout=_RecordingLayout(), bl_space_type="PROPERTIES")
             cls.draw(fake, ctx)
             drawn.setdefault(cls.__name__, set()).update(fake.layout.drawn)
-    assert {"photons", "max_bounces", "texel_density", "reconstruction", "samples", "seed"} <= \
+    assert {"photons", "max_bounces", "texel_density", "reconstruction", "samples", "seed", "cluster"} <= \
         drawn["PHOTON_LIGHTMAPS_PT_render"]
     assert {"exclude", "lightmap_resolution"} <= drawn["PHOTON_LIGHTMAPS_PT_object"]
     assert {"spot_size", "spot_blend", "angle", "shape", "shadow_soft_size", "energy"} <= \

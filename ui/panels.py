@@ -71,6 +71,7 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         col.prop(s, "photons")
         col.prop(s, "max_bounces")
         col.prop(s, "seed")
+        col.prop(s, "cluster")
         col = layout.column(heading="Lightmaps")
         col.prop(s, "texel_density")
         col.prop(s, "caustic_resolution")

@@ -350,7 +350,7 @@ def _scatter(w, out, i, lobes, frame, hit, d, caustic, state, ms, m, pol):
 
 def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
                   progress=None, chunk=None, keep_points=False, caustics=False, gather=False, aim=None,
-                  gather_lights=False):
+                  gather_lights=False, block=None, cluster=None):
     """Runs the photon pass on a compiled scene `cs`, adding into cs.lightmaps.
 
     record_direct: True when the lightmaps must hold direct light too (baking,
@@ -373,12 +373,22 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     gather_lights (with gather and record_direct): the gather samples the point,
     spot and sun lights where its rays land (lights.gather_sampled; kept as
     cs.gather_light_set), so their photons' first hits stay out of the lightmaps.
+    block: photons per block (default BLOCK). A pass of more than one block sums
+    each block's tally from zero and adds the tallies over a fixed binary tree of
+    block indices, so its result depends on the seed and the block size but not
+    on where the blocks ran: `cluster` (engine/cluster.py) traces them on a Dask
+    cluster with the same result, bit for bit. keep_points traces in one block.
     """
     if not 0 <= int(max_bounces) <= MAX_BOUNCES_LIMIT:
         raise ValueError(f"max_bounces must be in [0, {MAX_BOUNCES_LIMIT}], got {max_bounces}")
     n_photons = int(n_photons)
     if n_photons < 0:
         raise ValueError(f"photon count must be non-negative, got {n_photons}")
+    block = BLOCK if block is None else int(block)
+    if block < 1:
+        raise ValueError(f"photons per block must be positive, got {block}")
+    if keep_points and cluster is not None:
+        raise ValueError("a photon map (keep_points) is traced locally, not on a cluster")
     nb = cs.n_bands
     if hasattr(cs, "render_records"):
         cs.render_records = None      # made over the light this pass adds to
@@ -399,52 +409,156 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     lights = photon_aim.aimed(cs.lights, aim)
     if lights.aim_radius < cs.lights.aim_radius:
         stats.aim = (lights.aim_center.copy(), float(lights.aim_radius))
-    scene = kernel_scene(cs, lights=lights, caustics=use_caustics)
-    lm, lmc = scene.lightmaps, scene.caustic_maps
     # one record per hit on an own lightmap, plus one per OL level above the instance
-    n_rec = (int(max_bounces) + 1) * (1 + orientation_lightmap.levels(scene.orientation))
+    levels = orientation_lightmap.levels(kernel_scene(cs, lights=lights, caustics=use_caustics).orientation)
+    n_rec = (int(max_bounces) + 1) * (1 + levels)
     if use_caustics and record_direct:
         n_rec += int(max_bounces)          # a caustic hit is recorded twice
     chunk = chunk or max(4096, min(1 << 16, (1 << 21) // n_rec))
     if keep_points:   # a photon map keeps every hit: refuse what cannot fit before tracing
         memory_budget.check(f"photon map ({n_photons:,} photons kept, up to {n_rec} hits each)",
                             n_photons * min(n_rec, 4) * (6 + nb) * 8 * 2, "lower the photon count")
-    out = PhotonRecords(np.empty((chunk, n_rec), np.int64), np.empty((chunk, n_rec, nb)),
-                        np.empty((chunk if keep_points else 0, n_rec, 6)), np.empty((chunk, 4, nb)),
-                        np.empty(chunk, np.int64))
-    rec_texel, rec_power, rec_point, ledger, rays = out
-    points, point_power = [], []
+    plan = PassPlan(int(seed), n_photons, int(max_bounces), record_from,
+                    int(max_bounces) - 1 if gather else int(max_bounces), bool(record_direct),
+                    bool(getattr(cs, "polarization", False)), use_caustics, lights, n_rec, chunk, bool(keep_points))
     cs.caustics_traced = use_caustics
     cs.lightmaps_hold_direct = bool(record_direct)
-    n_main = lm.area.shape[0]
-    done = 0
-    while done < n_photons:
-        c = min(chunk, n_photons - done)
-        job = PhotonPass(np.uint64(seed), done, n_photons, int(max_bounces), record_from,
-                         int(max_bounces) - 1 if gather else int(max_bounces), bool(record_direct),
-                         np.zeros((1, 1)) if getattr(cs, "polarization", False) else np.zeros(0))
-        parallel.run(_trace_chunk, c, scene, job, out, min_block=64)
-        # the threads wait for this serial step: one pass, no masked copies
-        stats.records += lightmap.accumulate_records(lm, lmc, rec_texel, rec_power, c, n_main)
-        if keep_points:
-            keep = rec_texel[:c].reshape(-1) >= 0
-            points.append(rec_point[:c].reshape(-1, 6)[keep])
-            point_power.append(rec_power[:c].reshape(-1, nb)[keep])
-        sums = ledger[:c].sum(axis=0)
-        stats.emitted += sums[0]
-        stats.absorbed += sums[1]
-        stats.escaped += sums[2]
-        stats.truncated += sums[3]
-        stats.rays += int(rays[:c].sum())
-        done += c
-        if progress is not None and progress(done, n_photons) is False:
-            raise Cancelled("photon pass cancelled")
+    if cluster is None and (n_photons <= block or keep_points):
+        # one block: straight into the lightmaps, in photon order
+        main = Tally(cs.lightmaps.flux, cs.lightmaps.flux_sq, cs.lightmaps.hits)
+        fine = Tally(cs.caustics.flux, cs.caustics.flux_sq, cs.caustics.hits) if use_caustics else main
+        part = _trace_range(cs, plan, 0, n_photons, main, fine, progress, stats if keep_points else None)
+    else:
+        blocks = [(b, min(b + block, n_photons)) for b in range(0, n_photons, block)]
+        if cluster is not None:
+            part = cluster.photon_pass(cs, plan, blocks, progress)
+        else:
+            done = [0]
+
+            def leaf(k):
+                start, stop = blocks[k]
+
+                def step(n, _total):
+                    return progress is None or progress(done[0] + n, n_photons) is not False
+                p = trace_block(cs, plan, start, stop, step)
+                done[0] += stop - start
+                return p
+            part = reduce_blocks(leaf, len(blocks))
+        _add_tally(cs.lightmaps, part.main)
+        if use_caustics:
+            _add_tally(cs.caustics, part.fine)
+    stats.emitted += part.ledger[EMITTED]
+    stats.absorbed += part.ledger[ABSORBED]
+    stats.escaped += part.ledger[ESCAPED]
+    stats.truncated += part.ledger[TRUNCATED]
+    stats.rays += int(part.rays)
+    stats.records += int(part.records)
     stats.photons = n_photons
     if keep_points:
-        stats.points = np.concatenate(points)
-        stats.point_power = np.concatenate(point_power)
-    lightmap.finalize(lm)
+        stats.points = np.concatenate(stats.points)
+        stats.point_power = np.concatenate(stats.point_power)
+    lightmap.finalize(cs.lightmaps)
     if use_caustics:
-        lightmap.finalize(lmc)
+        lightmap.finalize(cs.caustics)
     stats.seconds = time.perf_counter() - t0
     return stats
+
+
+# Photons per block of a pass (trace_photons): a pass within one block adds its
+# records straight into the lightmaps, as it always has; a longer one sums
+# block tallies over a fixed tree, whether its blocks run here or on a cluster.
+BLOCK = 1 << 22
+
+# What a pass needs besides the compiled scene: everything a block of it depends on.
+PassPlan = namedtuple("PassPlan", "seed n_total max_bounces record_from main_last record_direct polarized "
+                                  "caustics lights n_rec chunk keep_points")
+# Where records are added: a lightmap set's flux, flux_sq and hits.
+Tally = namedtuple("Tally", "flux flux_sq hits")
+# A block's (or a subtree's) result: its main and caustic tallies (fine None
+# without caustic maps), its ledger (4, n_bands), rays and records.
+Partial = namedtuple("Partial", "main fine ledger rays records")
+
+
+def _zero_tally(lm):
+    return Tally(np.zeros_like(lm.flux), np.zeros_like(lm.flux_sq), np.zeros_like(lm.hits))
+
+
+def _add_tally(lm, t):
+    lm.flux[...] += t.flux
+    lm.flux_sq[...] += t.flux_sq
+    lm.hits[...] += t.hits
+
+
+def trace_block(cs, plan, start, stop, progress=None):
+    """Photons start..stop-1 of the pass `plan` on compiled scene cs, tallied from zero
+    (cs's lightmaps are not touched) -> Partial. What a cluster's worker runs."""
+    main = _zero_tally(cs.lightmaps)
+    fine = _zero_tally(cs.caustics) if plan.caustics else None
+    part = _trace_range(cs, plan, start, stop, main, main if fine is None else fine, progress, None)
+    return part._replace(fine=fine)
+
+
+def add_partials(a, b):
+    """a + b, array by array (a before b: the tree's order)."""
+    def add(x, y):
+        return None if x is None else Tally(x.flux + y.flux, x.flux_sq + y.flux_sq, x.hits + y.hits)
+    return Partial(add(a.main, b.main), add(a.fine, b.fine), a.ledger + b.ledger, a.rays + b.rays,
+                   a.records + b.records)
+
+
+def tree_split(lo, hi):
+    """The fixed tree over block indices lo..hi-1: its left subtree is the largest power
+    of two below hi - lo."""
+    n = hi - lo
+    half = 1 << ((n - 1).bit_length() - 1)
+    return lo + half
+
+
+def reduce_blocks(leaf, n, add=add_partials):
+    """The sum of leaf(0) .. leaf(n-1) over the fixed tree (tree_split), leaves made in order."""
+    def node(lo, hi):
+        if hi - lo == 1:
+            return leaf(lo)
+        mid = tree_split(lo, hi)
+        left = node(lo, mid)
+        return add(left, node(mid, hi))
+    return node(0, n)
+
+
+def _trace_range(cs, plan, start, stop, main, fine, progress, points):
+    """Photons start..stop-1 of `plan`, their records added in photon order into the tallies
+    main (ids below the main lightmaps' size) and fine (the caustic lightmaps) -> Partial.
+    progress(done, total) may return False (raises Cancelled). points: a PhotonStats whose
+    points and point_power lists take every recorded hit (photon maps), or None."""
+    nb = cs.n_bands
+    scene = kernel_scene(cs, lights=plan.lights, caustics=plan.caustics)
+    n_main = scene.lightmaps.area.shape[0]
+    chunk, n_rec = plan.chunk, plan.n_rec
+    out = PhotonRecords(np.empty((chunk, n_rec), np.int64), np.empty((chunk, n_rec, nb)),
+                        np.empty((chunk if points is not None else 0, n_rec, 6)), np.empty((chunk, 4, nb)),
+                        np.empty(chunk, np.int64))
+    rec_texel, rec_power, rec_point, ledger, rays = out
+    if points is not None:
+        points.points, points.point_power = [], []
+    pol = np.zeros((1, 1)) if plan.polarized else np.zeros(0)
+    total = np.zeros((4, nb))
+    n_rays = 0
+    n_records = 0
+    done = start
+    while done < stop:
+        c = min(chunk, stop - done)
+        job = PhotonPass(np.uint64(plan.seed), done, plan.n_total, plan.max_bounces, plan.record_from,
+                         plan.main_last, plan.record_direct, pol)
+        parallel.run(_trace_chunk, c, scene, job, out, min_block=64)
+        # the threads wait for this serial step: one pass, no masked copies
+        n_records += lightmap.accumulate_records(main, fine, rec_texel, rec_power, c, n_main)
+        if points is not None:
+            keep = rec_texel[:c].reshape(-1) >= 0
+            points.points.append(rec_point[:c].reshape(-1, 6)[keep])
+            points.point_power.append(rec_power[:c].reshape(-1, nb)[keep])
+        total += ledger[:c].sum(axis=0)
+        n_rays += int(rays[:c].sum())
+        done += c
+        if progress is not None and progress(done - start, stop - start) is False:
+            raise Cancelled("photon pass cancelled")
+    return Partial(main, fine, total, n_rays, n_records)

@@ -148,7 +148,7 @@ class Cluster:
             client.cancel([*leaves, root])
             raise
         finally:
-            client.cancel([scene])
+            scene.release()                 # the broadcast scene leaves the workers' memory
 
 
 def run_worker(scheduler, nthreads=None):

@@ -139,8 +139,9 @@ class Cluster:
         done = 0
         try:
             for f in as_completed(leaves):
-                f.result()                      # a task's error (a version refused) stops here
-                done += size[f.key]
+                if f.status == "error":
+                    f.result()                  # raises the task's error (a version refused)
+                done += size[f.key]             # (the block's tally stays on its worker)
                 if progress is not None and progress(done, total) is False:
                     raise Cancelled("photon pass cancelled")
             return root.result()

@@ -99,10 +99,9 @@ class Cluster:
         theirs = self.client.run(engine_version)
         bad = sorted(addr for addr, v in theirs.items() if v != ours)
         if bad:
-            raise ClusterError(f"worker{'s' if len(bad) > 1 else ''} {', '.join(bad)} run{'' if len(bad) > 1 else 's'} "
-                               f"another version of the engine (source hash {theirs[bad[0]][:12]}, this session "
-                               f"{ours[:12]}): start {'them' if len(bad) > 1 else 'it'} from this version "
-                               "(python -m photon_lightmaps worker)")
+            raise ClusterError("; ".join(f"worker {addr} runs another version of the engine (source hash "
+                                         f"{theirs[addr][:12]}, this session {ours[:12]})" for addr in bad)
+                               + ": start workers from this version (python -m photon_lightmaps worker)")
         return theirs
 
     @property

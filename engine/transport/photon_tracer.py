@@ -420,7 +420,7 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
                             n_photons * min(n_rec, 4) * (6 + nb) * 8 * 2, "lower the photon count")
     plan = PassPlan(int(seed), n_photons, int(max_bounces), record_from,
                     int(max_bounces) - 1 if gather else int(max_bounces), bool(record_direct),
-                    bool(getattr(cs, "polarization", False)), use_caustics, lights, n_rec, chunk, bool(keep_points))
+                    bool(getattr(cs, "polarization", False)), use_caustics, lights, n_rec, chunk)
     cs.caustics_traced = use_caustics
     cs.lightmaps_hold_direct = bool(record_direct)
     if cluster is None and (n_photons <= block or keep_points):
@@ -471,7 +471,7 @@ BLOCK = 1 << 22
 
 # What a pass needs besides the compiled scene: everything a block of it depends on.
 PassPlan = namedtuple("PassPlan", "seed n_total max_bounces record_from main_last record_direct polarized "
-                                  "caustics lights n_rec chunk keep_points")
+                                  "caustics lights n_rec chunk")
 # Where records are added: a lightmap set's flux, flux_sq and hits.
 Tally = namedtuple("Tally", "flux flux_sq hits")
 # A block's (or a subtree's) result: its main and caustic tallies (fine None

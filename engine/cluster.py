@@ -52,16 +52,28 @@ def _require_dask():
     return distributed
 
 
-def _worker_block(cs, plan, start, stop, version):
-    """A task: photons start..stop-1 of the pass, on a worker of this engine's version."""
+def _on_worker(version):
+    """A task's start: refuses a worker of another engine version; numba gets the worker's threads."""
+    import numba
     from distributed import get_worker
-    from .transport import photon_tracer
     ours = engine_version()
     if ours != version:
         raise ClusterError(f"worker {get_worker().address} runs engine {ours[:12]}, the session {version[:12]}")
-    import numba
     numba.set_num_threads(max(1, min(get_worker().state.nthreads, numba.config.NUMBA_NUM_THREADS)))
+
+
+def _worker_block(cs, plan, start, stop, version):
+    """A task: photons start..stop-1 of the pass."""
+    from .transport import photon_tracer
+    _on_worker(version)
     return photon_tracer.trace_block(cs, plan, start, stop)
+
+
+def _worker_tile(cs, records, tile, version):
+    """A task: one tile of a render."""
+    from .transport import renderer
+    _on_worker(version)
+    return renderer.render_tile(cs, records, tile)
 
 
 class Cluster:
@@ -149,6 +161,21 @@ class Cluster:
             raise
         finally:
             scene.release()                 # the broadcast scene leaves the workers' memory
+
+    def render_tiles(self, cs, records, tiles):
+        """The tiles (renderer.Tile) of a render of cs, each a task -> their (samples, rays) in
+        tile order, as each arrives; closing the iterator early cancels what is left."""
+        client = self.client
+        scene, recs = client.scatter([cs, records], broadcast=True, hash=False)
+        version = engine_version()
+        futures = [client.submit(_worker_tile, scene, recs, t, version, pure=False) for t in tiles]
+        try:
+            for f in futures:
+                yield f.result()
+        finally:
+            client.cancel([f for f in futures if not f.done()])
+            scene.release()
+            recs.release()
 
 
 def run_worker(scheduler, nthreads=None):

@@ -144,13 +144,17 @@ def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=Non
     from .transport.photon_tracer import trace_photons
     open_area.estimate(cs, seed=int(settings.seed))
     n = settings.photons if photons is None else photons
-    cluster = None
-    if settings.cluster:
-        from .cluster import open_cluster
-        cluster = open_cluster(settings.cluster)
     return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
                          record_direct=record_direct, progress=progress, caustics=caustics, gather=gather,
-                         aim=aim, gather_lights=gather_lights, cluster=cluster)
+                         aim=aim, gather_lights=gather_lights, cluster=_cluster(settings))
+
+
+def _cluster(settings):
+    """The Dask cluster of settings.cluster (engine/cluster.py), or None."""
+    if not settings.cluster:
+        return None
+    from .cluster import open_cluster
+    return open_cluster(settings.cluster)
 
 
 def render_photon_pass(cs, settings, *, progress=None):
@@ -292,7 +296,7 @@ def render(cs, settings, *, tile=64, progress=None, passes=None, waiting=None):
             return shown(x0, y0, spectral.to_rgb(cs, tile_image), image)
     img = render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
                        max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress,
-                       passes=passes, records=records)
+                       passes=passes, records=records, cluster=_cluster(settings))
     _kernels_done(cs, "render")
     img = spectral.to_rgb(cs, img)
     if settings.denoise:

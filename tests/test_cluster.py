@@ -186,3 +186,14 @@ def test_cli_render_on_workers_equals_the_local_render(tmp_path):
     assert images["here"].any() and np.array_equal(images["here"], images["workers"])
     import json
     assert json.loads((tmp_path / "workers.json").read_text())["settings"].get("cluster") == "local:2"
+
+
+def test_render_tiles_on_the_cluster_are_bit_identical(cluster, local):
+    """The camera pass with its tiles on the workers (final gather on, two progressive
+    passes): the same image as here, bit for bit."""
+    from photon_lightmaps.engine.transport import renderer
+    cs, _ = local
+    here = renderer.render(cs, samples=3, seed=4, tile=8, gather=2, passes=[1, 2])
+    there = renderer.render(cs, samples=3, seed=4, tile=8, gather=2, passes=[1, 2], cluster=cluster)
+    assert here.any() and np.array_equal(here, there)
+    assert cs.rays["render"] > 0

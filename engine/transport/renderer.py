@@ -443,7 +443,7 @@ def progressive_passes(samples):
 
 
 def render(cs, samples=4, seed=0, mode=lightmap.MODE_BILINEAR, max_depth=8, tile=64,
-           indirect=True, gather=0, progress=None, passes=None, records=None):
+           indirect=True, gather=0, progress=None, passes=None, records=None, cluster=None):
     """Renders cs.camera to a (height, width, n_bands) float array of radiance.
 
     gather: final-gather rays per sample at the first diffuse hit (0: read the
@@ -460,6 +460,9 @@ def render(cs, samples=4, seed=0, mode=lightmap.MODE_BILINEAR, max_depth=8, tile
 
     records (irradiance_cache.scene_records; with gather > 0): a diffuse hit that
     records reach reads their interpolated irradiance instead of gathering.
+
+    cluster (engine/cluster.py): its workers render the tiles; every pixel depends
+    only on its own random streams, so the image is the same, bit for bit.
     """
     gather = int(gather)
     samples = int(samples)
@@ -485,7 +488,8 @@ def render(cs, samples=4, seed=0, mode=lightmap.MODE_BILINEAR, max_depth=8, tile
             if progress is not None and progress(x0, y0, shown[y0:y0 + th, x0:x0 + tw], shown) is False:
                 raise Cancelled("render cancelled")
         rays += add_samples(cs, img, samples, s0, s0 + n, seed=seed, mode=mode, max_depth=max_depth,
-                            tile=tile, indirect=indirect, gather=gather, on_tile=on_tile, records=records)
+                            tile=tile, indirect=indirect, gather=gather, on_tile=on_tile, records=records,
+                            cluster=cluster)
         s0 += n
     cs.timings["render"] = time.perf_counter() - t0
     cs.rays["render"] = rays
@@ -493,29 +497,40 @@ def render(cs, samples=4, seed=0, mode=lightmap.MODE_BILINEAR, max_depth=8, tile
 
 
 def add_samples(cs, img, samples, start, stop, seed=0, mode=lightmap.MODE_BILINEAR, max_depth=8, tile=64,
-                indirect=True, gather=0, on_tile=None, records=None):
+                indirect=True, gather=0, on_tile=None, records=None, cluster=None):
     """Adds samples start..stop-1 of a `samples`-sample render of cs.camera to `img`
     ((height, width, n_bands), each sample weighted 1/samples): after every sample
     has been added, img is render(cs, samples, seed, ...). A progressive host (the
     Rendered viewport) adds one sample at a time. on_tile(x0, y0, th, tw) after each tile.
     Returns the rays traced (camera, shadow, gather and glossy rays)."""
     cam = cs.camera
-    scene = kernel_scene(cs)
     rec = records if records is not None else irradiance_cache.no_records(cs.n_bands)
+    tiles = [Tile(x0, y0, min(tile, cam.width - x0), min(tile, cam.height - y0), int(samples), int(start),
+                  int(stop), np.uint64(seed), int(mode), int(max_depth), bool(indirect), max(int(gather), 0))
+             for y0 in range(0, cam.height, tile) for x0 in range(0, cam.width, tile)]
+    if cluster is not None:
+        done = cluster.render_tiles(cs, rec, tiles)
+    else:
+        scene = kernel_scene(cs)
+        done = (render_tile(cs, rec, t, scene) for t in tiles)
     traced = 0
-    for y0 in range(0, cam.height, tile):
-        for x0 in range(0, cam.width, tile):
-            tw, th = min(tile, cam.width - x0), min(tile, cam.height - y0)
-            out = np.zeros((th, tw, cs.n_bands))
-            rays = np.zeros((th, tw), np.int64)
-            params = Tile(x0, y0, tw, th, int(samples), int(start), int(stop), np.uint64(seed), int(mode),
-                          int(max_depth), bool(indirect), max(int(gather), 0))
-            parallel.run(_render_tile, tw * th, scene, cam, params, rec, out, rays)
-            img[y0:y0 + th, x0:x0 + tw] += out
-            traced += int(rays.sum())
-            if on_tile is not None:
-                on_tile(x0, y0, th, tw)
+    for params, (out, rays) in zip(tiles, done):
+        x0, y0, tw, th = params.x0, params.y0, params.width, params.height
+        img[y0:y0 + th, x0:x0 + tw] += out
+        traced += int(rays)
+        if on_tile is not None:
+            on_tile(x0, y0, th, tw)
     return traced
+
+
+def render_tile(cs, rec, params, scene=None):
+    """One tile of a render -> (its (height, width, n_bands) samples, rays traced). What a
+    cluster's worker runs (scene: cs's kernel scene, when the caller has it)."""
+    scene = kernel_scene(cs) if scene is None else scene
+    out = np.zeros((params.height, params.width, cs.n_bands))
+    rays = np.zeros((params.height, params.width), np.int64)
+    parallel.run(_render_tile, params.width * params.height, scene, cs.camera, params, rec, out, rays)
+    return out, int(rays.sum())
 
 
 @njit(cache=True, nogil=True)

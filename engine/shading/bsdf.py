@@ -527,8 +527,8 @@ def mueller_terms(p, ks, kt, ps, pm, pg, c, reflect, out, at):
     closure's mirror reflection (`reflect`) or refraction at incidence cos c, into out[at +
     4 b ...]: the sum of what its lobes reflect (the layer's and glass's dielectric Fresnel,
     the metal's conductor Fresnel, a Schlick metal's colour with a perfect conductor's
-    phase and no s/p difference) or the
-    glass transmits. A equals the weight sample_glossy gives that direction."""
+    phase and no s/p difference) or the glass transmits. A equals the weight
+    sample_glossy gives that direction."""
     nb = kt.shape[0]
     if reflect:
         la, lb, lc, ls_ = 0.0, 0.0, 0.0, 0.0

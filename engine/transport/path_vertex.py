@@ -100,3 +100,14 @@ def surface_closure(ms, ts, bt, g, w, m, surf, n, d, foot):
     lobes = fluorescence.diffuse_probability(ms, m, w.kd, bsdf.diffuse_scale(w.closure),
                                              bsdf.lobe_probabilities(w.closure, w.kd, w.ks, w.kt, cos_o))
     return (fx, fy, fz), (sx, sy, sz), cos_dn, cos_o, lobes
+
+
+@njit(cache=True)
+def smooth_mueller_terms(w, lobes, d_in, d_out, fn):
+    """The Mueller terms of the smooth interaction in w's closure that turns d_in into d_out
+    (face normal fn) into w.pol (bsdf.mueller_terms): a reflection when d_out leaves on
+    fn's side. A photon's d_in is its own way in; a camera path's, its way to the surface."""
+    _, ps, pm, pg = lobes
+    c = abs(d_in[0] * fn[0] + d_in[1] * fn[1] + d_in[2] * fn[2])
+    reflect = d_out[0] * fn[0] + d_out[1] * fn[1] + d_out[2] * fn[2] > 0.0
+    bsdf.mueller_terms(w.closure, w.ks, w.kt, ps, pm, pg, c, reflect, w.pol, polarization.terms_at(w.tp.shape[0]))

@@ -36,7 +36,7 @@ from ..shading import fluorescence
 from ..shading import polarization
 from ..geometry.raycast import intersect_closest
 from .kernel_scene import kernel_scene
-from .path_vertex import leave_surface, new_path_scratch, surface_closure
+from .path_vertex import leave_surface, new_path_scratch, smooth_mueller_terms, surface_closure
 from ..core.sampling import next_float, stream_state
 
 MAX_BOUNCES_LIMIT = 256
@@ -270,11 +270,7 @@ def _polarized_vertex_gate(pol, w, out, i, d_in, d_out, fn, lobes, delta):
             if not delta:
                 polarization.depolarize(w.pol, nb)
                 return
-            _, ps, pm, pg = lobes
-            cos_i = -(d_in[0] * fn[0] + d_in[1] * fn[1] + d_in[2] * fn[2])
-            reflect = d_out[0] * fn[0] + d_out[1] * fn[1] + d_out[2] * fn[2] > 0.0
-            bsdf.mueller_terms(w.closure, w.ks, w.kt, ps, pm, pg, abs(cos_i), reflect, w.pol,
-                               polarization.terms_at(nb))
+            smooth_mueller_terms(w, lobes, d_in, d_out, fn)
             for b in range(nb):
                 out.ledger[i, ABSORBED, b] += power[b]
             polarization.photon_vertex(w.pol, power, d_in, d_out, fn)
@@ -410,7 +406,7 @@ def trace_photons(cs, n_photons, seed=0, max_bounces=8, record_direct=False,
     if lights.aim_radius < cs.lights.aim_radius:
         stats.aim = (lights.aim_center.copy(), float(lights.aim_radius))
     # one record per hit on an own lightmap, plus one per OL level above the instance
-    levels = orientation_lightmap.levels(kernel_scene(cs, lights=lights, caustics=use_caustics).orientation)
+    levels = orientation_lightmap.levels(cs.orientation) if cs.orientation is not None else 0
     n_rec = (int(max_bounces) + 1) * (1 + levels)
     if use_caustics and record_direct:
         n_rec += int(max_bounces)          # a caustic hit is recorded twice

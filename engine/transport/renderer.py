@@ -38,7 +38,8 @@ from ..core import parallel
 from ..shading.lights import EMISSIVE, light_sample_count, pick_light, sample_light_radiance
 from ..core.errors import Cancelled
 from .kernel_scene import kernel_scene
-from .path_vertex import leave_surface, new_path_scratch, path_scratch, ray_epsilon, surface_closure
+from .path_vertex import (leave_surface, new_path_scratch, path_scratch, ray_epsilon, smooth_mueller_terms,
+                          surface_closure)
 from ..geometry.raycast import STACK_WORDS, intersect_closest, occluded
 from ..core.sampling import next_float, stream_state
 from .texel_gather import grid_side, jitter, light_stratum, texel_shift
@@ -113,11 +114,7 @@ def _polarizer_vertex_gate(pol, w, tp, d_cam, d_next, fn, lobes, delta):
             if not delta:
                 polarization.depolarize(w.pol, nb)
                 return
-            _, ps, pm, pg = lobes
-            cos_c = -(d_cam[0] * fn[0] + d_cam[1] * fn[1] + d_cam[2] * fn[2])
-            reflect = d_next[0] * fn[0] + d_next[1] * fn[1] + d_next[2] * fn[2] > 0.0
-            bsdf.mueller_terms(w.closure, w.ks, w.kt, ps, pm, pg, abs(cos_c), reflect, w.pol,
-                               polarization.terms_at(nb))
+            smooth_mueller_terms(w, lobes, d_cam, d_next, fn)
             polarization.camera_vertex(w.pol, tp, d_cam, d_next, fn)
         return vertex
     return lambda pol, w, tp, d_cam, d_next, fn, lobes, delta: None

@@ -518,6 +518,7 @@ def bake_main(args):
         "indirect": "gather" if settings.bake_gathers else "lookup",
         "bake_gather_rays": int(settings.bake_gather_rays) if settings.bake_gathers else 0,
         "irradiance_cache": res.irradiance_cache,
+        "cluster": res.cluster,
         "target_error": float(settings.bake_target_error) if settings.bake_gathers else 0.0,
         "time_budget": float(settings.bake_time) if settings.bake_gathers else 0.0,
         "objects": {name: {"path": res.paths[name], "width": bm.width, "height": bm.height,

@@ -52,6 +52,7 @@ class BakeResult:
     warnings: list = field(default_factory=list)
     stats: object = None                          # PhotonStats of the photon pass
     irradiance_cache: dict = None                 # the cache's counts (records, rounds, rays), if used
+    cluster: dict = None                          # on a cluster: its address, workers and tasks per phase
     seconds: dict = field(default_factory=dict)   # export, photon_pass, bake, total
     lightmap_bytes: int = 0
     uv_layers: dict = field(default_factory=dict)  # mesh name -> uv_layers.ensure_lightmap_uv status
@@ -505,6 +506,7 @@ def compute_bake(job, progress=None, phase=None):
     if getattr(cs, "bake_error", None) is not None:
         result.error = _error_stats(cs, job, solids)
     result.irradiance_cache = cs.info.get("irradiance_cache")
+    result.cluster = cs.info.get("cluster")
     if cs.lights.total_power <= 0.0:
         result.warnings.append("no photons were traced (no lights): lightmaps are black")
     elif stats.photons == 0:

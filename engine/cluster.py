@@ -17,10 +17,15 @@ differs is refused by name. Dask is optional: nothing else imports this
 module.
 """
 import atexit
+import contextlib
 import functools
 import hashlib
+import importlib
 import pathlib
 import re
+import time
+
+import numpy as np
 
 from .core.errors import Cancelled, SceneError
 
@@ -76,6 +81,70 @@ def _worker_tile(cs, records, tile, version):
     return renderer.render_tile(cs, records, tile)
 
 
+# A bake gather's call goes to the cluster in at most TASKS_PER_WORKER tasks per
+# worker, each of at least MIN_TASK_ITEMS items (texels, records); smaller calls
+# run here, where they cost less than a task's round trip.
+TASKS_PER_WORKER = 2
+MIN_TASK_ITEMS = 64
+_ENGINE_PKG = __name__.rsplit(".", 1)[0]
+
+
+def _kernel_name(kernel):
+    """A kernel's module (relative to the engine package) and name: inside Blender
+    the package is bl_ext.<repository>.photon_lightmaps, on a worker photon_lightmaps."""
+    f = getattr(kernel, "py_func", kernel)
+    module = f.__module__
+    if not module.startswith(_ENGINE_PKG + "."):
+        raise ValueError(f"{module}.{f.__name__}: only engine kernels run on a cluster")
+    return module[len(_ENGINE_PKG):], f.__name__
+
+
+def _writable(args):
+    """(slot, index in a plain tuple or None, array) of each array a kernel may write:
+    the top-level array arguments and the arrays in plain tuples (parallel.run)."""
+    for i, a in enumerate(args):
+        if isinstance(a, np.ndarray) and a.ndim:
+            yield i, None, a
+        elif type(a) is tuple:
+            for j, b in enumerate(a):
+                if isinstance(b, np.ndarray) and b.ndim:
+                    yield i, j, b
+
+
+def _changed_rows(before, after):
+    """Indices along the first axis where `after` differs from `before`, bit for bit."""
+    if before.size == 0:
+        return np.zeros(0, np.int64)
+    a = np.ascontiguousarray(before).reshape(before.shape[0], -1).view(np.uint8)
+    b = np.ascontiguousarray(after).reshape(after.shape[0], -1).view(np.uint8)
+    return np.flatnonzero(np.any(a != b, axis=1))
+
+
+def _worker_kernel(module, name, start, stop, version, *args):
+    """A task: kernel indices start..stop-1 on copies of its writable arrays -> the
+    rows each changed, [(slot, index, rows, values)] (the broadcast inputs are
+    shared by this worker's tasks, so they are not written)."""
+    from .core import parallel
+    _on_worker(version)
+    kernel = getattr(importlib.import_module(_ENGINE_PKG + module), name)
+    args = list(args)
+    copies = []
+    for i, j, a in list(_writable(args)):
+        c = a.copy()
+        if j is None:
+            args[i] = c
+        else:
+            args[i] = (*args[i][:j], c, *args[i][j + 1:])
+        copies.append((i, j, a, c))
+    parallel.run_range(kernel, start, stop, *args)
+    out = []
+    for i, j, a, c in copies:
+        rows = _changed_rows(a, c)
+        if rows.size:
+            out.append((i, j, rows, c[rows]))
+    return out
+
+
 class Cluster:
     """A connection to a Dask cluster that photon passes run on (trace_photons(cluster=...)).
 
@@ -86,6 +155,7 @@ class Cluster:
     def __init__(self, client, cluster=None):
         self.client = client
         self._own = cluster
+        self.tasks = 0          # tasks submitted (photon blocks, tiles, gather ranges; not tree nodes)
         self.check_versions()
 
     @classmethod
@@ -121,6 +191,11 @@ class Cluster:
         return len(self.client.scheduler_info().get("workers", {}))
 
     def close(self):
+        # futures are released asynchronously: let those releases reach the scheduler
+        # first, or it reports the scattered scene as lost when the workers stop
+        deadline = time.monotonic() + 2.0
+        while self.client.refcount and time.monotonic() < deadline:
+            time.sleep(0.02)
         self.client.close()
         if self._own is not None:
             self._own.close()
@@ -142,6 +217,7 @@ class Cluster:
         version = engine_version()
         leaves = [client.submit(_worker_block, scene, plan, start, stop, version, pure=False)
                   for start, stop in blocks]
+        self.tasks += len(leaves)
         root = photon_tracer.reduce_blocks(
             lambda k: leaves[k], len(leaves),
             add=lambda a, b: client.submit(photon_tracer.add_partials, a, b, pure=False))
@@ -162,6 +238,62 @@ class Cluster:
         finally:
             scene.release()                 # the broadcast scene leaves the workers' memory
 
+    @contextlib.contextmanager
+    def kernels(self):
+        """Within: parallel.run(..., remote=True) calls made from this thread (a bake's
+        direct and final gathers) run on the cluster, each split into index ranges
+        that are tasks. A task changes rows of its outputs, and they come back
+        alone; each index writes only its own outputs (parallel.run), so the result
+        is the local run's, bit for bit. Objects other than the outputs (the scene,
+        texel lists) go to every worker once per context, so they must not change
+        while it is open."""
+        from .core import parallel
+        shared = {}                     # id(obj) -> (obj, its future on every worker)
+        try:
+            with parallel.remote(functools.partial(self._run_kernel, shared)):
+                yield self
+        finally:
+            for _obj, future in shared.values():
+                future.release()
+
+    def _run_kernel(self, shared, kernel, n, args):
+        client = self.client
+        n_tasks = min(TASKS_PER_WORKER * self.workers, n // MIN_TASK_ITEMS)
+        if n_tasks < 1:
+            return False
+        module, name = _kernel_name(kernel)
+        fresh, sent = [], []
+        for a in args:
+            if isinstance(a, (bool, int, float, np.generic)) or (type(a) is tuple and not any(
+                    isinstance(b, np.ndarray) for b in a)):
+                sent.append(a)                  # numbers and small tuples of them
+            elif isinstance(a, np.ndarray) or type(a) is tuple:
+                [f] = client.scatter([a], broadcast=True, hash=False)      # outputs: their current contents
+                fresh.append(f)
+                sent.append(f)
+            else:
+                if id(a) not in shared:         # the scene, texel lists (named tuples)
+                    [f] = client.scatter([a], broadcast=True, hash=False)
+                    shared[id(a)] = (a, f)      # (held: its id is not reused while the context lasts)
+                sent.append(shared[id(a)][1])
+        edges = [n * k // n_tasks for k in range(n_tasks + 1)]
+        version = engine_version()
+        futures = [client.submit(_worker_kernel, module, name, edges[k], edges[k + 1], version, *sent, pure=False)
+                   for k in range(n_tasks)]
+        self.tasks += n_tasks
+        try:
+            from distributed import as_completed
+            for f in as_completed(futures):
+                for i, j, rows, values in f.result():
+                    (args[i] if j is None else args[i][j])[rows] = values
+        except BaseException:
+            client.cancel(futures)
+            raise
+        finally:
+            for f in fresh:
+                f.release()
+        return True
+
     def render_tiles(self, cs, records, tiles):
         """The tiles (renderer.Tile) of a render of cs, each a task -> their (samples, rays) in
         tile order, as each arrives; closing the iterator early cancels what is left."""
@@ -169,6 +301,7 @@ class Cluster:
         scene, recs = client.scatter([cs, records], broadcast=True, hash=False)
         version = engine_version()
         futures = [client.submit(_worker_tile, scene, recs, t, version, pure=False) for t in tiles]
+        self.tasks += len(futures)
         try:
             for f in futures:
                 yield f.result()
@@ -211,10 +344,13 @@ def open_cluster(spec):
             _open[spec] = Cluster.connect(spec)
         else:
             raise ClusterError(f"cluster '{spec}': give a scheduler's address (tcp://host:8786) or local:N")
+        # registered after Dask's own exit handlers (atexit runs the last first), so
+        # the clusters close while Dask can still release their data cleanly
+        atexit.unregister(close_all)
+        atexit.register(close_all)
     return _open[spec]
 
 
-@atexit.register
 def close_all():
     while _open:
         _open.popitem()[1].close()

@@ -6,6 +6,7 @@ pass records direct light, how many light samples a texel gets) is made once.
 No bpy: the Blender layer reads its PropertyGroup into a `Settings` and hands
 over a plain engine Scene.
 """
+import contextlib
 import time
 from dataclasses import dataclass, fields, replace
 
@@ -144,17 +145,28 @@ def photon_pass(cs, settings, *, record_direct=False, progress=None, photons=Non
     from .transport.photon_tracer import trace_photons
     open_area.estimate(cs, seed=int(settings.seed))
     n = settings.photons if photons is None else photons
-    return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
-                         record_direct=record_direct, progress=progress, caustics=caustics, gather=gather,
-                         aim=aim, gather_lights=gather_lights, cluster=_cluster(settings))
+    with _on_cluster(cs, settings, "photon_pass") as cluster:
+        return trace_photons(cs, int(n), seed=int(settings.seed), max_bounces=int(settings.max_bounces),
+                             record_direct=record_direct, progress=progress, caustics=caustics, gather=gather,
+                             aim=aim, gather_lights=gather_lights, cluster=cluster)
 
 
-def _cluster(settings):
-    """The Dask cluster of settings.cluster (engine/cluster.py), or None."""
+@contextlib.contextmanager
+def _on_cluster(cs, settings, phase):
+    """The Dask cluster of settings.cluster (engine/cluster.py), or None; the tasks the
+    phase gave it are counted in cs.info["cluster"] (a pass too small to be worth
+    sending runs here, and counts none)."""
     if not settings.cluster:
-        return None
+        yield None
+        return
     from .cluster import open_cluster
-    return open_cluster(settings.cluster)
+    cluster = open_cluster(settings.cluster)
+    before = cluster.tasks
+    try:
+        yield cluster
+    finally:
+        info = cs.info.setdefault("cluster", {"address": settings.cluster, "workers": cluster.workers, "tasks": {}})
+        info["tasks"][phase] = info["tasks"].get(phase, 0) + cluster.tasks - before
 
 
 def render_photon_pass(cs, settings, *, progress=None):
@@ -205,7 +217,15 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
     time.perf_counter() by which the bake should end (settings.bake_time); the
     gather gives the time left to the texels with the highest error.
     phase(name, n) is told as "direct" and "gather" start (n: texels), and
-    while it waits on a helper compiling the bake kernels ("kernels", seconds)."""
+    while it waits on a helper compiling the bake kernels ("kernels", seconds).
+    On a cluster (settings.cluster) the gathers' kernel calls are its tasks
+    (Cluster.kernels), with the same result."""
+    with _on_cluster(cs, settings, "bake") as cluster:
+        with cluster.kernels() if cluster is not None else contextlib.nullcontext():
+            return _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase)
+
+
+def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase):
     from .transport import texel_gather
     lightmap_ids, csg_leaves = list(lightmap_ids), list(csg_leaves)
     phase = phase or (lambda name, texels: None)
@@ -294,9 +314,10 @@ def render(cs, settings, *, tile=64, progress=None, passes=None, waiting=None):
 
         def progress(x0, y0, tile_image, image):
             return shown(x0, y0, spectral.to_rgb(cs, tile_image), image)
-    img = render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
-                       max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress,
-                       passes=passes, records=records, cluster=_cluster(settings))
+    with _on_cluster(cs, settings, "render") as cluster:
+        img = render_image(cs, samples=int(settings.samples), seed=int(settings.seed), mode=settings.mode,
+                           max_depth=int(settings.max_bounces), tile=tile, gather=gather, progress=progress,
+                           passes=passes, records=records, cluster=cluster)
     _kernels_done(cs, "render")
     img = spectral.to_rgb(cs, img)
     if settings.denoise:

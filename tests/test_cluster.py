@@ -197,3 +197,66 @@ def test_render_tiles_on_the_cluster_are_bit_identical(cluster, local):
     there = renderer.render(cs, samples=3, seed=4, tile=8, gather=2, passes=[1, 2], cluster=cluster)
     assert here.any() and np.array_equal(here, there)
     assert cs.rays["render"] > 0
+
+
+def baked(cluster=None, cache=True):
+    """A gathered bake of the room: direct light, then the final gather (through the
+    irradiance cache, or per texel) with an adaptive second pass."""
+    import contextlib
+    settings = session.Settings(photons=PHOTONS, bake_photons=PHOTONS, seed=3, bake_gather_rays=4,
+                                bake_target_error=0.05, bake_irradiance_cache=cache)
+    cs, _ = session.compile_and_trace_bake(scene(), settings)
+    ids = sorted(int(lid) for lids in cs.instance_lightmaps for lid in lids)
+    with cluster.kernels() if cluster is not None else contextlib.nullcontext():
+        session.bake_texels(cs, ids, [], settings)
+    return cs
+
+
+@pytest.mark.parametrize("cache", [True, False], ids=["irradiance_cache", "per_texel"])
+def test_bake_gathers_on_the_cluster_are_bit_identical(cluster, cache):
+    """A bake's direct light, its irradiance-cache records and interpolation, and its
+    per-texel gathers (both passes) as tasks: every lightmap array and the error
+    estimate the same, bit for bit."""
+    here = baked(cache=cache)
+    before = cluster.tasks
+    there = baked(cluster, cache=cache)
+    assert cluster.tasks - before >= 3 * 2 * cluster.workers      # direct, gather, second pass at least
+    for name in ("flux", "irradiance", "hits"):
+        assert np.array_equal(getattr(here.lightmaps, name), getattr(there.lightmaps, name)), name
+    assert here.lightmaps.irradiance.any()
+    for a, b in zip(here.bake_error, there.bake_error):
+        assert np.array_equal(a, b)
+    assert here.info.get("irradiance_cache") == there.info.get("irradiance_cache")
+
+
+def test_cli_bake_on_workers_equals_the_local_bake(tmp_path):
+    """bake --workers 2 (photon pass, direct light and final gather through the
+    irradiance cache on the workers; meshes, spheres and an exact-CSG bowl): every
+    lightmap image the same, bit for bit, as the bake here."""
+    import json
+    import bpy  # noqa: F401  (bmesh, which demo_blend uses, needs bpy loaded first)
+    from test_cli_commands import run
+    from photon_lightmaps import demo_blend
+    from photon_lightmaps.registration import ensure_registered
+    ensure_registered()
+    blend = tmp_path / "room.blend"
+    demo_blend.build_cornell_blend(str(blend), width=24, height=16, spheres=True, csg=True)
+    pixels, reports = {}, {}
+    for name, extra in (("here", ()), ("workers", ("--workers", "2"))):
+        run("bake", blend, "--out", tmp_path / name, "--photons", "30000", "--seed", "2", "--resolution", "16",
+            "--bake-gather-rays", "4", "--json", tmp_path / f"{name}.json", *extra)
+        reports[name] = json.loads((tmp_path / f"{name}.json").read_text())
+        pixels[name] = {}
+        for ob, row in reports[name]["objects"].items():
+            img = bpy.data.images.load(row["path"])
+            pixels[name][ob] = np.array(img.pixels[:], np.float32)
+            bpy.data.images.remove(img)
+    assert pixels["here"].keys() == pixels["workers"].keys()
+    assert any(ob.startswith("csg") for ob in pixels["here"]), sorted(pixels["here"])
+    for ob, here in pixels["here"].items():
+        assert here.any() and np.array_equal(here, pixels["workers"][ob]), ob
+    assert reports["workers"]["irradiance_cache"]["records"] == reports["here"]["irradiance_cache"]["records"] > 0
+    # the gathers ran there: 2 tasks per worker for each large enough kernel call
+    assert reports["here"]["cluster"] is None
+    used = reports["workers"]["cluster"]
+    assert used["address"] == "local:2" and used["workers"] == 2 and used["tasks"]["bake"] >= 8, used

@@ -12,6 +12,7 @@ Each index writes only its own outputs, so the result does not depend on the
 number of threads or their scheduling. The thread count is numba's
 (`numba.set_num_threads`, NUMBA_NUM_THREADS), read in the calling thread.
 """
+import contextlib
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -65,12 +66,24 @@ def blocks(n, n_threads=None, min_block=1):
     return [(edges[j], edges[j + 1]) for j in range(k) if edges[j + 1] > edges[j]]
 
 
-def run(kernel, n, *args, min_block=1):
+def run(kernel, n, *args, min_block=1, remote=False):
     """kernel(*args, start, stop) over blocks of range(n), on the pool.
 
     `kernel` is a serial, nogil numba kernel that handles indices start..stop-1.
-    Returns once every block is done; an exception in a block is raised here."""
-    parts = blocks(n, min_block=min_block)
+    Returns once every block is done; an exception in a block is raised here.
+    remote: the call may go to the machines of an active `remote` context
+    (a Dask cluster, engine/cluster.py); the kernel's outputs must be its
+    array arguments (or arrays in plain tuples of them), which holds for the
+    bake gathers that pass it."""
+    runner = getattr(_remote, "runner", None)
+    if remote and runner is not None and runner(kernel, int(n), args):
+        return
+    run_range(kernel, 0, n, *args, min_block=min_block)
+
+
+def run_range(kernel, first, last, *args, min_block=1):
+    """run() over indices first..last-1 only."""
+    parts = [(first + a, first + b) for a, b in blocks(int(last) - int(first), min_block=min_block)]
     if len(parts) <= 1 or threading.current_thread().name.startswith(_PREFIX):
         # one block, or called from a pool thread (waiting on the pool there could deadlock)
         for start, stop in parts:
@@ -91,3 +104,19 @@ def run(kernel, n, *args, min_block=1):
     futures = [_executor().submit(lane) for _ in range(min(threads(), len(parts)))]
     for f in futures:
         f.result()
+
+
+# the runner of this thread's `remote` context: runner(kernel, n, args) -> True
+# when it ran the call (False: too small to be worth sending; run here)
+_remote = threading.local()
+
+
+@contextlib.contextmanager
+def remote(runner):
+    """Within: run(..., remote=True) calls made from this thread go to runner."""
+    before = getattr(_remote, "runner", None)
+    _remote.runner = runner
+    try:
+        yield
+    finally:
+        _remote.runner = before

@@ -286,21 +286,23 @@ class Texels:
                 todo[fallback] = r[fallback]
             if todo.any():
                 o2, v2 = np.zeros_like(out), np.zeros_like(var)
-                parallel.run(_indirect_mesh, out.shape[0], self.scene, tx, self.job(todo, stream), o2, v2)
+                parallel.run(_indirect_mesh, out.shape[0], self.scene, tx, self.job(todo, stream), o2, v2,
+                             remote=True)
                 out[todo > 0], var[todo > 0] = o2[todo > 0], v2[todo > 0]
             parts.append((tx.texel, out, var, r))
             i += 1
         if self.prim is not None:
             tx, r = self.prim, item_rays[i]
             out, var = np.zeros((tx.texel.size, nb)), np.zeros(tx.texel.size)
-            parallel.run(_indirect_prim, out.shape[0], self.scene, tx, self.job(r, stream), out, var)
+            parallel.run(_indirect_prim, out.shape[0], self.scene, tx, self.job(r, stream), out, var, remote=True)
             parts.append((tx.texel, out, var, r))
             i += 1
         if self.csg is not None:
             tx, r = self.csg, item_rays[i]
             n_rows = self.cs.lightmaps.area.shape[0]
             acc, wsum, q = np.zeros((n_rows, nb)), np.zeros(n_rows), np.zeros((n_rows, 3))
-            parallel.run(_indirect_csg, tx.lm.shape[0], self.scene, tx, self.job(r, stream), acc, wsum, q)
+            parallel.run(_indirect_csg, tx.lm.shape[0], self.scene, tx, self.job(r, stream), acc, wsum, q,
+                         remote=True)
             rows = np.flatnonzero(wsum > 0.0).astype(np.int64)
             var = np.array([_variance(q[j], wsum[j], acc[j]) for j in rows])
             # a row's rays: those of the item (texel) it belongs to

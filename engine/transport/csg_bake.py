@@ -362,7 +362,8 @@ def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
         return np.zeros(0, np.int64), np.zeros((0, nb))
     acc = np.zeros((lm.area.shape[0], nb))
     wsum = np.zeros(lm.area.shape[0])
-    parallel.run(_gather_csg, tx.lm.shape[0], cs.geometry, cs.lights, tx, int(samples_per_texel), acc, wsum)
+    parallel.run(_gather_csg, tx.lm.shape[0], cs.geometry, cs.lights, tx, int(samples_per_texel), acc, wsum,
+                 remote=True)
     ids = np.flatnonzero(wsum > 0.0).astype(np.int64)
     return ids, acc[ids] / wsum[ids][:, None]
 

@@ -501,7 +501,8 @@ class Cache:
         # the record's id in the key: records of later rounds at the same texel differ
         keyed = key ^ (np.arange(first_id, first_id + n, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15))
         n_theta, n_phi = strata(n_rays)
-        parallel.run(_records, n, scene, int(mode), (pos, nrm, keyed, size), (n_theta, n_phi), (E, se, R, gt, gr))
+        parallel.run(_records, n, scene, int(mode), (pos, nrm, keyed, size), (n_theta, n_phi), (E, se, R, gt, gr),
+                     remote=True)
         self.pos = np.concatenate([self.pos, pos])
         self.nrm = np.concatenate([self.nrm, nrm])
         self.E = np.concatenate([self.E, E])
@@ -557,7 +558,7 @@ def _build(cs, scene, mode, cat, n_points, n_rays, stream):
         gr = grid[0]
         job = GatherPass(int(mode), int(n_points), np.zeros(0, np.int64), items, stream)
         parallel.run(_interpolate, items.size, scene, cat, job, records(cache, gr), out, var,
-                     (miss, miss_pos, miss_nrm))
+                     (miss, miss_pos, miss_nrm), remote=True)
         return items[miss[items] > 0]
 
     missed = interpolate(np.arange(K, dtype=np.int64))

@@ -535,7 +535,7 @@ class _MeshTexels:
         if tx is None:
             return None
         out = np.zeros((tx.texel.size, cs.n_bands))
-        parallel.run(_gather_mesh, out.shape[0], cs.geometry, cs.lights, tx, n, out)
+        parallel.run(_gather_mesh, out.shape[0], cs.geometry, cs.lights, tx, n, out, remote=True)
         return tx.texel, out
 
 
@@ -590,7 +590,7 @@ class _PrimTexels:
         if tx is None:
             return None
         out = np.zeros((tx.texel.size, cs.n_bands))
-        parallel.run(_gather_prim, out.shape[0], cs.geometry, cs.lights, tx, n, out)
+        parallel.run(_gather_prim, out.shape[0], cs.geometry, cs.lights, tx, n, out, remote=True)
         return tx.texel, out
 
 

@@ -16,7 +16,13 @@ single-thread time, per block task and worker. Bytes moved are the pickled scene
 flux_sq and hits: one per block and one per inner tree node, each crossing the
 network at most once).
 
-    .venv/bin/python -m benchmarks.bench_cluster          # about two minutes on 2 cores
+A bake's gathers the same way: the room baked with the default gather (direct
+light, irradiance-cache records and interpolation, per-texel fallbacks, at
+BAKE_RAYS rays per point), its bake_texels timed here on 2 threads, here on 1
+thread, and with its kernel calls as tasks on the 2 workers (Cluster.kernels);
+the photon pass before it runs here and is not timed.
+
+    .venv/bin/python -m benchmarks.bench_cluster          # about three minutes on 2 cores
 """
 import json
 import os
@@ -52,6 +58,53 @@ def run(cluster=None, photons=PHOTONS, block=BLOCK, repeats=3):
     return best
 
 
+BAKE_PHOTONS = 300_000
+BAKE_RAYS = 16
+
+
+def bake(cluster=None, repeats=3):
+    """Best of `repeats`: seconds of a gathered bake's bake_texels, the compiled scene."""
+    import contextlib
+    settings = session.Settings(photons=BAKE_PHOTONS, bake_photons=BAKE_PHOTONS, seed=1,
+                                bake_gather_rays=BAKE_RAYS)
+    best = None
+    for _ in range(repeats):
+        cs, _ = session.compile_and_trace_bake(demo_scenes.cornell_box(n_bands=3), settings)
+        ids = sorted(int(lid) for lids in cs.instance_lightmaps for lid in lids)
+        t0 = time.perf_counter()
+        with cluster.kernels() if cluster is not None else contextlib.nullcontext():
+            session.bake_texels(cs, ids, [], settings)
+        dt = time.perf_counter() - t0
+        if best is None or dt < best[0]:
+            best = (dt, cs)
+    return best
+
+
+def bake_report(c):
+    threads = numba.get_num_threads()
+    bake(repeats=1)
+    t_local, cs_local = bake()
+    numba.set_num_threads(1)
+    t_one, _ = bake()
+    numba.set_num_threads(threads)
+    bake(c, repeats=1)
+    before = c.tasks
+    t_cluster, cs_cluster = bake(c)
+    tasks = (c.tasks - before) // 3
+    identical = bool(np.array_equal(cs_local.lightmaps.irradiance, cs_cluster.lightmaps.irradiance))
+    scene_bytes = len(pickle.dumps(cs_local))
+    report = dict(photons=BAKE_PHOTONS, gather_rays=BAKE_RAYS, texels=int(cs_local.bake_error[0].size),
+                  irradiance_cache=cs_local.info.get("irradiance_cache"),
+                  local_seconds=t_local, one_thread_seconds=t_one, cluster_seconds=t_cluster,
+                  efficiency=t_local / t_cluster, tasks=tasks,
+                  overhead_per_task_seconds=(t_cluster * 2 - t_one) / tasks, identical=identical,
+                  scene_bytes=scene_bytes)
+    print(f"bake gathers: local ({threads} threads) {t_local:.2f} s, one thread {t_one:.2f} s, cluster "
+          f"(2 workers x 1 thread) {t_cluster:.2f} s in {tasks} tasks: efficiency {report['efficiency']:.2f}, "
+          f"overhead {report['overhead_per_task_seconds'] * 1e3:.0f} ms per task; identical: {identical}")
+    return report
+
+
 def main():
     threads = numba.get_num_threads()
     run(photons=20_000, block=5_000, repeats=1)                  # kernels loaded
@@ -62,6 +115,7 @@ def main():
     with Cluster.local(workers=2) as c:
         run(cluster=c, photons=20_000, block=5_000, repeats=1)  # the workers' kernels loaded
         t_cluster, cs_cluster, _ = run(cluster=c)
+        bake_part = bake_report(c)
     identical = bool(np.array_equal(cs_local.lightmaps.flux, cs_cluster.lightmaps.flux))
     blocks = -(-PHOTONS // BLOCK)
     scene_bytes = len(pickle.dumps(cs_local))
@@ -74,7 +128,7 @@ def main():
                   overhead_per_task_seconds=overhead, identical=identical,
                   scene_bytes=scene_bytes, tally_bytes=tally_bytes,
                   bytes_moved=2 * scene_bytes + (2 * blocks - 1) * tally_bytes,
-                  lightmap_texels=int(cs_local.lightmaps.flux.shape[0]))
+                  lightmap_texels=int(cs_local.lightmaps.flux.shape[0]), bake=bake_part)
     print(f"local ({threads} threads) {t_local:.2f} s, cluster (2 workers x 1 thread) {t_cluster:.2f} s: "
           f"efficiency {report['efficiency']:.2f}; one block on one thread {t_one:.2f} s, "
           f"overhead {overhead * 1e3:.0f} ms per task; scene {scene_bytes / 2**20:.1f} MiB, "

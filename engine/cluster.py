@@ -21,6 +21,7 @@ import contextlib
 import functools
 import hashlib
 import importlib
+import importlib.abc
 import pathlib
 import re
 import time
@@ -30,6 +31,7 @@ import numpy as np
 from .core.errors import Cancelled, SceneError
 
 ENGINE = pathlib.Path(__file__).resolve().parent
+WORKER_SETUP = str(ENGINE / "worker_setup.py")     # the workers' Dask preload
 
 
 class ClusterError(SceneError):
@@ -81,12 +83,65 @@ def _worker_tile(cs, records, tile, version):
     return renderer.render_tile(cs, records, tile)
 
 
+_ENGINE_PKG = __name__.rsplit(".", 1)[0]
+_ADDON_PKG = _ENGINE_PKG.rsplit(".", 1)[0]      # photon_lightmaps, or bl_ext.<repository>.photon_lightmaps
+ADDON_NAME = "photon_lightmaps"
+
+
+class _PackageAlias(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Imports of the add-on under another name, as the modules this process has.
+
+    Inside Blender the add-on is the package bl_ext.<repository>.photon_lightmaps;
+    on a worker it is photon_lightmaps. Dask pickles functions and classes by
+    their module's name, so each side must find the other's names: they import
+    as the same module objects (and bl_ext, bl_ext.<repository> as empty packages)."""
+
+    def __init__(self, pattern, parents=()):
+        self.pattern = re.compile(pattern)
+        self.parents = [re.compile(p) for p in parents]
+
+    def find_spec(self, name, path=None, target=None):
+        import importlib.util
+        m = self.pattern.fullmatch(name)
+        if m is not None:
+            module = importlib.import_module(_ADDON_PKG + (m.group(1) or ""))
+            return importlib.util.spec_from_loader(name, self, is_package=hasattr(module, "__path__"))
+        if any(p.fullmatch(name) for p in self.parents):
+            return importlib.util.spec_from_loader(name, self, is_package=True)
+        return None
+
+    def create_module(self, spec):
+        m = self.pattern.fullmatch(spec.name)
+        return None if m is None else importlib.import_module(_ADDON_PKG + (m.group(1) or ""))
+
+    def exec_module(self, module):
+        pass
+
+
+def install_aliases():
+    """Lets this process read what a process that names the add-on otherwise has
+    pickled (_PackageAlias); once per process."""
+    import sys
+    if any(isinstance(f, _PackageAlias) for f in sys.meta_path):
+        return
+    if _ADDON_PKG == ADDON_NAME:         # a worker (or a session outside Blender)
+        alias = _PackageAlias(r"bl_ext\.[A-Za-z0-9_]+\." + ADDON_NAME + r"(\..+)?",
+                              parents=[r"bl_ext", r"bl_ext\.[A-Za-z0-9_]+"])
+    else:                                # a session inside Blender
+        alias = _PackageAlias(ADDON_NAME + r"(\..+)?")
+    sys.meta_path.insert(0, alias)
+
+
+def dask_setup(worker):
+    """Dask's preload hook (worker_setup.py): a worker reads the session's names."""
+    install_aliases()
+
+
 # A bake gather's call goes to the cluster in at most TASKS_PER_WORKER tasks per
 # worker, each of at least MIN_TASK_ITEMS items (texels, records); smaller calls
 # run here, where they cost less than a task's round trip.
 TASKS_PER_WORKER = 2
 MIN_TASK_ITEMS = 64
-_ENGINE_PKG = __name__.rsplit(".", 1)[0]
 
 
 def _kernel_name(kernel):
@@ -153,6 +208,7 @@ class Cluster:
     manager, or close() it."""
 
     def __init__(self, client, cluster=None):
+        install_aliases()               # results pickled by workers, read inside Blender
         self.client = client
         self._own = cluster
         self.tasks = 0          # tasks submitted (photon blocks, tiles, gather ranges; not tree nodes)
@@ -172,7 +228,8 @@ class Cluster:
     def local(cls, workers=2, threads_per_worker=1):
         distributed = _require_dask()
         cluster = distributed.LocalCluster(n_workers=int(workers), threads_per_worker=int(threads_per_worker),
-                                           processes=True, host="127.0.0.1", dashboard_address=":0")
+                                           processes=True, host="127.0.0.1", dashboard_address=":0",
+                                           preload=[WORKER_SETUP])
         return cls(distributed.Client(cluster), cluster)
 
     def check_versions(self):
@@ -322,7 +379,7 @@ def run_worker(scheduler, nthreads=None):
           flush=True)
 
     async def serve():
-        async with distributed.Nanny(scheduler, nthreads=nthreads) as nanny:
+        async with distributed.Nanny(scheduler, nthreads=nthreads, preload=[WORKER_SETUP]) as nanny:
             await nanny.finished()
     asyncio.run(serve())
 

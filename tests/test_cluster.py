@@ -260,3 +260,22 @@ def test_cli_bake_on_workers_equals_the_local_bake(tmp_path):
     assert reports["here"]["cluster"] is None
     used = reports["workers"]["cluster"]
     assert used["address"] == "local:2" and used["workers"] == 2 and used["tasks"]["bake"] >= 8, used
+
+
+def test_a_session_inside_blender_reads_workers_that_name_the_add_on_otherwise(tmp_path, local):
+    """Inside Blender the add-on is the package bl_ext.<repository>.photon_lightmaps and a
+    worker's is photon_lightmaps, and Dask pickles by those names. A session importing it
+    as Blender does (photon_lightmaps itself blocked) on a local cluster: the photon pass
+    and the bake's gathers give this process's arrays, bit for bit."""
+    import pathlib
+    import subprocess
+    import sys
+    root = pathlib.Path(__file__).resolve().parents[1]
+    out = tmp_path / "named.npz"
+    r = subprocess.run([sys.executable, str(root / "tests" / "blender_named_session.py"), str(root), str(out)],
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    got = np.load(out)
+    assert got["tasks"] > 0
+    assert np.array_equal(got["flux"], local[0].lightmaps.flux)
+    assert np.array_equal(got["baked"], baked().lightmaps.irradiance)

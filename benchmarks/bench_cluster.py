@@ -16,13 +16,14 @@ single-thread time, per block task and worker. Bytes moved are the pickled scene
 flux_sq and hits: one per block and one per inner tree node, each crossing the
 network at most once).
 
-A bake's gathers the same way: the room baked with the default gather (direct
-light, irradiance-cache records and interpolation, per-texel fallbacks, at
-BAKE_RAYS rays per point), its bake_texels timed here on 2 threads, here on 1
-thread, and with its kernel calls as tasks on the 2 workers (Cluster.kernels);
-the photon pass before it runs here and is not timed.
+A bake's gathers the same way: the room at BAKE_DENSITY texels per metre,
+baked with the default gather (direct light, irradiance-cache records and
+interpolation, per-texel fallbacks, at BAKE_RAYS rays per point). Its
+bake_texels is timed here on 2 threads, here on 1 thread, and with its kernel
+calls as tasks on the 2 workers (Cluster.kernels); the photon pass before it
+runs here and is not timed.
 
-    .venv/bin/python -m benchmarks.bench_cluster          # about three minutes on 2 cores
+    .venv/bin/python -m benchmarks.bench_cluster          # about five minutes on 2 cores
 """
 import json
 import os
@@ -60,6 +61,7 @@ def run(cluster=None, photons=PHOTONS, block=BLOCK, repeats=3):
 
 BAKE_PHOTONS = 300_000
 BAKE_RAYS = 16
+BAKE_DENSITY = 64.0     # texels per metre: 16 x the room's texels, a bake that takes seconds
 
 
 def bake(cluster=None, repeats=3):
@@ -69,7 +71,9 @@ def bake(cluster=None, repeats=3):
                                 bake_gather_rays=BAKE_RAYS)
     best = None
     for _ in range(repeats):
-        cs, _ = session.compile_and_trace_bake(demo_scenes.cornell_box(n_bands=3), settings)
+        room = demo_scenes.cornell_box(n_bands=3)
+        room.texel_density = BAKE_DENSITY
+        cs, _ = session.compile_and_trace_bake(room, settings)
         ids = sorted(int(lid) for lids in cs.instance_lightmaps for lid in lids)
         t0 = time.perf_counter()
         with cluster.kernels() if cluster is not None else contextlib.nullcontext():

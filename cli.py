@@ -107,10 +107,11 @@ def _add_common(p):
     p.add_argument("--seed", type=_count(0), default=None, help="random seed (default: scene setting)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--cluster", metavar="ADDRESS", default=None,
-                       help="trace the photon pass on the Dask cluster whose scheduler is at ADDRESS "
-                            "(tcp://host:8786); the result is the same, bit for bit (default: scene setting)")
+                       help="run the photon pass, render tiles and bake gathers on the Dask cluster whose scheduler "
+                            "is at ADDRESS (tcp://host:8786); the result is the same, bit for bit "
+                            "(default: scene setting)")
     where.add_argument("--workers", type=_count(1, 256), default=None,
-                       help="trace the photon pass on N worker processes on this machine (a local Dask cluster)")
+                       help="run them on N worker processes on this machine (a local Dask cluster)")
     p.add_argument("--json", metavar="REPORT", default=None, help="write a JSON report here")
     # Also accepted after the command; SUPPRESS keeps a global --debug from being reset.
     p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
@@ -209,8 +210,8 @@ def build_parser():
     w.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     w.set_defaults(func=warmup_main)
 
-    wk = sub.add_parser("worker", help="run a Dask worker for photon passes (--cluster): it joins the scheduler "
-                                       "at ADDRESS and runs until stopped")
+    wk = sub.add_parser("worker", help="run a Dask worker for photon passes, renders and bakes (--cluster): it "
+                                       "joins the scheduler at ADDRESS and runs until stopped")
     wk.add_argument("scheduler", metavar="ADDRESS", help="the scheduler's address, e.g. tcp://host:8786")
     wk.add_argument("--nthreads", type=_count(1, 1024), default=None,
                     help="threads of the worker (default: this machine's cores)")
@@ -417,7 +418,7 @@ def render_main(args):
 
 
 def worker_main(args):
-    """CLI: a Dask worker process for photon passes (engine/cluster.py)."""
+    """CLI: a Dask worker process for photon passes, renders and bakes (engine/cluster.py)."""
     from .engine.cluster import run_worker
     run_worker(args.scheduler, nthreads=args.nthreads)
     return 0

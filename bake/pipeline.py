@@ -461,10 +461,12 @@ def _error_maps(cs, job, solids):
     return out
 
 
-def compute_bake(job, progress=None, phase=None):
+def compute_bake(job, progress=None, phase=None, should_stop=None):
     """Any thread: photon pass and per-object RGBA arrays. Raises Cancelled.
 
-    progress(done, total) follows the photon pass (False: cancel); phase(name,
+    progress(done, total) follows the photon pass (False: cancel); should_stop()
+    -> True cancels the texel gathers (between their parts; on a cluster, between
+    its tasks); phase(name,
     detail) is told as each other part starts: "scene", "kernels" (a first run
     compiling, with how many so far), "direct" and "gather" (texels),
     "images", "denoise"."""
@@ -500,7 +502,7 @@ def compute_bake(job, progress=None, phase=None):
                 if job.settings.bake_time > 0 else None)
     with kernel_watch.watching(on_compile):
         result.seconds.update(session.bake_texels(
-            cs, ids, leaves, job.settings, direct=job.direct, deadline=deadline,
+            cs, ids, leaves, job.settings, direct=job.direct, deadline=deadline, should_stop=should_stop,
             phase=lambda name, n: phase(name, f"{n:,} texels" if name != "kernels" else
                                         f"compiled in a second process, {n:.0f} s (first run)")))
     if getattr(cs, "bake_error", None) is not None:

@@ -296,24 +296,25 @@ class Cluster:
             scene.release()                 # the broadcast scene leaves the workers' memory
 
     @contextlib.contextmanager
-    def kernels(self):
+    def kernels(self, should_stop=None):
         """Within: parallel.run(..., remote=True) calls made from this thread (a bake's
         direct and final gathers) run on the cluster, each split into index ranges
         that are tasks. A task changes rows of its outputs, and they come back
         alone; each index writes only its own outputs (parallel.run), so the result
         is the local run's, bit for bit. Objects other than the outputs (the scene,
         texel lists) go to every worker once per context, so they must not change
-        while it is open."""
+        while it is open. should_stop() -> True, asked as tasks finish, cancels the
+        call's tasks and raises Cancelled, the outputs untouched."""
         from .core import parallel
         shared = {}                     # id(obj) -> (obj, its future on every worker)
         try:
-            with parallel.remote(functools.partial(self._run_kernel, shared)):
+            with parallel.remote(functools.partial(self._run_kernel, shared, should_stop)):
                 yield self
         finally:
             for _obj, future in shared.values():
                 future.release()
 
-    def _run_kernel(self, shared, kernel, n, args):
+    def _run_kernel(self, shared, should_stop, kernel, n, args):
         client = self.client
         n_tasks = min(TASKS_PER_WORKER * self.workers, n // MIN_TASK_ITEMS)
         if n_tasks < 1:
@@ -340,8 +341,13 @@ class Cluster:
         self.tasks += n_tasks
         try:
             from distributed import as_completed
+            changes = []
             for f in as_completed(futures):
-                for i, j, rows, values in f.result():
+                changes.append(f.result())
+                if should_stop is not None and should_stop():
+                    raise Cancelled("bake cancelled")
+            for change in changes:
+                for i, j, rows, values in change:
                     (args[i] if j is None else args[i][j])[rows] = values
         except BaseException:
             client.cancel(futures)

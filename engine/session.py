@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields, replace
 
 from .lightmaps import lightmap
 from . import spectral
+from .core.errors import Cancelled
 
 # Light-sampled points per texel for the direct part of a bake; one unstratified
 # light sample per point, so this sets the direct term's noise (~1/sqrt(n)).
@@ -207,7 +208,8 @@ def compile_and_trace_bake(scene, settings, *, progress=None, aim_at=None):
                            aim=_aim(cs, aim_at), gather_lights=settings.bake_gather_lights)
 
 
-def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline=None, phase=None):
+def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline=None, phase=None,
+                should_stop=None):
     """A bake's texel values into cs.lightmaps -> seconds per part.
 
     Direct light per texel (unless direct=False), plus either the photons' own
@@ -219,13 +221,15 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
     phase(name, n) is told as "direct" and "gather" start (n: texels), and
     while it waits on a helper compiling the bake kernels ("kernels", seconds).
     On a cluster (settings.cluster) the gathers' kernel calls are its tasks
-    (Cluster.kernels), with the same result."""
+    (Cluster.kernels), with the same result. should_stop() -> True cancels
+    (Cancelled) between the parts, and on a cluster between its tasks."""
     with _on_cluster(cs, settings, "bake") as cluster:
-        with cluster.kernels() if cluster is not None else contextlib.nullcontext():
-            return _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase)
+        with cluster.kernels(should_stop) if cluster is not None else contextlib.nullcontext():
+            return _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase,
+                                should_stop or (lambda: False))
 
 
-def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase):
+def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase, should_stop):
     from .transport import texel_gather
     lightmap_ids, csg_leaves = list(lightmap_ids), list(csg_leaves)
     phase = phase or (lambda name, texels: None)
@@ -242,6 +246,8 @@ def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase
     if direct and csg_leaves:
         parts.append(gather_direct_csg(cs, csg_leaves, settings))
     seconds["direct"] = time.perf_counter() - t0
+    if should_stop():
+        raise Cancelled("bake cancelled")
     if not settings.bake_gathers:
         for part in parts:
             add_direct(cs.lightmaps, part)

@@ -196,7 +196,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
 
         def work():
             try:
-                pipeline.compute_bake(job, progress, phase)
+                pipeline.compute_bake(job, progress, phase, should_stop=cancel.is_set)
             except BaseException as e:  # noqa: BLE001  (handed to the UI thread)
                 state["error"] = e
         self._thread = threading.Thread(target=work, name="photon-lightmaps-bake", daemon=True)

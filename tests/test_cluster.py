@@ -199,7 +199,7 @@ def test_render_tiles_on_the_cluster_are_bit_identical(cluster, local):
     assert cs.rays["render"] > 0
 
 
-def baked(cluster=None, cache=True):
+def baked(cluster=None, cache=True, should_stop=None, keep=None):
     """A gathered bake of the room: direct light, then the final gather (through the
     irradiance cache, or per texel) with an adaptive second pass."""
     import contextlib
@@ -207,8 +207,10 @@ def baked(cluster=None, cache=True):
                                 bake_target_error=0.05, bake_irradiance_cache=cache)
     cs, _ = session.compile_and_trace_bake(scene(), settings)
     ids = sorted(int(lid) for lids in cs.instance_lightmaps for lid in lids)
-    with cluster.kernels() if cluster is not None else contextlib.nullcontext():
-        session.bake_texels(cs, ids, [], settings)
+    if keep is not None:
+        keep.append(cs)
+    with cluster.kernels(should_stop) if cluster is not None else contextlib.nullcontext():
+        session.bake_texels(cs, ids, [], settings, should_stop=should_stop)
     return cs
 
 
@@ -227,6 +229,25 @@ def test_bake_gathers_on_the_cluster_are_bit_identical(cluster, cache):
     for a, b in zip(here.bake_error, there.bake_error):
         assert np.array_equal(a, b)
     assert here.info.get("irradiance_cache") == there.info.get("irradiance_cache")
+
+
+def test_cancel_stops_a_bake_on_the_cluster_and_writes_nothing(cluster):
+    """should_stop (Esc in Blender) asked as the gather's tasks finish: the tasks are
+    cancelled, Cancelled is raised, the lightmaps are the photon pass's, and the
+    cluster is free for the next bake."""
+    asked, kept = [], []
+
+    def stop():
+        asked.append(1)
+        return len(asked) >= 2
+    with pytest.raises(Cancelled):
+        baked(cluster, should_stop=stop, keep=kept)
+    settings = session.Settings(photons=PHOTONS, bake_photons=PHOTONS, seed=3, bake_gather_rays=4,
+                                bake_target_error=0.05)
+    traced_only, _ = session.compile_and_trace_bake(scene(), settings)
+    assert np.array_equal(kept[0].lightmaps.flux, traced_only.lightmaps.flux)
+    assert len(asked) == 2
+    assert np.array_equal(baked(cluster).lightmaps.irradiance, baked().lightmaps.irradiance)
 
 
 def test_cli_bake_on_workers_equals_the_local_bake(tmp_path):

@@ -175,9 +175,10 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         description="Random seed; the same seed gives the same image")
     cluster: StringProperty(
         name="Cluster", default=_D.cluster,
-        description="Trace photon passes on a Dask cluster: its scheduler's address (tcp://host:8786), or "
-                    "local:N for N worker processes on this machine; empty: here. The lightmaps are the "
-                    "same, bit for bit (workers: python -m photon_lightmaps worker)")
+        description="Run photon passes, render tiles and bake gathers on a Dask cluster: its scheduler's "
+                    "address (tcp://host:8786), or local:N for N worker processes on this machine; empty: "
+                    "here. Images and lightmaps are the same, bit for bit (workers: python -m "
+                    "photon_lightmaps worker)")
 
 
 class PhotonLightmapsObjectSettings(bpy.types.PropertyGroup):

@@ -60,6 +60,7 @@ def _open_interval(below, above, what):
 # a relative error (0.01 is 1 %) and a time budget
 _fraction = _open_interval(0.0, 1.0, "a fraction above 0 and below 1 (0.01 is 1 %)")
 _seconds = _open_interval(0.0, 1e6, "a number of seconds above 0")
+_metres = _open_interval(0.0, 1e6, "a distance in metres above 0")
 _degrees = _open_interval(-360.0, 360.0, "an angle in degrees between -360 and 360")
 
 
@@ -173,6 +174,11 @@ def build_parser():
     _add_common(b)
     b.add_argument("--resolution", type=_count(1), default=None, metavar="R", help="force R x R lightmaps")
     b.add_argument("--indirect-only", action="store_true", help="leave direct light out of the maps")
+    b.add_argument("--pass", dest="bake_pass", choices=("combined", "direct", "indirect", "ao"), default=None,
+                   help="what the maps hold: all light (default), direct or indirect light alone (indirect: "
+                        "as --indirect-only), or ambient occlusion (no photons; see --ao-distance)")
+    b.add_argument("--ao-distance", type=_metres, default=None, metavar="M",
+                   help="--pass ao: rays that meet nothing within M metres are unoccluded (default 1)")
     b.add_argument("--indirect", choices=("gather", "lookup"), default=None,
                    help="indirect light by final gather over the photon lightmaps or from each texel's photons")
     b.add_argument("--bake-gather-rays", type=_count(1), default=None, metavar="N",
@@ -501,7 +507,8 @@ def bake_main(args):
                        bake_target_error=settings.bake_target_error, bake_time=settings.bake_time,
                        error_images=args.error_images or None,
                        irradiance_cache=settings.bake_irradiance_cache,
-                       gather_lights=settings.bake_gather_lights, spectral_exr=args.spectral_exr or None)
+                       gather_lights=settings.bake_gather_lights, spectral_exr=args.spectral_exr or None,
+                       bake_pass=args.bake_pass, ao_distance=args.ao_distance)
     print(file=sys.stderr)
     stats = res.stats
     report = {
@@ -512,12 +519,14 @@ def bake_main(args):
         "seconds": {"photon_pass": res.seconds.get("photon_pass", 0.0),
                     "direct": res.seconds.get("direct", 0.0),
                     "gather": res.seconds.get("gather", 0.0),
+                    "ao": res.seconds.get("ao", 0.0),
                     "bake": res.seconds.get("bake", 0.0),
                     "denoise": res.seconds.get("denoise", 0.0),
                     "total": time.perf_counter() - t0},
         "denoised": bool(settings.denoise),
         "indirect": "gather" if settings.bake_gathers else "lookup",
         "bake_gather_rays": int(settings.bake_gather_rays) if settings.bake_gathers else 0,
+        "pass": res.bake_pass,
         "irradiance_cache": res.irradiance_cache,
         "cluster": res.cluster,
         "target_error": float(settings.bake_target_error) if settings.bake_gathers else 0.0,

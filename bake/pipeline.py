@@ -24,11 +24,20 @@ from . import boolean_meshes, csg_atlas, hooks, images, spectral_exr
 from .images import BakedMap
 
 
+# The bake's passes: COMBINED (direct + indirect), DIRECT (light samples only: no
+# photons), INDIRECT (the photons' and gathers' light only), AO (ambient occlusion,
+# engine/transport/ambient_occlusion.py: no photons; written as the image's value).
+BAKE_PASSES = ("COMBINED", "DIRECT", "INDIRECT", "AO")
+
+
 @dataclass
 class BakeSettings(session.Settings):
     """Scene settings (session.Settings, read from Scene.photon_lightmaps) plus the bake's options."""
     resolution: int = 0          # R x R texels per object; 0: each object's setting or the texel density
     indirect_only: bool = False  # leave the gathered direct light out
+    # what the maps hold (BAKE_PASSES): all light, direct or indirect light alone, or AO
+    bake_pass: str = "COMBINED"
+    ao_distance: float = 1.0     # AO: rays that meet nothing within this many metres are unoccluded
     overwrite: bool = False
     save_dir: str = ""
     pack: bool = False
@@ -53,6 +62,7 @@ class BakeResult:
     stats: object = None                          # PhotonStats of the photon pass
     irradiance_cache: dict = None                 # the cache's counts (records, rounds, rays), if used
     cluster: dict = None                          # on a cluster: its address, workers and tasks per phase
+    bake_pass: str = "COMBINED"                   # what the maps hold (BAKE_PASSES)
     seconds: dict = field(default_factory=dict)   # export, photon_pass, bake, total
     lightmap_bytes: int = 0
     uv_layers: dict = field(default_factory=dict)  # mesh name -> uv_layers.ensure_lightmap_uv status
@@ -205,7 +215,7 @@ def run_unwraps(plan, progress=None, should_stop=None):
 def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
-                 gather_lights=None, spectral_exr=None):
+                 gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
@@ -218,6 +228,9 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     density = session.Settings.read(props).texel_density
     if resolution is not None and int(resolution) < 1:
         raise SceneError(f"resolution: must be a positive number of texels, got {resolution}")
+    bake_pass = _bake_pass(bake_pass, indirect_only)
+    if ao_distance is not None and not float(ao_distance) > 0.0:
+        raise SceneError(f"AO distance: must be a positive number of metres, got {ao_distance}")
     wanted = _wanted(depsgraph, objects, result.skipped)
     booleans = {}                   # Booleans of plain meshes: baked as Blender's result
     for ob in wanted:
@@ -238,7 +251,10 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error,
                                      bake_time=bake_time, bake_error_images=error_images,
                                      bake_irradiance_cache=irradiance_cache, bake_gather_lights=gather_lights,
-                                     spectral_exr=spectral_exr)
+                                     spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance)
+    if bake_pass in ("DIRECT", "AO"):
+        # light samples (or AO rays) per texel alone: no photons to trace or gather
+        job.settings.indirect, job.settings.indirect_only = "LOOKUP", False
     if job.settings.spectral_exr and not job.settings.spectral:
         _uv_restore(uv_undo)
         raise SceneError("spectral EXR files need a spectral bake: turn Spectral on (CLI: --spectral)")
@@ -248,7 +264,9 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
         except BaseException:
             _uv_restore(uv_undo)
             raise
-    if photons is None:
+    if bake_pass in ("DIRECT", "AO"):
+        job.settings.photons = 0
+    elif photons is None:
         # the scene's count for this kind of bake: Bake Photons when it gathers
         job.settings.photons = job.settings.bake_photon_count
     if job.settings.bake_gathers:
@@ -262,9 +280,22 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
         except BaseException:
             _uv_restore(uv_undo)
             raise
-    job.direct, job.t_start = not indirect_only, t0
+    job.direct, job.t_start = bake_pass != "INDIRECT", t0
     result.seconds["export"] = time.perf_counter() - t0
     return job
+
+
+def _bake_pass(bake_pass, indirect_only):
+    """The pass asked for (BAKE_PASSES; None: COMBINED, or INDIRECT with indirect_only)."""
+    if bake_pass is None:
+        return "INDIRECT" if indirect_only else "COMBINED"
+    name = str(bake_pass).upper()
+    if name not in BAKE_PASSES:
+        raise SceneError(f"bake pass '{bake_pass}': use one of {', '.join(p.lower() for p in BAKE_PASSES)}")
+    if indirect_only and name != "INDIRECT":
+        raise SceneError(f"bake pass '{bake_pass}' with Indirect Only: choose one (the indirect pass "
+                         "is Indirect Only)")
+    return name
 
 
 def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution, booleans):
@@ -500,23 +531,35 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
     # --time / Bake Time counts the export too, which prepare_bake did
     deadline = (t0 + job.settings.bake_time - result.seconds.get("export", 0.0)
                 if job.settings.bake_time > 0 else None)
+    ao = job.settings.bake_pass == "AO"
     with kernel_watch.watching(on_compile):
-        result.seconds.update(session.bake_texels(
-            cs, ids, leaves, job.settings, direct=job.direct, deadline=deadline, should_stop=should_stop,
-            phase=lambda name, n: phase(name, f"{n:,} texels" if name != "kernels" else
-                                        f"compiled in a second process, {n:.0f} s (first run)")))
+        if ao:
+            phase("ao", f"{len(ids):,} objects")
+            result.seconds.update(session.bake_ao(cs, ids, job.settings, job.settings.ao_distance,
+                                                  should_stop=should_stop))
+        else:
+            result.seconds.update(session.bake_texels(
+                cs, ids, leaves, job.settings, direct=job.direct, deadline=deadline, should_stop=should_stop,
+                phase=lambda name, n: phase(name, f"{n:,} texels" if name != "kernels" else
+                                            f"compiled in a second process, {n:.0f} s (first run)")))
     if getattr(cs, "bake_error", None) is not None:
         result.error = _error_stats(cs, job, solids)
     result.irradiance_cache = cs.info.get("irradiance_cache")
     result.cluster = cs.info.get("cluster")
-    if cs.lights.total_power <= 0.0:
+    result.bake_pass = job.settings.bake_pass
+    if ao:
+        pass                        # occlusion needs no light
+    elif cs.lights.total_power <= 0.0:
         result.warnings.append("no photons were traced (no lights): lightmaps are black")
-    elif stats.photons == 0:
+    elif stats.photons == 0 and job.settings.bake_pass != "DIRECT":
         result.warnings.append("no photons were traced (zero photons): lightmaps hold "
                                + ("direct light only" if job.direct else "no light"))
     t1 = time.perf_counter()
     phase("images", f"{len(job.targets):,} objects")
     for name, i in job.targets.items():
+        if name in job.csg and ao:
+            result.skipped[name] = "exact CSG solid: the AO pass bakes meshes and primitives (bake it with Cycles)"
+            continue
         if name in job.csg:
             bm = csg_atlas.atlas(cs, job, name, solids[name])
             if bm is not None:
@@ -608,7 +651,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  indirect_only=False, progress=None, overwrite=False, save_dir=None, pack=False,
                  hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
-                 gather_lights=None, spectral_exr=None):
+                 gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
@@ -624,7 +667,10 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     spectral bake and `save_dir`, also writes every band to
     "<save_dir>/<object>_spectral.exr", bake/spectral_exr.py). `resolution` forces
     R x R texels per object; otherwise the object's own setting or the scene's
-    texel density decides. `denoise` (None: the scene's setting) runs OIDN over
+    texel density decides. `bake_pass` (BAKE_PASSES, None: COMBINED) bakes all
+    light, direct or indirect light alone, or ambient occlusion within
+    `ao_distance` metres (the image holds AO itself; exact CSG solids are
+    skipped by that pass). `denoise` (None: the scene's setting) runs OIDN over
     each map (engine/transport/denoise.py). `progress(done, total)`
     may return False to cancel: Cancelled is raised before any image changes.
     See the module docstring for image naming, overwriting and saving.
@@ -634,7 +680,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                        indirect=indirect, bake_gather_rays=bake_gather_rays,
                        bake_target_error=bake_target_error, bake_time=bake_time,
                        error_images=error_images, irradiance_cache=irradiance_cache, gather_lights=gather_lights,
-                       spectral_exr=spectral_exr)
+                       spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance)
     try:
         compute_bake(job, progress)
     except BaseException:

@@ -273,6 +273,17 @@ def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase
     return seconds
 
 
+def bake_ao(cs, lightmap_ids, settings, distance, *, should_stop=None):
+    """The ambient-occlusion pass of a bake into cs.lightmaps (E = π·AO, so the
+    bake's E/π is AO; engine/transport/ambient_occlusion.py) -> seconds."""
+    from .transport import ambient_occlusion
+    t0 = time.perf_counter()
+    with _on_cluster(cs, settings, "bake") as cluster:
+        with cluster.kernels(should_stop) if cluster is not None else contextlib.nullcontext():
+            ambient_occlusion.bake_ao(cs, lightmap_ids, distance, seed=int(settings.seed))
+    return {"ao": time.perf_counter() - t0}
+
+
 def texel_error(lm, direct, indirect):
     """Per baked texel row: (ids, relative standard error of E, gather rays per texel)."""
     import numpy as np

@@ -13,7 +13,7 @@ as its one-line text (messages.py).
 import threading
 
 import bpy
-from bpy.props import BoolProperty, IntProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty
 
 from .. import messages
 from ..bake import hooks
@@ -72,6 +72,16 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
     indirect_only: BoolProperty(
         name="Indirect Only", default=False,
         description="Leave direct light out of the lightmaps (for engines that add it themselves)")
+    bake_pass: EnumProperty(
+        name="Pass", default="COMBINED",
+        items=[("COMBINED", "Combined", "Direct and indirect light"),
+               ("DIRECT", "Direct", "Direct light alone (light samples per texel; no photons)"),
+               ("INDIRECT", "Indirect", "Indirect light alone (as Indirect Only)"),
+               ("AO", "Ambient Occlusion", "The share of the hemisphere open within AO Distance (no photons)")],
+        description="What the lightmaps hold; game engines mix split passes with their own light")
+    ao_distance: FloatProperty(
+        name="AO Distance", default=1.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
+        description="Ambient Occlusion: rays that meet nothing within this distance are unoccluded")
     hook_materials: BoolProperty(
         name="Hook Materials", default=False,
         description="Add a removable 'Photon Lightmap' node setup to the materials, "
@@ -92,7 +102,9 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
 
     def _prepare(self, context, objects):
         return pipeline.prepare_bake(context, objects, photons=self.photons or None,
-                              resolution=self.resolution or None, indirect_only=self.indirect_only)
+                                     resolution=self.resolution or None, indirect_only=self.indirect_only,
+                                     bake_pass=None if self.bake_pass == "COMBINED" else self.bake_pass,
+                                     ao_distance=self.ao_distance)
 
     def _finish(self, job):
         # Objects may have been deleted while the photon pass ran.
@@ -215,7 +227,8 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
             text = f"photon pass {100.0 * within:.0f}% ({st['done']:,}/{st['total']:,} photons)"
         else:
             label = {"scene": "compiling the scene", "kernels": "compiling kernels", "direct": "direct light",
-                     "gather": "final gather", "images": "writing images", "denoise": "denoising"}
+                     "gather": "final gather", "ao": "ambient occlusion", "images": "writing images",
+                     "denoise": "denoising"}
             text = label.get(st["phase"], st["phase"]) + (f" ({st['detail']})" if st["detail"] else "")
         self._status(context, f"Photon Lightmaps: {text}  (Esc to cancel)")
 
@@ -272,9 +285,11 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
 
     def draw(self, context):
         col = self.layout.column()
-        for prop in ("selected_only", "photons", "resolution", "indirect_only", "hook_materials",
+        for prop in ("selected_only", "photons", "resolution", "bake_pass", "indirect_only", "hook_materials",
                      "overwrite", "pack"):
             col.prop(self, prop)
+            if prop == "bake_pass" and self.bake_pass == "AO":
+                col.prop(self, "ao_distance")
         # Told before the bake starts: meshes without a Lightmap layer need xatlas first.
         n, triangles = _without_layer(_bake_candidates(context, self.selected_only))
         if n:

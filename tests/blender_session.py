@@ -41,11 +41,13 @@ def read_image(path):
     return px.reshape(h, w, 4)[::-1].astype(np.float64)
 
 
-def cycles_diffuse_bake(ob, res, samples, *, seed=0, bounces=8, margin=4, uv_layer="Lightmap"):
+def cycles_diffuse_bake(ob, res, samples, *, seed=0, bounces=8, margin=4, uv_layer="Lightmap",
+                        bake_type="DIFFUSE", pass_filter=("DIRECT", "INDIRECT")):
     """Cycles' Diffuse bake of `ob` (Direct + Indirect, no Color) into a new res x res float
     image -> (res, res, 4) pixels, rows bottom-up. CPU, no clamping (it would bias Cycles
     low), no denoising, no adaptive sampling, `bounces` max and diffuse bounces. The image
-    and its node are removed again, and the render engine is put back."""
+    and its node are removed again, and the render engine is put back. bake_type and
+    pass_filter: another of Cycles' bakes (AO; Diffuse with Direct or Indirect alone)."""
     scene = bpy.context.scene
     engine = scene.render.engine
     scene.render.engine = "CYCLES"
@@ -67,7 +69,7 @@ def cycles_diffuse_bake(ob, res, samples, *, seed=0, bounces=8, margin=4, uv_lay
             o.select_set(False)
         ob.select_set(True)
         bpy.context.view_layer.objects.active = ob
-        bpy.ops.object.bake(type="DIFFUSE", pass_filter={"DIRECT", "INDIRECT"}, uv_layer=uv_layer,
+        bpy.ops.object.bake(type=bake_type, pass_filter=set(pass_filter), uv_layer=uv_layer,
                             margin=margin, use_clear=True, target="IMAGE_TEXTURES")
         px = np.empty(res * res * 4, np.float32)
         img.pixels.foreach_get(px)

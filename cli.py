@@ -174,11 +174,16 @@ def build_parser():
     _add_common(b)
     b.add_argument("--resolution", type=_count(1), default=None, metavar="R", help="force R x R lightmaps")
     b.add_argument("--indirect-only", action="store_true", help="leave direct light out of the maps")
-    b.add_argument("--pass", dest="bake_pass", choices=("combined", "direct", "indirect", "ao"), default=None,
+    b.add_argument("--pass", dest="bake_pass", choices=("combined", "direct", "indirect", "ao", "shadowmask"),
+                   default=None,
                    help="what the maps hold: all light (default), direct or indirect light alone (indirect: "
-                        "as --indirect-only), or ambient occlusion (no photons; see --ao-distance)")
+                        "as --indirect-only), ambient occlusion (see --ao-distance), or a shadowmask (see "
+                        "--shadowmask-lights); ao and shadowmask trace no photons")
     b.add_argument("--ao-distance", type=_metres, default=None, metavar="M",
                    help="--pass ao: rays that meet nothing within M metres are unoccluded (default 1)")
+    b.add_argument("--shadowmask-lights", metavar="NAMES", default=None,
+                   help="--pass shadowmask: up to four lights, comma-separated, for channels R, G, B, A "
+                        "(default: every light, when there are at most four)")
     b.add_argument("--indirect", choices=("gather", "lookup"), default=None,
                    help="indirect light by final gather over the photon lightmaps or from each texel's photons")
     b.add_argument("--bake-gather-rays", type=_count(1), default=None, metavar="N",
@@ -508,7 +513,8 @@ def bake_main(args):
                        error_images=args.error_images or None,
                        irradiance_cache=settings.bake_irradiance_cache,
                        gather_lights=settings.bake_gather_lights, spectral_exr=args.spectral_exr or None,
-                       bake_pass=args.bake_pass, ao_distance=args.ao_distance)
+                       bake_pass=args.bake_pass, ao_distance=args.ao_distance,
+                       shadowmask_lights=args.shadowmask_lights)
     print(file=sys.stderr)
     stats = res.stats
     report = {
@@ -520,6 +526,7 @@ def bake_main(args):
                     "direct": res.seconds.get("direct", 0.0),
                     "gather": res.seconds.get("gather", 0.0),
                     "ao": res.seconds.get("ao", 0.0),
+                    "shadowmask": res.seconds.get("shadowmask", 0.0),
                     "bake": res.seconds.get("bake", 0.0),
                     "denoise": res.seconds.get("denoise", 0.0),
                     "total": time.perf_counter() - t0},
@@ -527,6 +534,7 @@ def bake_main(args):
         "indirect": "gather" if settings.bake_gathers else "lookup",
         "bake_gather_rays": int(settings.bake_gather_rays) if settings.bake_gathers else 0,
         "pass": res.bake_pass,
+        "shadowmask_lights": res.mask_lights,
         "irradiance_cache": res.irradiance_cache,
         "cluster": res.cluster,
         "target_error": float(settings.bake_target_error) if settings.bake_gathers else 0.0,

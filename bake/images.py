@@ -75,6 +75,13 @@ def lightmap_rgba(lm, lm_id, bands=None):
     return rgba.reshape(h, w, 4)
 
 
+def texel_rgba(lm, lm_id, channels):
+    """Lightmap `lm_id`'s rows of `channels` (every lightmap row's four values, as
+    shadowmask.mask_channels gives) as float32 (height, width, 4)."""
+    sl = lightmap.texel_slice(lm, lm_id)
+    return channels[sl].astype(np.float32).reshape(int(lm.height[lm_id]), int(lm.width[lm_id]), 4)
+
+
 def lightmap_bands(lm, lm_id):
     """Lightmap `lm_id` as float32 (height, width, n_bands): E/pi per band, as traced
     (a spectral scene's wavelength bands: bake/spectral_exr.py)."""

@@ -26,8 +26,9 @@ from .images import BakedMap
 
 # The bake's passes: COMBINED (direct + indirect), DIRECT (light samples only: no
 # photons), INDIRECT (the photons' and gathers' light only), AO (ambient occlusion,
-# engine/transport/ambient_occlusion.py: no photons; written as the image's value).
-BAKE_PASSES = ("COMBINED", "DIRECT", "INDIRECT", "AO")
+# engine/transport/ambient_occlusion.py: no photons; written as the image's value),
+# SHADOWMASK (up to four lights' visibility, one per channel, engine/transport/shadowmask.py).
+BAKE_PASSES = ("COMBINED", "DIRECT", "INDIRECT", "AO", "SHADOWMASK")
 
 
 @dataclass
@@ -38,6 +39,7 @@ class BakeSettings(session.Settings):
     # what the maps hold (BAKE_PASSES): all light, direct or indirect light alone, or AO
     bake_pass: str = "COMBINED"
     ao_distance: float = 1.0     # AO: rays that meet nothing within this many metres are unoccluded
+    shadowmask_lights: str = ""  # SHADOWMASK: the lights (names, comma-separated) of channels R, G, B, A
     overwrite: bool = False
     save_dir: str = ""
     pack: bool = False
@@ -63,6 +65,7 @@ class BakeResult:
     irradiance_cache: dict = None                 # the cache's counts (records, rounds, rays), if used
     cluster: dict = None                          # on a cluster: its address, workers and tasks per phase
     bake_pass: str = "COMBINED"                   # what the maps hold (BAKE_PASSES)
+    mask_lights: list = None                      # SHADOWMASK: the lights of channels R, G, B, A
     seconds: dict = field(default_factory=dict)   # export, photon_pass, bake, total
     lightmap_bytes: int = 0
     uv_layers: dict = field(default_factory=dict)  # mesh name -> uv_layers.ensure_lightmap_uv status
@@ -215,7 +218,8 @@ def run_unwraps(plan, progress=None, should_stop=None):
 def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
-                 gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None):
+                 gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
+                 shadowmask_lights=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
@@ -251,8 +255,15 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      bake_gather_rays=bake_gather_rays, bake_target_error=bake_target_error,
                                      bake_time=bake_time, bake_error_images=error_images,
                                      bake_irradiance_cache=irradiance_cache, bake_gather_lights=gather_lights,
-                                     spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance)
-    if bake_pass in ("DIRECT", "AO"):
+                                     spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
+                                     shadowmask_lights=shadowmask_lights)
+    if bake_pass == "SHADOWMASK":
+        try:
+            job.mask_lights = _mask_lights(job.scene, job.settings.shadowmask_lights)
+        except BaseException:
+            _uv_restore(uv_undo)
+            raise
+    if bake_pass in ("DIRECT", "AO", "SHADOWMASK"):
         # light samples (or AO rays) per texel alone: no photons to trace or gather
         job.settings.indirect, job.settings.indirect_only = "LOOKUP", False
     if job.settings.spectral_exr and not job.settings.spectral:
@@ -264,7 +275,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
         except BaseException:
             _uv_restore(uv_undo)
             raise
-    if bake_pass in ("DIRECT", "AO"):
+    if bake_pass in ("DIRECT", "AO", "SHADOWMASK"):
         job.settings.photons = 0
     elif photons is None:
         # the scene's count for this kind of bake: Bake Photons when it gathers
@@ -296,6 +307,19 @@ def _bake_pass(bake_pass, indirect_only):
         raise SceneError(f"bake pass '{bake_pass}' with Indirect Only: choose one (the indirect pass "
                          "is Indirect Only)")
     return name
+
+
+def _mask_lights(scene, names):
+    """A shadowmask's lights: the names given (comma-separated), or every light of the
+    scene when it has at most four -> (names, compiled light rows)."""
+    from ..engine.transport import shadowmask
+    chosen = [n.strip() for n in str(names or "").split(",") if n.strip()]
+    if not chosen:
+        chosen = [light.name for light in scene.lights]
+        if len(chosen) > shadowmask.MAX_LIGHTS:
+            raise SceneError(f"shadowmask: the scene has {len(chosen)} lights; choose up to "
+                             f"{shadowmask.MAX_LIGHTS} (CLI --shadowmask-lights 'Sun,Lamp')")
+    return chosen, shadowmask.light_rows(scene, chosen)
 
 
 def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution, booleans):
@@ -531,9 +555,16 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
     # --time / Bake Time counts the export too, which prepare_bake did
     deadline = (t0 + job.settings.bake_time - result.seconds.get("export", 0.0)
                 if job.settings.bake_time > 0 else None)
-    ao = job.settings.bake_pass == "AO"
+    ao = job.settings.bake_pass in ("AO", "SHADOWMASK")      # occlusion: no light, no CSG
+    masks = None
     with kernel_watch.watching(on_compile):
-        if ao:
+        if job.settings.bake_pass == "SHADOWMASK":
+            phase("shadowmask", ", ".join(job.mask_lights[0]))
+            masks, seconds = session.bake_shadowmask(cs, ids, job.settings, job.mask_lights[1],
+                                                     should_stop=should_stop)
+            result.seconds.update(seconds)
+            result.mask_lights = list(job.mask_lights[0])
+        elif ao:
             phase("ao", f"{len(ids):,} objects")
             result.seconds.update(session.bake_ao(cs, ids, job.settings, job.settings.ao_distance,
                                                   should_stop=should_stop))
@@ -558,7 +589,8 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
     phase("images", f"{len(job.targets):,} objects")
     for name, i in job.targets.items():
         if name in job.csg and ao:
-            result.skipped[name] = "exact CSG solid: the AO pass bakes meshes and primitives (bake it with Cycles)"
+            result.skipped[name] = (f"exact CSG solid: the {job.settings.bake_pass.lower()} pass bakes meshes "
+                                    "and primitives")
             continue
         if name in job.csg:
             bm = csg_atlas.atlas(cs, job, name, solids[name])
@@ -566,6 +598,9 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
                 result.maps[name] = bm
             continue
         lm_id = cs.instance_lightmaps[i][0]
+        if masks is not None:
+            result.maps[name] = BakedMap(name, images.texel_rgba(cs.lightmaps, lm_id, masks), lm_id)
+            continue
         result.maps[name] = BakedMap(name, images.lightmap_rgba(cs.lightmaps, lm_id, cs.spectral), lm_id)
         if job.settings.spectral_exr:
             result.spectral_maps[name] = images.lightmap_bands(cs.lightmaps, lm_id)
@@ -651,7 +686,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  indirect_only=False, progress=None, overwrite=False, save_dir=None, pack=False,
                  hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
-                 gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None):
+                 gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
+                 shadowmask_lights=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
@@ -669,8 +705,10 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     R x R texels per object; otherwise the object's own setting or the scene's
     texel density decides. `bake_pass` (BAKE_PASSES, None: COMBINED) bakes all
     light, direct or indirect light alone, or ambient occlusion within
-    `ao_distance` metres (the image holds AO itself; exact CSG solids are
-    skipped by that pass). `denoise` (None: the scene's setting) runs OIDN over
+    `ao_distance` metres (the image holds AO itself), or a shadowmask of up to
+    four lights (`shadowmask_lights`, names comma-separated; the image's R, G,
+    B, A hold each one's visibility). Exact CSG solids are skipped by AO and
+    shadowmasks. `denoise` (None: the scene's setting) runs OIDN over
     each map (engine/transport/denoise.py). `progress(done, total)`
     may return False to cancel: Cancelled is raised before any image changes.
     See the module docstring for image naming, overwriting and saving.
@@ -680,7 +718,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                        indirect=indirect, bake_gather_rays=bake_gather_rays,
                        bake_target_error=bake_target_error, bake_time=bake_time,
                        error_images=error_images, irradiance_cache=irradiance_cache, gather_lights=gather_lights,
-                       spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance)
+                       spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
+                       shadowmask_lights=shadowmask_lights)
     try:
         compute_bake(job, progress)
     except BaseException:

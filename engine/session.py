@@ -284,6 +284,19 @@ def bake_ao(cs, lightmap_ids, settings, distance, *, should_stop=None):
     return {"ao": time.perf_counter() - t0}
 
 
+def bake_shadowmask(cs, lightmap_ids, settings, lights, *, should_stop=None):
+    """Shadowmask of the compiled lights `lights` (rows of cs.lights, up to four):
+    every lightmap row's visibility per light, dilated (engine/transport/shadowmask.py)
+    -> (float64 (rows, 4), seconds)."""
+    from .transport import shadowmask
+    t0 = time.perf_counter()
+    with _on_cluster(cs, settings, "bake") as cluster:
+        with cluster.kernels(should_stop) if cluster is not None else contextlib.nullcontext():
+            ids, V = shadowmask.texel_visibility(cs, lightmap_ids, lights, seed=int(settings.seed))
+    channels = shadowmask.mask_channels(cs, ids, V)
+    return channels, {"shadowmask": time.perf_counter() - t0}
+
+
 def texel_error(lm, direct, indirect):
     """Per baked texel row: (ids, relative standard error of E, gather rays per texel)."""
     import numpy as np

@@ -13,7 +13,7 @@ as its one-line text (messages.py).
 import threading
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from .. import messages
 from ..bake import hooks
@@ -77,11 +77,17 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         items=[("COMBINED", "Combined", "Direct and indirect light"),
                ("DIRECT", "Direct", "Direct light alone (light samples per texel; no photons)"),
                ("INDIRECT", "Indirect", "Indirect light alone (as Indirect Only)"),
-               ("AO", "Ambient Occlusion", "The share of the hemisphere open within AO Distance (no photons)")],
+               ("AO", "Ambient Occlusion", "The share of the hemisphere open within AO Distance (no photons)"),
+               ("SHADOWMASK", "Shadowmask", "Up to four lights' visibility, one per channel R, G, B, A "
+                                            "(no photons)")],
         description="What the lightmaps hold; game engines mix split passes with their own light")
     ao_distance: FloatProperty(
         name="AO Distance", default=1.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
         description="Ambient Occlusion: rays that meet nothing within this distance are unoccluded")
+    shadowmask_lights: StringProperty(
+        name="Lights", default="",
+        description="Shadowmask: up to four lights, comma-separated, for channels R, G, B, A; empty: every "
+                    "light, when there are at most four")
     hook_materials: BoolProperty(
         name="Hook Materials", default=False,
         description="Add a removable 'Photon Lightmap' node setup to the materials, "
@@ -104,7 +110,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         return pipeline.prepare_bake(context, objects, photons=self.photons or None,
                                      resolution=self.resolution or None, indirect_only=self.indirect_only,
                                      bake_pass=None if self.bake_pass == "COMBINED" else self.bake_pass,
-                                     ao_distance=self.ao_distance)
+                                     ao_distance=self.ao_distance, shadowmask_lights=self.shadowmask_lights)
 
     def _finish(self, job):
         # Objects may have been deleted while the photon pass ran.
@@ -227,7 +233,8 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
             text = f"photon pass {100.0 * within:.0f}% ({st['done']:,}/{st['total']:,} photons)"
         else:
             label = {"scene": "compiling the scene", "kernels": "compiling kernels", "direct": "direct light",
-                     "gather": "final gather", "ao": "ambient occlusion", "images": "writing images",
+                     "gather": "final gather", "ao": "ambient occlusion", "shadowmask": "shadowmask",
+                     "images": "writing images",
                      "denoise": "denoising"}
             text = label.get(st["phase"], st["phase"]) + (f" ({st['detail']})" if st["detail"] else "")
         self._status(context, f"Photon Lightmaps: {text}  (Esc to cancel)")
@@ -290,6 +297,8 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
             col.prop(self, prop)
             if prop == "bake_pass" and self.bake_pass == "AO":
                 col.prop(self, "ao_distance")
+            if prop == "bake_pass" and self.bake_pass == "SHADOWMASK":
+                col.prop(self, "shadowmask_lights")
         # Told before the bake starts: meshes without a Lightmap layer need xatlas first.
         n, triangles = _without_layer(_bake_candidates(context, self.selected_only))
         if n:

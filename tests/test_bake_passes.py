@@ -54,6 +54,44 @@ def test_ao_is_the_same_on_any_thread_count():
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
 
 
+def occluded_floor(a=0.5, h=0.5, lamp=2.0):
+    """A 2 m floor, an opaque a x a plate h above its centre, a point lamp `lamp` above
+    the centre and a sun from 30 degrees off the vertical (along +x)."""
+    import math
+    from photon_lightmaps.engine.core.scene import compose, rotate
+    s = Scene(n_bands=3, name="shadows")
+    m = s.add_material(Material("white", diffuse=np.full(3, 0.5)))
+    s.add_object(demo_scenes.quad_mesh((-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0), material=m,
+                                       name="floor"), name="floor")
+    r = a / 2
+    s.add_object(demo_scenes.quad_mesh((-r, -r, h), (r, -r, h), (r, r, h), (-r, r, h), material=m,
+                                       name="plate"), name="plate")
+    s.lights.append(Light("point", power=10.0, transform=translate(0, 0, lamp), name="lamp"))
+    s.lights.append(Light("sun", power=2.0, transform=compose(rotate("y", 30)), name="sun"))
+    s.texel_density = 32.0
+    assert math.isfinite(lamp)
+    return s
+
+
+def test_shadowmask_of_a_plate_is_its_shadow_exactly():
+    """Visibility of a point lamp and a sun under an opaque plate: 0 in the shadow, 1
+    outside, and the floor's area-weighted mean is 1 - shadow area / floor area (the
+    lamp's shadow is the plate scaled by H/(H-h): 0.667 m square; the sun's is the
+    plate itself, shifted). Texels the shadow's edge misses are exactly 0 or 1."""
+    from photon_lightmaps.engine.transport import shadowmask
+    scene = occluded_floor()
+    cs = session.compile(scene)
+    rows = shadowmask.light_rows(scene, ["sun", "lamp"])
+    ids, V = shadowmask.texel_visibility(cs, cs.instance_lightmaps[0], rows)
+    area = cs.lightmaps.area[ids]
+    mean = (V * area[:, None]).sum(axis=0) / area.sum()
+    np.testing.assert_allclose(mean, [1 - 0.25 / 4, 1 - (0.5 * 2 / 1.5) ** 2 / 4], atol=2e-3)
+    assert np.isin(V, [0.0, 1.0]).mean() > 0.85
+    assert (V == 0.0).any(axis=0).all() and (V == 1.0).any(axis=0).all()
+    with pytest.raises(SceneError, match="not a light"):
+        shadowmask.light_rows(scene, ["moon"])
+
+
 RES = 32
 OBJECTS = ("floor", "back", "left", "tall_box")
 
@@ -120,3 +158,30 @@ def test_a_pass_that_contradicts_indirect_only_is_refused(room):
         bake.bake_objects(bpy.context, [bpy.data.objects["floor"]], bake_pass="AO", indirect_only=True)
     with pytest.raises(SceneError, match="use one of"):
         bake.bake_objects(bpy.context, [bpy.data.objects["floor"]], bake_pass="shadow")
+
+
+def test_cli_shadowmask_writes_one_light_per_channel(tmp_path):
+    """bake --pass shadowmask: the room's one light in R (the floor in the box's shadow
+    is darker than in the open), nothing traced, the lights reported; its visibility
+    is near 1 where direct light is strongest."""
+    import json
+    from test_cli_commands import run
+    from photon_lightmaps.registration import ensure_registered
+    ensure_registered()
+    blend = tmp_path / "room.blend"
+    demo_blend.build_cornell_blend(str(blend), width=24, height=16)
+    run("bake", blend, "--out", tmp_path / "masks", "--pass", "shadowmask", "--resolution", "16",
+        "--json", tmp_path / "m.json")
+    rep = json.loads((tmp_path / "m.json").read_text())
+    assert rep["pass"] == "SHADOWMASK" and rep["photons"] == 0 and rep["seconds"]["shadowmask"] > 0
+    light = rep["shadowmask_lights"]
+    assert len(light) == 1
+    img = bpy.data.images.load(rep["objects"]["floor"]["path"])
+    px = np.array(img.pixels[:], np.float32).reshape(img.size[1], img.size[0], 4)
+    bpy.data.images.remove(img)
+    r = px[..., 0]
+    assert 0.0 <= r.min() and r.max() <= 1.0 and r.max() > 0.99 and r.min() < 0.05
+    assert np.all(px[..., 1:] == 0.0)
+    bad = run("bake", blend, "--out", tmp_path / "m2", "--pass", "shadowmask", "--shadowmask-lights", "moon",
+              check=False)
+    assert bad.returncode == 2 and "shadowmask light 'moon': not a light" in bad.stderr

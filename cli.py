@@ -221,6 +221,18 @@ def build_parser():
     w.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     w.set_defaults(func=warmup_main)
 
+    g = sub.add_parser("export-gltf", help="write a .blend's scene as glTF 2.0 with its baked lightmaps "
+                                           "(MOZ_lightmap, through Blender's glTF exporter)")
+    g.add_argument("blend", metavar="FILE.blend")
+    g.add_argument("out", metavar="OUT.glb", help="the file to write (.glb, or .gltf with a .bin beside it)")
+    g.add_argument("--encoding", choices=("rgbm", "exr"), default="rgbm",
+                   help="rgbm: 8-bit RGBM PNGs inside the file (default); exr: float OpenEXR files beside it")
+    g.add_argument("--bake", action="store_true",
+                   help="bake every mesh object first, with the scene's settings (--photons, --seed)")
+    g.add_argument("--resolution", type=_count(1), default=None, metavar="R", help="with --bake: R x R lightmaps")
+    _add_common(g)
+    g.set_defaults(func=export_gltf_main)
+
     wk = sub.add_parser("worker", help="run a Dask worker for photon passes, renders and bakes (--cluster): it "
                                        "joins the scheduler at ADDRESS and runs until stopped")
     wk.add_argument("scheduler", metavar="ADDRESS", help="the scheduler's address, e.g. tcp://host:8786")
@@ -425,6 +437,32 @@ def render_main(args):
         print(f"  total {t_end - t0:.2f} s")
     if args.json:
         write_report(args.json, json.dumps(report, indent=2))
+    return 0
+
+
+def export_gltf_main(args):
+    """CLI: a .blend's scene as glTF with its baked lightmaps; --bake bakes them first."""
+    import bpy
+
+    from .bake import bake_objects, gltf_export
+    t0 = time.perf_counter()
+    ensure_registered()
+    blend = open_blend(args.blend)
+    _use_cluster(args)
+    context = bpy.context
+    baked = None
+    if args.bake:
+        objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
+        res = bake_objects(context, objects, photons=args.photons, seed=args.seed, resolution=args.resolution,
+                           overwrite=True, pack=True)
+        baked = sorted(res.maps)
+    out = gltf_export.export_gltf(context, args.out, encoding=args.encoding)
+    report = {"blend": str(blend), "baked": baked, **out, "seconds": time.perf_counter() - t0}
+    text = json.dumps(report, indent=2)
+    print(text)
+    if args.json:
+        with open(args.json, "w") as f:
+            f.write(text)
     return 0
 
 

@@ -142,6 +142,9 @@ def target_image(ob, w, h, overwrite, warnings, kind=""):
     img.alpha_mode = "CHANNEL_PACKED"
     img.use_half_precision = False
     img[owner] = ob.name
+    # a bake's image stays in the .blend when it is saved, before any material uses it
+    # (Blender drops images without users)
+    img.use_fake_user = True
     return img
 
 

@@ -1,0 +1,106 @@
+"""Baked lightmaps out to glTF (bake/gltf_export.py, CLI export-gltf): the file reads back
+through Blender's own glTF importer, every lightmapped object's materials name its
+lightmap (MOZ_lightmap) and Lightmap UV layer, and the RGBM images decode to the baked
+values within the encoding's step."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+import bpy  # noqa: F401  (a missing bpy fails the suite, it is in requirements.txt)
+
+from photon_lightmaps import demo_blend
+from photon_lightmaps.bake import gltf_export
+from photon_lightmaps.registration import ensure_registered
+
+from test_cli_commands import run
+
+
+def test_rgbm_round_trip_is_within_one_step():
+    """Decoded RGBM is within half a step of the multiplier's range per channel; values
+    above the range clip to it."""
+    rng = np.random.default_rng(1)
+    rgb = np.concatenate([rng.random((1000, 3)) * 10 ** rng.uniform(-3, 0.9, (1000, 1)), [[9.0, 1.0, 0.0]]])
+    enc = gltf_export.rgbm_encode(rgb)
+    dec = gltf_export.rgbm_decode(enc)
+    m = enc[:, 3:4] / 255.0
+    assert np.all(np.abs(dec - np.minimum(rgb, 8.0)) <= 0.5 / 255.0 * m * 8.0 + 1e-12)
+    assert dec[-1, 0] == pytest.approx(8.0)
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """The room baked here, then export-gltf from the CLI on its saved .blend (its images packed)."""
+    from photon_lightmaps import bake
+    tmp = tmp_path_factory.mktemp("gltf")
+    ensure_registered()
+    blend = tmp / "room.blend"
+    demo_blend.build_cornell_blend(str(blend), width=24, height=16, spheres=True)
+    objects = [ob for ob in bpy.context.scene.objects if ob.type == "MESH"]
+    res = bake.bake_objects(bpy.context, objects, photons=20_000, seed=1, resolution=16, pack=True)
+    baked = {name: np.array(bpy.data.images[img].pixels[:], np.float64) for name, img in res.images.items()}
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp / "room.glb"
+    run("export-gltf", blend, out, "--json", tmp / "g.json")
+    return tmp, out, json.loads((tmp / "g.json").read_text()), baked
+
+
+def test_export_gltf_writes_moz_lightmap_that_blender_reads_back(exported):
+    tmp, out, report, baked = exported
+    gltf, blob = gltf_export.read_glb(out)
+    assert gltf_export.EXTENSION in gltf["extensionsUsed"]
+    assert set(report["objects"]) == set(baked) and report["skipped"] == [] and report["baked"] is None
+    by_name = {n["name"]: n for n in gltf["nodes"]}
+    for name, row in report["objects"].items():
+        mesh = gltf["meshes"][by_name[name]["mesh"]]
+        for prim in mesh["primitives"]:
+            ext = gltf["materials"][prim["material"]]["extensions"][gltf_export.EXTENSION]
+            assert ext["texCoord"] == row["texcoord"] and f"TEXCOORD_{ext['texCoord']}" in prim["attributes"]
+            image = gltf["images"][gltf["textures"][ext["index"]]["source"]]
+            view = gltf["bufferViews"][image["bufferView"]]
+            assert image["mimeType"] == "image/png" and view["byteOffset"] + view["byteLength"] <= len(blob)
+    # Blender's own importer reads the file: every object, with its materials
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    assert bpy.ops.import_scene.gltf(filepath=str(out)) == {"FINISHED"}
+    names = {ob.name for ob in bpy.data.objects if ob.type == "MESH"}
+    assert set(report["objects"]) <= names
+
+
+def test_rgbm_images_decode_to_the_baked_values(exported):
+    """Each object's embedded PNG, decoded, against its baked image, per texel within
+    the RGBM step (Blender reads the PNG rows bottom-up, as the baked image holds them)."""
+    tmp, out, report, baked = exported
+    gltf, blob = gltf_export.read_glb(out)
+    for name, row in report["objects"].items():
+        png = gltf["images"][gltf["textures"][row["texture"]]["source"]]
+        view = gltf["bufferViews"][png["bufferView"]]
+        file = tmp / f"{name}.png"
+        file.write_bytes(blob[view["byteOffset"]:view["byteOffset"] + view["byteLength"]])
+        img = bpy.data.images.load(str(file))
+        img.colorspace_settings.name = "Non-Color"
+        w, h = img.size
+        q = np.round(np.array(img.pixels[:], np.float64).reshape(h, w, 4) * 255.0)
+        bpy.data.images.remove(img)
+        dec = gltf_export.rgbm_decode(q)
+        ref = baked[name].reshape(h, w, 4)[..., :3]
+        step = q[..., 3:4] / 255.0 * gltf_export.RGBM_RANGE / 255.0
+        assert np.all(np.abs(dec - np.minimum(ref, gltf_export.RGBM_RANGE)) <= 0.5 * step + 1e-6), name
+        assert ref.max() > 0.0
+
+
+def test_cli_bakes_then_exports_exr_beside_the_file(tmp_path):
+    """export-gltf --bake --encoding exr: every mesh baked, each lightmap an OpenEXR file
+    beside the .glb that its image's uri names."""
+    ensure_registered()
+    blend = tmp_path / "room.blend"
+    demo_blend.build_cornell_blend(str(blend), width=24, height=16)
+    out = tmp_path / "room.glb"
+    run("export-gltf", blend, out, "--bake", "--photons", "20000", "--resolution", "8", "--encoding", "exr",
+        "--json", tmp_path / "g.json")
+    report = json.loads((tmp_path / "g.json").read_text())
+    gltf, _ = gltf_export.read_glb(out)
+    assert report["baked"] and set(report["objects"]) == set(report["baked"])
+    for name, row in report["objects"].items():
+        image = gltf["images"][gltf["textures"][row["texture"]]["source"]]
+        assert os.path.isfile(tmp_path / image["uri"]) and row["encoding"] == "EXR", name

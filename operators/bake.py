@@ -327,4 +327,39 @@ class PHOTON_LIGHTMAPS_OT_remove_lightmap_hook(bpy.types.Operator):
         return {"FINISHED"}
 
 
-classes = (PHOTON_LIGHTMAPS_OT_bake, PHOTON_LIGHTMAPS_OT_remove_lightmap_hook)
+class PHOTON_LIGHTMAPS_OT_export_gltf(bpy.types.Operator):
+    """Export the scene as glTF 2.0 with each object's baked lightmap (MOZ_lightmap, read by
+    Mozilla Hubs and three.js-based viewers), through Blender's glTF exporter"""
+    bl_idname = "photon_lightmaps.export_gltf"
+    bl_label = "glTF with Photon Lightmaps (.glb)"
+    bl_options = {"REGISTER"}
+
+    filepath: StringProperty(subtype="FILE_PATH")
+    filter_glob: StringProperty(default="*.glb;*.gltf", options={"HIDDEN"})
+    encoding: EnumProperty(
+        name="Lightmaps", default="RGBM",
+        items=[("RGBM", "RGBM PNG", "8-bit RGBM images inside the file (decode: rgb * a * 8)"),
+               ("EXR", "OpenEXR", "Float images beside the file, for engines that read OpenEXR")],
+        description="How the lightmaps (E/pi, linear) are stored")
+
+    def invoke(self, context, event):
+        if not self.filepath:
+            stem = bpy.path.display_name_from_filepath(bpy.data.filepath) or "scene"
+            self.filepath = stem + ".glb"
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        from ..bake import gltf_export
+        try:
+            out = gltf_export.export_gltf(context, self.filepath, encoding=self.encoding)
+        except Exception as e:  # noqa: BLE001  (one line for the user, not a traceback)
+            self.report({"ERROR"}, messages.bug_text(e))
+            return {"CANCELLED"}
+        n = len(out["objects"])
+        extra = f"; without a baked lightmap: {', '.join(out['skipped'])}" if out["skipped"] else ""
+        self.report({"INFO"}, f"Exported {out['path']} with {n} lightmap{'s' if n != 1 else ''}{extra}")
+        return {"FINISHED"}
+
+
+classes = (PHOTON_LIGHTMAPS_OT_bake, PHOTON_LIGHTMAPS_OT_remove_lightmap_hook, PHOTON_LIGHTMAPS_OT_export_gltf)

@@ -104,3 +104,22 @@ def test_cli_bakes_then_exports_exr_beside_the_file(tmp_path):
     for name, row in report["objects"].items():
         image = gltf["images"][gltf["textures"][row["texture"]]["source"]]
         assert os.path.isfile(tmp_path / image["uri"]) and row["encoding"] == "EXR", name
+
+
+def test_file_export_operator(tmp_path):
+    """File > Export > glTF with Photon Lightmaps: one clear error before anything is
+    baked, then the file with the baked object's lightmap; the menu entry is there."""
+    from photon_lightmaps import bake
+    ensure_registered()
+    demo_blend.build_cornell_blend(width=24, height=16)
+    out = tmp_path / "op.glb"
+    with pytest.raises(RuntimeError, match="no baked lightmaps to export"):
+        bpy.ops.photon_lightmaps.export_gltf(filepath=str(out))
+    floor = bpy.data.objects["floor"]
+    bake.bake_objects(bpy.context, [floor], photons=20_000, resolution=8, pack=True)
+    assert bpy.ops.photon_lightmaps.export_gltf(filepath=str(out)) == {"FINISHED"}
+    gltf, _ = gltf_export.read_glb(out)
+    lit = [m for m in gltf["materials"] if gltf_export.EXTENSION in m.get("extensions", {})]
+    assert len(lit) == 1 and lit[0]["name"].endswith("_floor")
+    from photon_lightmaps.ui import menus
+    assert any(fn is menus.export_menu for fn in bpy.types.TOPBAR_MT_file_export._dyn_ui_initialize())

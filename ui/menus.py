@@ -83,8 +83,12 @@ def ol_menu(self, context):
     layout.operator(ol_ops.PHOTON_LIGHTMAPS_OT_bake_orientation_lightmaps.bl_idname, icon="LIGHT")
 
 
+def export_menu(self, context):
+    self.layout.operator("photon_lightmaps.export_gltf", text="glTF with Photon Lightmaps (.glb)")
+
+
 _MENUS = (("TOPBAR_MT_render", _menu), ("VIEW3D_MT_object", _menu), ("VIEW3D_MT_add", menu_add),
-          ("VIEW3D_MT_object", ol_menu))
+          ("VIEW3D_MT_object", ol_menu), ("TOPBAR_MT_file_export", export_menu))
 classes = (PHOTON_LIGHTMAPS_PT_bake,)
 
 

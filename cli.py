@@ -181,6 +181,9 @@ def build_parser():
                         "--shadowmask-lights); ao and shadowmask trace no photons")
     b.add_argument("--ao-distance", type=_metres, default=None, metavar="M",
                    help="--pass ao: rays that meet nothing within M metres are unoccluded (default 1)")
+    b.add_argument("--texel-validity", action="store_true",
+                   help="fill texels that lie inside geometry (most of their rays meet back faces) from their "
+                        "neighbours, and count them in the JSON report")
     b.add_argument("--shadowmask-lights", metavar="NAMES", default=None,
                    help="--pass shadowmask: up to four lights, comma-separated, for channels R, G, B, A "
                         "(default: every light, when there are at most four)")
@@ -552,7 +555,7 @@ def bake_main(args):
                        irradiance_cache=settings.bake_irradiance_cache,
                        gather_lights=settings.bake_gather_lights, spectral_exr=args.spectral_exr or None,
                        bake_pass=args.bake_pass, ao_distance=args.ao_distance,
-                       shadowmask_lights=args.shadowmask_lights)
+                       shadowmask_lights=args.shadowmask_lights, texel_validity=args.texel_validity or None)
     print(file=sys.stderr)
     stats = res.stats
     report = {
@@ -565,6 +568,7 @@ def bake_main(args):
                     "gather": res.seconds.get("gather", 0.0),
                     "ao": res.seconds.get("ao", 0.0),
                     "shadowmask": res.seconds.get("shadowmask", 0.0),
+                    "validity": res.seconds.get("validity", 0.0),
                     "bake": res.seconds.get("bake", 0.0),
                     "denoise": res.seconds.get("denoise", 0.0),
                     "total": time.perf_counter() - t0},
@@ -573,6 +577,7 @@ def bake_main(args):
         "bake_gather_rays": int(settings.bake_gather_rays) if settings.bake_gathers else 0,
         "pass": res.bake_pass,
         "shadowmask_lights": res.mask_lights,
+        "texel_validity": res.validity,
         "irradiance_cache": res.irradiance_cache,
         "cluster": res.cluster,
         "target_error": float(settings.bake_target_error) if settings.bake_gathers else 0.0,

@@ -40,6 +40,7 @@ class BakeSettings(session.Settings):
     bake_pass: str = "COMBINED"
     ao_distance: float = 1.0     # AO: rays that meet nothing within this many metres are unoccluded
     shadowmask_lights: str = ""  # SHADOWMASK: the lights (names, comma-separated) of channels R, G, B, A
+    texel_validity: bool = False  # fill texels inside geometry from their neighbours (texel_validity.py)
     overwrite: bool = False
     save_dir: str = ""
     pack: bool = False
@@ -66,6 +67,8 @@ class BakeResult:
     cluster: dict = None                          # on a cluster: its address, workers and tasks per phase
     bake_pass: str = "COMBINED"                   # what the maps hold (BAKE_PASSES)
     mask_lights: list = None                      # SHADOWMASK: the lights of channels R, G, B, A
+    # texel validity: object name -> {"invalid": texels filled from neighbours, "texels": measured}
+    validity: dict = None
     seconds: dict = field(default_factory=dict)   # export, photon_pass, bake, total
     lightmap_bytes: int = 0
     uv_layers: dict = field(default_factory=dict)  # mesh name -> uv_layers.ensure_lightmap_uv status
@@ -219,7 +222,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
                  gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
-                 shadowmask_lights=None):
+                 shadowmask_lights=None, texel_validity=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
@@ -256,7 +259,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      bake_time=bake_time, bake_error_images=error_images,
                                      bake_irradiance_cache=irradiance_cache, bake_gather_lights=gather_lights,
                                      spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
-                                     shadowmask_lights=shadowmask_lights)
+                                     shadowmask_lights=shadowmask_lights, texel_validity=texel_validity)
     if bake_pass == "SHADOWMASK":
         try:
             job.mask_lights = _mask_lights(job.scene, job.settings.shadowmask_lights)
@@ -494,6 +497,26 @@ def _error_stats(cs, job, solids):
     return out
 
 
+def _fill_invalid(cs, job, ids):
+    """Texel validity over the baked lightmaps `ids`: texels inside geometry filled from
+    their neighbours -> ({object: {"invalid", "texels"}}, seconds)."""
+    from ..engine.transport import texel_validity
+    t0 = time.perf_counter()
+    rows, share = texel_validity.backface_share(cs, ids, seed=int(job.settings.seed))
+    bad = rows[share > texel_validity.INVALID_SHARE]
+    lm = cs.lightmaps
+    counts = {}
+    for name, i in job.targets.items():
+        if name in job.csg:
+            continue
+        sl = lightmap.texel_slice(lm, cs.instance_lightmaps[i][0])
+        inside = (rows >= sl.start) & (rows < sl.stop)
+        counts[name] = {"invalid": int(np.count_nonzero(inside & (share > texel_validity.INVALID_SHARE))),
+                        "texels": int(np.count_nonzero(inside))}
+    texel_validity.dilate_over(lm, bad)
+    return counts, time.perf_counter() - t0
+
+
 def _error_maps(cs, job, solids):
     """Per baked object: the estimated relative error of each texel as an image (BakeResult.error_maps).
 
@@ -573,6 +596,9 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
                 cs, ids, leaves, job.settings, direct=job.direct, deadline=deadline, should_stop=should_stop,
                 phase=lambda name, n: phase(name, f"{n:,} texels" if name != "kernels" else
                                             f"compiled in a second process, {n:.0f} s (first run)")))
+    if job.settings.texel_validity and masks is None:
+        phase("validity", f"{len(ids):,} objects")
+        result.validity, result.seconds["validity"] = _fill_invalid(cs, job, ids)
     if getattr(cs, "bake_error", None) is not None:
         result.error = _error_stats(cs, job, solids)
     result.irradiance_cache = cs.info.get("irradiance_cache")
@@ -687,7 +713,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
                  gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
-                 shadowmask_lights=None):
+                 shadowmask_lights=None, texel_validity=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
@@ -708,7 +734,9 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     `ao_distance` metres (the image holds AO itself), or a shadowmask of up to
     four lights (`shadowmask_lights`, names comma-separated; the image's R, G,
     B, A hold each one's visibility). Exact CSG solids are skipped by AO and
-    shadowmasks. `denoise` (None: the scene's setting) runs OIDN over
+    shadowmasks. `texel_validity` fills texels that lie inside geometry (most
+    of their rays meet back faces) from their neighbours, and counts them in
+    BakeResult.validity (mesh and primitive lightmaps; not shadowmasks). `denoise` (None: the scene's setting) runs OIDN over
     each map (engine/transport/denoise.py). `progress(done, total)`
     may return False to cancel: Cancelled is raised before any image changes.
     See the module docstring for image naming, overwriting and saving.
@@ -719,7 +747,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                        bake_target_error=bake_target_error, bake_time=bake_time,
                        error_images=error_images, irradiance_cache=irradiance_cache, gather_lights=gather_lights,
                        spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
-                       shadowmask_lights=shadowmask_lights)
+                       shadowmask_lights=shadowmask_lights, texel_validity=texel_validity)
     try:
         compute_bake(job, progress)
     except BaseException:

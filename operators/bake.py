@@ -88,6 +88,10 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         name="Lights", default="",
         description="Shadowmask: up to four lights, comma-separated, for channels R, G, B, A; empty: every "
                     "light, when there are at most four")
+    texel_validity: BoolProperty(
+        name="Texel Validity", default=False,
+        description="Fill texels that lie inside geometry (most of their rays meet back faces, as under a box "
+                    "on the floor) from their neighbours, so no light leaks out of them")
     hook_materials: BoolProperty(
         name="Hook Materials", default=False,
         description="Add a removable 'Photon Lightmap' node setup to the materials, "
@@ -110,7 +114,8 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         return pipeline.prepare_bake(context, objects, photons=self.photons or None,
                                      resolution=self.resolution or None, indirect_only=self.indirect_only,
                                      bake_pass=None if self.bake_pass == "COMBINED" else self.bake_pass,
-                                     ao_distance=self.ao_distance, shadowmask_lights=self.shadowmask_lights)
+                                     ao_distance=self.ao_distance, shadowmask_lights=self.shadowmask_lights,
+                                     texel_validity=self.texel_validity or None)
 
     def _finish(self, job):
         # Objects may have been deleted while the photon pass ran.
@@ -234,6 +239,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         else:
             label = {"scene": "compiling the scene", "kernels": "compiling kernels", "direct": "direct light",
                      "gather": "final gather", "ao": "ambient occlusion", "shadowmask": "shadowmask",
+                     "validity": "texel validity",
                      "images": "writing images",
                      "denoise": "denoising"}
             text = label.get(st["phase"], st["phase"]) + (f" ({st['detail']})" if st["detail"] else "")
@@ -292,8 +298,8 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
 
     def draw(self, context):
         col = self.layout.column()
-        for prop in ("selected_only", "photons", "resolution", "bake_pass", "indirect_only", "hook_materials",
-                     "overwrite", "pack"):
+        for prop in ("selected_only", "photons", "resolution", "bake_pass", "indirect_only", "texel_validity",
+                     "hook_materials", "overwrite", "pack"):
             col.prop(self, prop)
             if prop == "bake_pass" and self.bake_pass == "AO":
                 col.prop(self, "ao_distance")

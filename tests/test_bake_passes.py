@@ -104,7 +104,7 @@ def _interior_agreement(ours, ref, keep=None):
     return float(np.sqrt(np.mean((a - b) ** 2)) / b.mean()), float(a.mean() / b.mean() - 1.0), int(m.sum())
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def room():
     demo_blend.build_cornell_blend(spheres=True)
     scene = bpy.context.scene
@@ -163,7 +163,8 @@ def test_a_pass_that_contradicts_indirect_only_is_refused(room):
 def test_cli_shadowmask_writes_one_light_per_channel(tmp_path):
     """bake --pass shadowmask: the room's one light in R (the floor in the box's shadow
     is darker than in the open), nothing traced, the lights reported; its visibility
-    is near 1 where direct light is strongest."""
+    is near 1 where direct light is strongest. An unknown light: exit 2 and one line.
+    bake --texel-validity reports the texels it filled."""
     import json
     from test_cli_commands import run
     from photon_lightmaps.registration import ensure_registered
@@ -185,3 +186,32 @@ def test_cli_shadowmask_writes_one_light_per_channel(tmp_path):
     bad = run("bake", blend, "--out", tmp_path / "m2", "--pass", "shadowmask", "--shadowmask-lights", "moon",
               check=False)
     assert bad.returncode == 2 and "shadowmask light 'moon': not a light" in bad.stderr
+    # --texel-validity (with the AO pass here): the floor's texels under the box, counted
+    run("bake", blend, "--out", tmp_path / "ao", "--pass", "ao", "--texel-validity", "--resolution", "16",
+        "--json", tmp_path / "v.json")
+    valid = json.loads((tmp_path / "v.json").read_text())["texel_validity"]
+    assert valid["floor"]["invalid"] > 0 and valid["back"]["invalid"] == 0
+
+
+def test_texel_validity_fills_the_floor_under_the_box(room):
+    """Texel Validity: the floor's texels under the tall box (their rays meet the box's
+    inside) are found, about the box's share of the floor, and none on the walls; filled
+    from their neighbours, the AO there is no longer the box's inside: Cycles' AO bake
+    reads 0 there, the plain bake reads the rays leaving through the box."""
+    room.world.light_settings.distance = 0.5
+    objs = [bpy.data.objects[n] for n in ("floor", "back")]
+    plain = bake.bake_objects(bpy.context, objs, resolution=RES, bake_pass="AO", ao_distance=0.5, seed=2)
+    valid = bake.bake_objects(bpy.context, objs, resolution=RES, bake_pass="AO", ao_distance=0.5, seed=2,
+                              texel_validity=True, overwrite=True)
+    counts = valid.validity
+    print(f"\n{counts}")
+    assert counts["back"]["invalid"] == 0
+    share = counts["floor"]["invalid"] / counts["floor"]["texels"]
+    assert 0.05 < share < 0.12            # the box's footprint: 0.36 of the floor's 4 m²
+    ref = cycles_diffuse_bake(objs[0], RES, 256, bake_type="AO", pass_filter=())
+    under = erode(ref[..., 0] == 0.0, 1)           # well inside the footprint
+    a, b = plain.maps["floor"].rgba[..., 0], valid.maps["floor"].rgba[..., 0]
+    assert under.sum() > 10
+    assert not np.array_equal(a[under], b[under])
+    outside = erode(ref[..., 0] > 0.0, 2) & erode(valid.maps["floor"].rgba[..., 3] >= 1 - 1e-6, 2)
+    assert np.array_equal(a[outside], b[outside])     # valid texels keep their values exactly

@@ -39,6 +39,7 @@ class BakeSettings(session.Settings):
     # what the maps hold (BAKE_PASSES): all light, direct or indirect light alone, or AO
     bake_pass: str = "COMBINED"
     ao_distance: float = 1.0     # AO: rays that meet nothing within this many metres are unoccluded
+    pass_rays: int = 16          # AO and shadowmask: rays (light samples) per point, 16 points a texel
     shadowmask_lights: str = ""  # SHADOWMASK: the lights (names, comma-separated) of channels R, G, B, A
     texel_validity: bool = False  # fill texels inside geometry from their neighbours (texel_validity.py)
     overwrite: bool = False
@@ -67,6 +68,7 @@ class BakeResult:
     cluster: dict = None                          # on a cluster: its address, workers and tasks per phase
     bake_pass: str = "COMBINED"                   # what the maps hold (BAKE_PASSES)
     mask_lights: list = None                      # SHADOWMASK: the lights of channels R, G, B, A
+    pass_rays: int = 0                            # AO and SHADOWMASK: rays per point used (0: other passes)
     # texel validity: object name -> {"invalid": texels filled from neighbours, "texels": measured}
     validity: dict = None
     seconds: dict = field(default_factory=dict)   # export, photon_pass, bake, total
@@ -222,7 +224,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
                  gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
-                 shadowmask_lights=None, texel_validity=None):
+                 shadowmask_lights=None, texel_validity=None, pass_rays=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
@@ -238,6 +240,8 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     bake_pass = _bake_pass(bake_pass, indirect_only)
     if ao_distance is not None and not float(ao_distance) > 0.0:
         raise SceneError(f"AO distance: must be a positive number of metres, got {ao_distance}")
+    if pass_rays is not None and not 1 <= int(pass_rays) <= 65536:
+        raise SceneError(f"pass rays: must be 1 to 65536 rays per point, got {pass_rays}")
     wanted = _wanted(depsgraph, objects, result.skipped)
     booleans = {}                   # Booleans of plain meshes: baked as Blender's result
     for ob in wanted:
@@ -259,7 +263,8 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      bake_time=bake_time, bake_error_images=error_images,
                                      bake_irradiance_cache=irradiance_cache, bake_gather_lights=gather_lights,
                                      spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
-                                     shadowmask_lights=shadowmask_lights, texel_validity=texel_validity)
+                                     shadowmask_lights=shadowmask_lights, texel_validity=texel_validity,
+                                     pass_rays=pass_rays)
     if bake_pass == "SHADOWMASK":
         try:
             job.mask_lights = _mask_lights(job.scene, job.settings.shadowmask_lights)
@@ -584,12 +589,13 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
         if job.settings.bake_pass == "SHADOWMASK":
             phase("shadowmask", ", ".join(job.mask_lights[0]))
             masks, seconds = session.bake_shadowmask(cs, ids, job.settings, job.mask_lights[1],
-                                                     should_stop=should_stop)
+                                                     samples=job.settings.pass_rays, should_stop=should_stop)
             result.seconds.update(seconds)
             result.mask_lights = list(job.mask_lights[0])
         elif ao:
             phase("ao", f"{len(ids):,} objects")
             result.seconds.update(session.bake_ao(cs, ids, job.settings, job.settings.ao_distance,
+                                                  rays=job.settings.pass_rays,
                                                   should_stop=should_stop))
         else:
             result.seconds.update(session.bake_texels(
@@ -604,6 +610,8 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
     result.irradiance_cache = cs.info.get("irradiance_cache")
     result.cluster = cs.info.get("cluster")
     result.bake_pass = job.settings.bake_pass
+    if job.settings.bake_pass in ("AO", "SHADOWMASK"):
+        result.pass_rays = int(job.settings.pass_rays)
     if ao:
         pass                        # occlusion needs no light
     elif cs.lights.total_power <= 0.0:
@@ -713,7 +721,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
                  gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
-                 shadowmask_lights=None, texel_validity=None):
+                 shadowmask_lights=None, texel_validity=None, pass_rays=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
@@ -733,8 +741,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     light, direct or indirect light alone, or ambient occlusion within
     `ao_distance` metres (the image holds AO itself), or a shadowmask of up to
     four lights (`shadowmask_lights`, names comma-separated; the image's R, G,
-    B, A hold each one's visibility). Exact CSG solids are skipped by AO and
-    shadowmasks. `texel_validity` fills texels that lie inside geometry (most
+    B, A hold each one's visibility), each from 16 points x `pass_rays` rays per
+    texel (None: 16). Exact CSG solids are skipped by AO and shadowmasks. `texel_validity` fills texels that lie inside geometry (most
     of their rays meet back faces) from their neighbours, and counts them in
     BakeResult.validity (mesh and primitive lightmaps; not shadowmasks). `denoise` (None: the scene's setting) runs OIDN over
     each map (engine/transport/denoise.py). `progress(done, total)`
@@ -747,7 +755,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                        bake_target_error=bake_target_error, bake_time=bake_time,
                        error_images=error_images, irradiance_cache=irradiance_cache, gather_lights=gather_lights,
                        spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
-                       shadowmask_lights=shadowmask_lights, texel_validity=texel_validity)
+                       shadowmask_lights=shadowmask_lights, texel_validity=texel_validity,
+                       pass_rays=pass_rays)
     try:
         compute_bake(job, progress)
     except BaseException:

@@ -273,18 +273,18 @@ def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase
     return seconds
 
 
-def bake_ao(cs, lightmap_ids, settings, distance, *, should_stop=None):
+def bake_ao(cs, lightmap_ids, settings, distance, *, rays=16, should_stop=None):
     """The ambient-occlusion pass of a bake into cs.lightmaps (E = π·AO, so the
     bake's E/π is AO; engine/transport/ambient_occlusion.py) -> seconds."""
     from .transport import ambient_occlusion
     t0 = time.perf_counter()
     with _on_cluster(cs, settings, "bake") as cluster:
         with cluster.kernels(should_stop) if cluster is not None else contextlib.nullcontext():
-            ambient_occlusion.bake_ao(cs, lightmap_ids, distance, seed=int(settings.seed))
+            ambient_occlusion.bake_ao(cs, lightmap_ids, distance, rays=int(rays), seed=int(settings.seed))
     return {"ao": time.perf_counter() - t0}
 
 
-def bake_shadowmask(cs, lightmap_ids, settings, lights, *, should_stop=None):
+def bake_shadowmask(cs, lightmap_ids, settings, lights, *, samples=16, should_stop=None):
     """Shadowmask of the compiled lights `lights` (rows of cs.lights, up to four):
     every lightmap row's visibility per light, dilated (engine/transport/shadowmask.py)
     -> (float64 (rows, 4), seconds)."""
@@ -292,7 +292,8 @@ def bake_shadowmask(cs, lightmap_ids, settings, lights, *, should_stop=None):
     t0 = time.perf_counter()
     with _on_cluster(cs, settings, "bake") as cluster:
         with cluster.kernels(should_stop) if cluster is not None else contextlib.nullcontext():
-            ids, V = shadowmask.texel_visibility(cs, lightmap_ids, lights, seed=int(settings.seed))
+            ids, V = shadowmask.texel_visibility(cs, lightmap_ids, lights, samples=int(samples),
+                                                 seed=int(settings.seed))
     channels = shadowmask.mask_channels(cs, ids, V)
     return channels, {"shadowmask": time.perf_counter() - t0}
 

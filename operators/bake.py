@@ -88,6 +88,10 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         name="Lights", default="",
         description="Shadowmask: up to four lights, comma-separated, for channels R, G, B, A; empty: every "
                     "light, when there are at most four")
+    pass_rays: IntProperty(
+        name="Rays", default=16, min=1, soft_max=1024,
+        description="Ambient Occlusion and Shadowmask: rays (light samples) per point, 16 points a texel; "
+                    "noise falls as one over the square root")
     texel_validity: BoolProperty(
         name="Texel Validity", default=False,
         description="Fill texels that lie inside geometry (most of their rays meet back faces, as under a box "
@@ -115,7 +119,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
                                      resolution=self.resolution or None, indirect_only=self.indirect_only,
                                      bake_pass=None if self.bake_pass == "COMBINED" else self.bake_pass,
                                      ao_distance=self.ao_distance, shadowmask_lights=self.shadowmask_lights,
-                                     texel_validity=self.texel_validity or None)
+                                     texel_validity=self.texel_validity or None, pass_rays=self.pass_rays)
 
     def _finish(self, job):
         # Objects may have been deleted while the photon pass ran.
@@ -305,6 +309,8 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
                 col.prop(self, "ao_distance")
             if prop == "bake_pass" and self.bake_pass == "SHADOWMASK":
                 col.prop(self, "shadowmask_lights")
+            if prop == "bake_pass" and self.bake_pass in ("AO", "SHADOWMASK"):
+                col.prop(self, "pass_rays")
         # Told before the bake starts: meshes without a Lightmap layer need xatlas first.
         n, triangles = _without_layer(_bake_candidates(context, self.selected_only))
         if n:

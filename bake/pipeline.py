@@ -274,6 +274,8 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     if bake_pass in ("DIRECT", "AO", "SHADOWMASK"):
         # light samples (or AO rays) per texel alone: no photons to trace or gather
         job.settings.indirect, job.settings.indirect_only = "LOOKUP", False
+    if bake_pass in ("AO", "SHADOWMASK"):
+        job.settings.spectral = False       # geometry alone: no colour, so nothing for bands to carry
     if job.settings.spectral_exr and not job.settings.spectral:
         _uv_restore(uv_undo)
         raise SceneError("spectral EXR files need a spectral bake: turn Spectral on (CLI: --spectral)")

@@ -147,6 +147,21 @@ def test_ao_pass_matches_cycles_ao_bake(room):
         assert n > 50 and rmse < 0.04 and abs(bias) < 0.005, ob.name
 
 
+def test_ao_ignores_spectral_mode(room):
+    """AO is geometry alone: with the scene's Spectral on, the same image, bit for bit
+    (not a flat spectrum sent through the spectral-to-RGB conversion)."""
+    back = [bpy.data.objects["back"]]
+    plain = bake.bake_objects(bpy.context, back, resolution=16, bake_pass="AO", ao_distance=0.5, seed=2)
+    room.photon_lightmaps.spectral = True
+    try:
+        spectral = bake.bake_objects(bpy.context, back, resolution=16, bake_pass="AO", ao_distance=0.5, seed=2,
+                                     overwrite=True)
+    finally:
+        room.photon_lightmaps.spectral = False
+    assert np.array_equal(plain.maps["back"].rgba, spectral.maps["back"].rgba)
+    assert 0.0 < plain.maps["back"].rgba[..., 0].max() <= 1.0
+
+
 def test_direct_pass_matches_cycles_direct_bake(room):
     """bake_pass="DIRECT" (light samples only, no photons) against Cycles' Diffuse bake
     with Direct alone (no Color), 512 samples (measured: RMSE 0.005-0.049, the floor's

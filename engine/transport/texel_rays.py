@@ -175,9 +175,4 @@ def per_texel(cs, lightmap_ids, kind, *, points, rays, xor, seed=0, distance=mat
         out = np.zeros((tx.texel.size, channels))
         parallel.run(_prim, out.shape[0], cs.geometry, cs.lights, tx, query, np.uint64(xor), out, remote=True)
         parts.append((tx.texel, out))
-    if not parts:
-        return np.zeros(0, np.int64), np.zeros((0, channels))
-    ids = np.concatenate([p[0] for p in parts])
-    values = np.concatenate([p[1] for p in parts])
-    order = np.argsort(ids, kind="stable")
-    return ids[order], values[order]
+    return texel_gather.by_texel(parts, channels)

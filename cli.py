@@ -186,10 +186,22 @@ def build_parser():
                         "(default 16): noise falls as 1/sqrt(N)")
     b.add_argument("--texel-validity", action="store_true",
                    help="fill texels that lie inside geometry (most of their rays meet back faces) from their "
-                        "neighbours, and count them in the JSON report")
+                        "neighbours, count them in the JSON report, and write DIR/<object>_validity.exr (R: "
+                        "the share of rays meeting back faces; invalid texels red, valid ones green)")
+    b.add_argument("--stitch-seams", action="store_true",
+                   help="make texels that meet across UV seams and edges objects share agree where they meet "
+                        "(smooth edges; a crease keeps its jump); the JSON reports the jump along the seams "
+                        "before and after")
     b.add_argument("--shadowmask-lights", metavar="NAMES", default=None,
                    help="--pass shadowmask: up to four lights, comma-separated, for channels R, G, B, A "
                         "(default: every light, when there are at most four)")
+    b.add_argument("--objects", metavar="NAMES", default=None,
+                   help="bake only these objects (comma-separated); the other objects' files in DIR stay "
+                        "as they are")
+    b.add_argument("--light-cache", metavar="DIR", default=None,
+                   help="a folder of saved photon passes: a pass saved there for this scene and these photon "
+                        "settings is reused (a rebake of some objects skips the photon pass), and one traced "
+                        "is saved there")
     b.add_argument("--indirect", choices=("gather", "lookup"), default=None,
                    help="indirect light by final gather over the photon lightmaps or from each texel's photons")
     b.add_argument("--bake-gather-rays", type=_count(1), default=None, metavar="N",
@@ -543,9 +555,12 @@ def bake_main(args):
         context.scene.photon_lightmaps.spectral = bool(args.spectral)   # the bake reads the scene's setting
     photons = settings.photons if args.photons is not None else settings.bake_photon_count
     seed = settings.seed
-    objects = [ob for ob in context.scene.objects if ob.type == "MESH"]
+    objects = _bake_selection(context.scene, args.objects)
     out_dir = os.path.abspath(args.out)
     check_writable(out_dir)
+    light_cache = os.path.abspath(args.light_cache) if args.light_cache else None
+    if light_cache:
+        check_writable(light_cache)
 
     progress = progress_line("photons")
 
@@ -559,7 +574,10 @@ def bake_main(args):
                        gather_lights=settings.bake_gather_lights, spectral_exr=args.spectral_exr or None,
                        bake_pass=args.bake_pass, ao_distance=args.ao_distance,
                        shadowmask_lights=args.shadowmask_lights, texel_validity=args.texel_validity or None,
-                       pass_rays=args.pass_rays)
+                       pass_rays=args.pass_rays, light_cache=light_cache, stitch_seams=args.stitch_seams or None,
+                       # this process does not save the .blend: every mesh gets the Lightmap UVs
+                       # the full bake gave it, so its saved photon pass serves this one
+                       lay_out=[ob for ob in context.scene.objects if ob.type == "MESH"] if args.objects else ())
     print(file=sys.stderr)
     stats = res.stats
     report = {
@@ -573,6 +591,7 @@ def bake_main(args):
                     "ao": res.seconds.get("ao", 0.0),
                     "shadowmask": res.seconds.get("shadowmask", 0.0),
                     "validity": res.seconds.get("validity", 0.0),
+                    "seams": res.seconds.get("seams", 0.0),
                     "bake": res.seconds.get("bake", 0.0),
                     "denoise": res.seconds.get("denoise", 0.0),
                     "total": time.perf_counter() - t0},
@@ -583,6 +602,8 @@ def bake_main(args):
         "shadowmask_lights": res.mask_lights,
         "pass_rays": int(res.pass_rays) if res.pass_rays else None,
         "texel_validity": res.validity,
+        "light_reuse": res.light_reuse,
+        "seams": res.seams,
         "irradiance_cache": res.irradiance_cache,
         "cluster": res.cluster,
         "target_error": float(settings.bake_target_error) if settings.bake_gathers else 0.0,
@@ -591,6 +612,7 @@ def bake_main(args):
                            "bytes": os.path.getsize(res.paths[name]), "mean": bm.mean(),
                            **({"error": res.error[name]} if name in res.error else {}),
                            **({"error_image": res.error_paths[name]} if name in res.error_paths else {}),
+                           **({"validity_image": res.validity_paths[name]} if name in res.validity_paths else {}),
                            **({"spectral_exr": res.spectral_paths[name]} if name in res.spectral_paths else {})}
                     for name, bm in res.maps.items()},
         "skipped": res.skipped,
@@ -604,6 +626,21 @@ def bake_main(args):
         with open(args.json, "w") as f:
             f.write(text)
     return 0
+
+
+def _bake_selection(scene, names):
+    """The objects `bake` bakes: every mesh, or the ones named (comma-separated);
+    an unknown name is the user's to fix (InputError: exit code 2)."""
+    from .messages import InputError
+    if names is None:
+        return [ob for ob in scene.objects if ob.type == "MESH"]
+    chosen = [n.strip() for n in names.split(",") if n.strip()]
+    by_name = {ob.name: ob for ob in scene.objects}
+    missing = [n for n in chosen if n not in by_name]
+    if missing or not chosen:
+        raise InputError(f"--objects: no object named {', '.join(repr(n) for n in missing)} in scene "
+                         f"'{scene.name}'" if missing else "--objects: name at least one object")
+    return [by_name[n] for n in chosen]
 
 
 def ol_bake_main(args):

@@ -30,7 +30,11 @@ OWNER_PROP = "photon_lightmaps_object"
 # the bake's error image: its own name and owner tag, so it never takes the lightmap's place
 ERROR = "error"
 ERROR_FILE_SUFFIX = "_error"
-_KINDS = {"": (IMAGE_SUFFIX, OWNER_PROP), ERROR: ("_LightmapError", "photon_lightmaps_error_of")}
+# texel validity's image (R: the share of rays meeting back faces; invalid texels red, valid green)
+VALIDITY = "validity"
+VALIDITY_FILE_SUFFIX = "_validity"
+_KINDS = {"": (IMAGE_SUFFIX, OWNER_PROP), ERROR: ("_LightmapError", "photon_lightmaps_error_of"),
+          VALIDITY: ("_LightmapValidity", "photon_lightmaps_validity_of")}
 LIGHTMAP_DIR = "lightmaps"
 
 
@@ -113,7 +117,7 @@ def _new_image(name, w, h):
 
 
 def target_image(ob, w, h, overwrite, warnings, kind=""):
-    """The image to write object `ob`'s lightmap (kind ERROR: its error image) into,
+    """The image to write object `ob`'s lightmap (kind ERROR, VALIDITY: its error or validity image) into,
     following the module's policy."""
     import bpy
     suffix, owner = _KINDS[kind]

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..engine.lightmaps import lightmap
-from ..engine import session
+from ..engine import light_reuse, session
 from ..engine import spectral
 from ..engine.lightmaps import texel_areas
 from ..engine.core.scene import SceneError
@@ -30,6 +30,10 @@ from .images import BakedMap
 # SHADOWMASK (up to four lights' visibility, one per channel, engine/transport/shadowmask.py).
 BAKE_PASSES = ("COMBINED", "DIRECT", "INDIRECT", "AO", "SHADOWMASK")
 
+# The last bake's photon pass (Keep Bake Light): the next bake of the unchanged scene
+# reuses it. Let go on file load (operators/__init__.py) and when the scene changes.
+BAKE_LIGHT = light_reuse.BakeLight()
+
 
 @dataclass
 class BakeSettings(session.Settings):
@@ -42,12 +46,14 @@ class BakeSettings(session.Settings):
     pass_rays: int = 16          # AO and shadowmask: rays (light samples) per point, 16 points a texel
     shadowmask_lights: str = ""  # SHADOWMASK: the lights (names, comma-separated) of channels R, G, B, A
     texel_validity: bool = False  # fill texels inside geometry from their neighbours (texel_validity.py)
+    stitch_seams: bool = False    # texels meeting across UV seams agree where they meet (seam_stitch.py)
     overwrite: bool = False
     save_dir: str = ""
     pack: bool = False
     hook_materials: bool = False
     bake_error_images: bool = False  # also an image of each texel's estimated relative error
     spectral_exr: bool = False       # spectral bakes: also "<object>_spectral.exr", every band (save_dir only)
+    light_cache: str = ""            # a folder of saved photon passes (engine/light_reuse.py): reused, and added to
 
 
 def bscene_props(bscene):
@@ -71,6 +77,11 @@ class BakeResult:
     pass_rays: int = 0                            # AO and SHADOWMASK: rays per point used (0: other passes)
     # texel validity: object name -> {"invalid": texels filled from neighbours, "texels": measured}
     validity: dict = None
+    # with stitch_seams: {"edges", "samples", "jump_before", "jump_after" (mean relative jump of the
+    # two sides' bilinear reads along the seams), their 95th percentiles, "texels_changed"}
+    seams: dict = None
+    # the photon pass: {"reused": "memory" | "disk" | None, "why_not", "key", "kept_bytes", "saved"}
+    light_reuse: dict = None
     seconds: dict = field(default_factory=dict)   # export, photon_pass, bake, total
     lightmap_bytes: int = 0
     uv_layers: dict = field(default_factory=dict)  # mesh name -> uv_layers.ensure_lightmap_uv status
@@ -87,6 +98,12 @@ class BakeResult:
     error_maps: dict = field(default_factory=dict)
     error_images: dict = field(default_factory=dict)   # object name -> bpy image name
     error_paths: dict = field(default_factory=dict)    # object name -> saved file
+    # with texel validity: object name -> BakedMap (R = share of rays meeting back faces,
+    # G = 1 - R on valid texels, 0 on invalid ones, A = coverage); images
+    # "<object>_LightmapValidity", files "<object>_validity.exr"
+    validity_maps: dict = field(default_factory=dict)
+    validity_images: dict = field(default_factory=dict)
+    validity_paths: dict = field(default_factory=dict)
     # with spectral_exr: object name -> (height, width, bands) E/pi per band, and its file
     spectral_maps: dict = field(default_factory=dict)
     spectral_paths: dict = field(default_factory=dict)
@@ -224,8 +241,14 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
                  gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
-                 shadowmask_lights=None, texel_validity=None, pass_rays=None):
+                 shadowmask_lights=None, texel_validity=None, pass_rays=None, keep_light=None, light_cache=None,
+                 lay_out=(), stitch_seams=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
+
+    lay_out: other objects given the Lightmap UV layers a bake of them would make,
+    but not baked: a process that rebakes some objects of a .blend it does not
+    save (the CLI's --objects) exports the scene its full bake exported, so that
+    the photon pass saved by that bake serves it.
 
     On failure the UV layers are as they were; after it, rollback_bake(job) puts them
     back (a failed or cancelled compute or commit)."""
@@ -243,16 +266,18 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     if pass_rays is not None and not 1 <= int(pass_rays) <= 65536:
         raise SceneError(f"pass rays: must be 1 to 65536 rays per point, got {pass_rays}")
     wanted = _wanted(depsgraph, objects, result.skipped)
+    extra = [ob for ob in _wanted(depsgraph, lay_out, {}) if ob.name not in {w.name for w in wanted}]
     booleans = {}                   # Booleans of plain meshes: baked as Blender's result
-    for ob in wanted:
+    for ob in wanted + extra:
         _check_finite(ob)
         operands = boolean_meshes.mesh_operands(ob)
         if operands is not None:
             booleans[ob.name] = operands
     uv_undo = _uv_snapshot({o.data.name: o.data for o in
-                            wanted + [o for ops in booleans.values() for o in ops]}.values())
+                            wanted + extra + [o for ops in booleans.values() for o in ops]}.values())
     try:
-        job = _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution, booleans)
+        job = _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution, booleans,
+                              extra)
     except BaseException:
         _uv_restore(uv_undo)
         raise
@@ -264,7 +289,8 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      bake_irradiance_cache=irradiance_cache, bake_gather_lights=gather_lights,
                                      spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
                                      shadowmask_lights=shadowmask_lights, texel_validity=texel_validity,
-                                     pass_rays=pass_rays)
+                                     pass_rays=pass_rays, bake_keep_light=keep_light, light_cache=light_cache,
+                                     stitch_seams=stitch_seams)
     if bake_pass == "SHADOWMASK":
         try:
             job.mask_lights = _mask_lights(job.scene, job.settings.shadowmask_lights)
@@ -332,19 +358,22 @@ def _mask_lights(scene, names):
     return chosen, shadowmask.light_rows(scene, chosen)
 
 
-def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution, booleans):
+def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, resolution, booleans, extra=()):
     """prepare_bake after choosing the objects: their Lightmap UV layers, then the export.
-    booleans: {name: operands} of the wanted Booleans of plain meshes (boolean_meshes.py)."""
+    booleans: {name: operands} of the wanted Booleans of plain meshes (boolean_meshes.py).
+    extra: objects laid out too (prepare_bake's lay_out); one that cannot be is left as it is."""
     from ..engine.lightmaps.uv_atlas import UnwrapError
     from ..export import export_scene
     bscene = depsgraph.scene
     changed = False
     sides = {}
-    for ob in list(wanted):
+    for ob in list(wanted) + list(extra):
         if ob.name in booleans:
             try:
                 sides[ob.name], status = boolean_meshes.prepare(ob, booleans[ob.name], density, resolution)
             except (UnwrapError, SceneError) as exc:
+                if ob not in wanted:
+                    continue
                 wanted.remove(ob)
                 result.skipped[ob.name] = getattr(exc, "reason", None) or str(exc)
                 result.warnings.append(f"object '{ob.name}': {result.skipped[ob.name]}")
@@ -363,12 +392,16 @@ def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, re
                 sides[ob.name] = need
         except UnwrapError as exc:
             # xatlas failed (or crashed in its worker) on this mesh alone: bake the others
+            if ob not in wanted:
+                continue
             wanted.remove(ob)
             result.skipped[ob.name] = (f"no Lightmap UV layer: {exc.reason}; add a UV layer named "
                                        f"'{uv_layers.LAYER_NAME}' (e.g. UV > Lightmap Pack) and bake again")
             result.warnings.append(f"object '{ob.name}': {result.skipped[ob.name]}")
             continue
         except (ValueError, RuntimeError) as exc:
+            if ob not in wanted:
+                continue
             # xatlas refusals (UnwrapError), Edit Mode, a linked mesh: the user's to fix, so
             # say which object (unless the message does already).
             if isinstance(exc, SceneError) and f"'{ob.name}'" in str(exc):
@@ -419,9 +452,11 @@ def _prepare_export(context_or_depsgraph, depsgraph, wanted, result, density, re
             inst.lightmap_resolution = int(resolution)
     for name, side in sides.items():
         # A Boolean's layout is its operands' atlas, `side` texels wide; a fast
-        # layout needs `side` texels for its gaps.
-        if name in targets and side:
-            scene.instances[targets[name]].lightmap_resolution = int(side)
+        # layout needs `side` texels for its gaps. Objects not baked record photons
+        # for the gather in the layout they would be baked in.
+        for i in [targets[name]] if name in targets else emap.object_instances(name):
+            if side and not (resolution and name not in targets):
+                scene.instances[i].lightmap_resolution = int(side)
     return BakeJob(scene, emap, targets, BakeSettings.read(bscene_props(bscene)), True, result, 0.0, csg=csg,
                    primitives=primitives, recording=recording,
                    booleans={n: [o.name for o in ops[1:]] for n, ops in booleans.items() if n in targets})
@@ -506,22 +541,27 @@ def _error_stats(cs, job, solids):
 
 def _fill_invalid(cs, job, ids):
     """Texel validity over the baked lightmaps `ids`: texels inside geometry filled from
-    their neighbours -> ({object: {"invalid", "texels"}}, seconds)."""
+    their neighbours -> ({object: {"invalid", "texels"}}, {object: validity BakedMap}, seconds)."""
     from ..engine.transport import texel_validity
     t0 = time.perf_counter()
     rows, share = texel_validity.backface_share(cs, ids, seed=int(job.settings.seed))
-    bad = rows[share > texel_validity.INVALID_SHARE]
+    invalid = share > texel_validity.INVALID_SHARE
     lm = cs.lightmaps
-    counts = {}
+    channels = np.zeros((lm.area.shape[0], 4))
+    channels[rows, 0] = share
+    channels[rows, 1] = np.where(invalid, 0.0, 1.0 - share)
+    channels[:, 3] = lm.coverage
+    counts, maps = {}, {}
     for name, i in job.targets.items():
         if name in job.csg:
             continue
-        sl = lightmap.texel_slice(lm, cs.instance_lightmaps[i][0])
+        lm_id = cs.instance_lightmaps[i][0]
+        sl = lightmap.texel_slice(lm, lm_id)
         inside = (rows >= sl.start) & (rows < sl.stop)
-        counts[name] = {"invalid": int(np.count_nonzero(inside & (share > texel_validity.INVALID_SHARE))),
-                        "texels": int(np.count_nonzero(inside))}
-    texel_validity.dilate_over(lm, bad)
-    return counts, time.perf_counter() - t0
+        counts[name] = {"invalid": int(np.count_nonzero(inside & invalid)), "texels": int(np.count_nonzero(inside))}
+        maps[name] = BakedMap(name, images.texel_rgba(lm, lm_id, channels), lm_id)
+    texel_validity.dilate_over(lm, rows[invalid])
+    return counts, maps, time.perf_counter() - t0
 
 
 def _error_maps(cs, job, solids):
@@ -570,9 +610,15 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
                          "(first run; cached afterwards)")
 
     phase("scene", f"{len(job.scene.instances):,} objects")
+    keep = job.settings.bake_keep_light or job.settings.light_cache
     with kernel_watch.watching(on_compile):
-        cs, stats = session.compile_and_trace_bake(job.scene, job.settings, progress=progress,
-                                                   aim_at=list(job.targets.values()))
+        cs, stats = session.compile_and_trace_bake(
+            job.scene, job.settings, progress=progress, aim_at=list(job.targets.values()),
+            kept=(BAKE_LIGHT if job.settings.bake_keep_light else light_reuse.BakeLight()) if keep else None,
+            cache_dir=job.settings.light_cache)
+    if not job.settings.bake_keep_light:
+        BAKE_LIGHT.clear()
+    result.light_reuse = cs.info.get("light_reuse")
     result.stats = stats
     result.lightmap_bytes = cs.lightmap_bytes()
     result.environment = cs.info.get("environment")
@@ -606,7 +652,7 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
                                             f"compiled in a second process, {n:.0f} s (first run)")))
     if job.settings.texel_validity and masks is None:
         phase("validity", f"{len(ids):,} objects")
-        result.validity, result.seconds["validity"] = _fill_invalid(cs, job, ids)
+        result.validity, result.validity_maps, result.seconds["validity"] = _fill_invalid(cs, job, ids)
     if getattr(cs, "bake_error", None) is not None:
         result.error = _error_stats(cs, job, solids)
     result.irradiance_cache = cs.info.get("irradiance_cache")
@@ -652,8 +698,34 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
         for bm in result.maps.values():
             _denoise_map(cs, bm)
         result.seconds["denoise"] = time.perf_counter() - t2
+    if job.settings.stitch_seams:
+        phase("seams", f"{len(result.maps):,} images")
+        t3 = time.perf_counter()
+        result.seams = _stitch_seams(cs, job, result)
+        result.seconds["seams"] = time.perf_counter() - t3
     job.cs = cs
     return job
+
+
+def _stitch_seams(cs, job, result):
+    """Seam stitching over the baked mesh lightmaps, all together (seams between
+    objects too): engine/lightmaps/seam_stitch.py -> BakeResult.seams."""
+    from ..engine.transport import seam_stitch
+    lm = cs.lightmaps
+    by_id = {bm.lightmap_id: bm for name, bm in result.maps.items()
+             if name not in job.csg and name not in job.primitives and bm.tiles is None}
+    charts = seam_stitch.mesh_charts(cs, sorted(by_id))
+    images = [by_id[lid].rgba for lid, _, _ in charts]
+    seams = seam_stitch.find_seams(charts, {k: im.shape[:2] for k, im in enumerate(images)})
+    holds = [lm.coverage[lightmap.texel_slice(lm, lid)].reshape(im.shape[:2]) for (lid, _, _), im in
+             zip(charts, images)]
+    channels = (0, 1, 2, 3) if job.settings.bake_pass == "SHADOWMASK" else (0, 1, 2)
+    before = seam_stitch.seam_jump(seams, images, channels)
+    changed = seam_stitch.stitch(seams, images, holds, channels)
+    after = seam_stitch.seam_jump(seams, images, channels)
+    return {"edges": seams.edges, "samples": int(seams.ia.size), "jump_before": before[0],
+            "jump_before_p95": before[1], "jump_after": after[0], "jump_after_p95": after[1],
+            "texels_changed": changed}
 
 
 def _denoise_map(cs, bm):
@@ -686,15 +758,18 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
         elif name in job.primitives:
             csg_atlas.place_leaf_uvs(name, BakedMap(name, bm.rgba, bm.lightmap_id, {name: None}),
                                      result.warnings)
-    for name, bm in result.error_maps.items():
-        if name not in result.maps:
-            continue                      # deleted during the bake (the operator dropped its map)
-        img = images.target_image(bpy.data.objects[name], bm.width, bm.height, overwrite,
-                                  result.warnings, kind=images.ERROR)
-        images.write_pixels(img, bm.rgba)
-        result.error_images[name] = img.name
-        result.error_paths[name] = images.store(img, name + images.ERROR_FILE_SUFFIX,
-                                                save_dir=save_dir, pack=pack)
+    for maps, names, paths, kind, suffix in (
+            (result.error_maps, result.error_images, result.error_paths, images.ERROR, images.ERROR_FILE_SUFFIX),
+            (result.validity_maps, result.validity_images, result.validity_paths, images.VALIDITY,
+             images.VALIDITY_FILE_SUFFIX)):
+        for name, bm in maps.items():
+            if name not in result.maps:
+                continue                      # deleted during the bake (the operator dropped its map)
+            img = images.target_image(bpy.data.objects[name], bm.width, bm.height, overwrite,
+                                      result.warnings, kind=kind)
+            images.write_pixels(img, bm.rgba)
+            names[name] = img.name
+            paths[name] = images.store(img, name + suffix, save_dir=save_dir, pack=pack)
     for name, values in result.spectral_maps.items():
         if not save_dir:
             result.warnings.append("spectral EXR files are written only to a folder (the CLI's --out)")
@@ -723,7 +798,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  hook_materials=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
                  gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
-                 shadowmask_lights=None, texel_validity=None, pass_rays=None):
+                 shadowmask_lights=None, texel_validity=None, pass_rays=None, keep_light=None,
+                 light_cache=None, lay_out=(), stitch_seams=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
@@ -744,9 +820,19 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     `ao_distance` metres (the image holds AO itself), or a shadowmask of up to
     four lights (`shadowmask_lights`, names comma-separated; the image's R, G,
     B, A hold each one's visibility), each from 16 points x `pass_rays` rays per
-    texel (None: 16). Exact CSG solids are skipped by AO and shadowmasks. `texel_validity` fills texels that lie inside geometry (most
-    of their rays meet back faces) from their neighbours, and counts them in
-    BakeResult.validity (mesh and primitive lightmaps; not shadowmasks). `denoise` (None: the scene's setting) runs OIDN over
+    texel (None: 16). Exact CSG solids are skipped by AO and shadowmasks.
+    `texel_validity` fills texels that lie inside geometry (most of their rays
+    meet back faces) from their neighbours, counts them in BakeResult.validity
+    and shows them in BakeResult.validity_maps (mesh and primitive lightmaps;
+    not shadowmasks).
+    `keep_light` (None: the scene's Keep Bake Light) keeps the photon pass in
+    memory, and a later bake of the unchanged scene reuses it (BAKE_LIGHT);
+    `light_cache`, a folder, does the same across processes: a pass saved there
+    for this scene is loaded, and one traced is saved. BakeResult.light_reuse
+    says which, or why not. `lay_out`: see prepare_bake. `stitch_seams` makes
+    texels that meet across UV seams and edges objects share agree where they
+    meet (engine/transport/seam_stitch.py; mesh lightmaps), and reports the jump
+    along the seams before and after in BakeResult.seams. `denoise` (None: the scene's setting) runs OIDN over
     each map (engine/transport/denoise.py). `progress(done, total)`
     may return False to cancel: Cancelled is raised before any image changes.
     See the module docstring for image naming, overwriting and saving.
@@ -758,7 +844,8 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                        error_images=error_images, irradiance_cache=irradiance_cache, gather_lights=gather_lights,
                        spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
                        shadowmask_lights=shadowmask_lights, texel_validity=texel_validity,
-                       pass_rays=pass_rays)
+                       pass_rays=pass_rays, keep_light=keep_light, light_cache=light_cache, lay_out=lay_out,
+                       stitch_seams=stitch_seams)
     try:
         compute_bake(job, progress)
     except BaseException:

@@ -9,13 +9,22 @@ own camera (`with_camera`): the same seed gives the same photons, so the frame
 is the image a single-frame render of it gives. Anything else that moves (an
 object, a light, a material, the photon count) changes the key, and the frame
 is traced afresh.
+
+Bakes keep their photon pass the same way (`BakeLight`): baking other objects
+of an unchanged scene reuses the last pass instead of tracing it again, from
+memory or from a folder of saved passes (the CLI's --light-cache), so a
+rebaked object reads the very light its neighbours were baked from.
 """
+import copy
 import dataclasses
 import hashlib
+import json
+import os
 
 import numpy as np
 
 from .compile import checked_camera
+from .lightmaps.lightmap import Lightmaps
 
 
 def light_key(scene, settings):
@@ -26,6 +35,180 @@ def light_key(scene, settings):
     _feed(h, (int(settings.photons), int(settings.max_bounces), int(settings.seed),
               bool(settings.gathers)), {})
     return h.hexdigest()
+
+
+def bake_key(scene, settings):
+    """Digest of what a bake's photon pass depends on: the scene without its
+    camera, its name and which instances record photons (a bake records its
+    targets; recording never moves a photon, so a pass that recorded more serves
+    a bake of fewer), and the settings the pass reads."""
+    bare = dataclasses.replace(scene, camera=None, name="",
+                               instances=[dataclasses.replace(i, lightmap=False) for i in scene.instances])
+    h = hashlib.sha256()
+    _feed(h, bare, {})
+    _feed(h, ("bake", int(settings.photons), int(settings.max_bounces), int(settings.seed),
+              bool(settings.bake_gathers), bool(settings.bake_gather_lights)), {})
+    return h.hexdigest()
+
+
+def recording(scene):
+    """Which instances of `scene` record photons on their own lightmaps (bool per instance)."""
+    return np.array([bool(i.lightmap) for i in scene.instances], bool)
+
+
+def covers(recorded, needs):
+    """A pass that recorded `recorded` holds every lightmap a bake recording `needs` reads."""
+    return recorded.shape == needs.shape and not np.any(needs & ~recorded)
+
+
+def aim_sphere(cs, instances):
+    """The sphere a photon pass of `cs` aimed at `instances` (engine ids; None:
+    the scene) sends its aimed photons toward -> (centre, radius)."""
+    from .shading import photon_aim
+    sphere = None if instances is None else photon_aim.sphere_around(cs.geometry, instances)
+    ls = photon_aim.aimed(cs.lights, sphere)
+    return np.asarray(ls.aim_center, np.float64), float(ls.aim_radius)
+
+
+def _holds(outer, inner):
+    """Sphere `outer` contains sphere `inner` (both (centre, radius))."""
+    gap = float(np.linalg.norm(np.asarray(outer[0]) - np.asarray(inner[0])))
+    return gap + inner[1] <= outer[1] * (1.0 + 1e-9) + 1e-12
+
+
+@dataclasses.dataclass
+class KeptPass:
+    """A bake's photon pass: its compiled scene, the lightmaps as the pass left
+    them (the bake then writes its texels into the scene's own), and its stats."""
+    key: str
+    recording: np.ndarray        # bool per instance: what the pass recorded
+    aim: tuple                   # (centre, radius) its aimed photons went toward
+    cs: object
+    lightmaps: object            # Lightmaps, copied after the pass
+    stats: object
+
+    def nbytes(self):
+        return int(sum(a.nbytes for a in self.lightmaps))
+
+    def serves(self, key, needs, aim_at):
+        """This pass can stand in for a bake with key `key` that records `needs`
+        (bool per instance) and aims at instances `aim_at` -> why not, or "" when it can."""
+        if key != self.key:
+            return "the scene or the photon settings changed"
+        if not covers(self.recording, needs):
+            return "it did not record every object baked now"
+        if not _holds(self.aim, aim_sphere(self.cs, aim_at)):
+            return "its photons were aimed at other objects"
+        return ""
+
+    def fresh_scene(self):
+        """The kept compiled scene with the pass's lightmaps, as a bake finds it
+        after the photon pass (the kept copy stays as it is)."""
+        cs = copy.copy(self.cs)
+        cs.lightmaps = Lightmaps(*(a.copy() for a in self.lightmaps))
+        cs.info = {k: v for k, v in self.cs.info.items() if k not in ("cluster", "irradiance_cache")}
+        cs.timings, cs.rays = {}, {}
+        cs.__dict__.pop("bake_error", None)
+        return cs
+
+
+# What a saved pass keeps of its compiled scene besides the lightmaps
+_PASS_FLAGS = ("caustics_traced", "lightmaps_hold_direct")
+_STATS_ARRAYS = ("emitted", "absorbed", "escaped", "truncated")
+
+
+class BakeLight:
+    """The last bake's photon pass (KeptPass), kept for the next bake, and the
+    folder of saved passes a pipeline's runs share."""
+
+    def __init__(self):
+        self.kept = None
+
+    def clear(self):
+        self.kept = None
+
+    def keep(self, key, needs, aim, cs, stats):
+        self.kept = KeptPass(key, needs, aim, cs, Lightmaps(*(a.copy() for a in cs.lightmaps)), stats)
+        return self.kept
+
+    def take(self, key, needs, aim_at):
+        """The kept pass when it serves (KeptPass.serves) -> (KeptPass or None, why not)."""
+        if self.kept is None:
+            return None, "no photon pass was kept"
+        why = self.kept.serves(key, needs, aim_at)
+        return (self.kept, "") if not why else (None, why)
+
+
+def pass_file(folder, key):
+    return os.path.join(folder, f"photon_pass_{key[:32]}.npz")
+
+
+def save_pass(folder, kept):
+    """Writes `kept` to the folder (one file per key; written whole, then renamed,
+    so a reader never sees half of one) -> its path."""
+    os.makedirs(folder, exist_ok=True)
+    arrays = {f"lm_{name}": a for name, a in zip(Lightmaps._fields, kept.lightmaps)}
+    cs = kept.cs
+    if cs.caustics is not None and cs.caustics_traced:
+        arrays.update({f"caustic_{name}": a for name, a in zip(Lightmaps._fields, cs.caustics)})
+    arrays.update({f"stats_{name}": getattr(kept.stats, name) for name in _STATS_ARRAYS})
+    meta = {"key": kept.key, "aim": [list(map(float, kept.aim[0])), float(kept.aim[1])],
+            "flags": {name: bool(getattr(cs, name)) for name in _PASS_FLAGS},
+            "stats": {name: getattr(kept.stats, name) for name in ("photons", "rays", "records", "seconds")},
+            "stats_aim": None if kept.stats.aim is None else
+            [list(map(float, kept.stats.aim[0])), float(kept.stats.aim[1])]}
+    path = pass_file(folder, kept.key)
+    tmp = path + ".part.npz"
+    np.savez(tmp, recording=kept.recording, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), **arrays)
+    os.replace(tmp, path)
+    return path
+
+
+def saved_recording(folder, key):
+    """What the pass saved under `key` recorded (bool per instance), or None
+    when there is none (or it cannot be read)."""
+    try:
+        with np.load(pass_file(folder, key)) as f:
+            return np.array(f["recording"], bool)
+    except (OSError, KeyError, ValueError):
+        return None
+
+
+def load_pass(folder, key, cs, aim, stats_type):
+    """The pass saved under `key` into the compiled scene `cs` (compiled with the
+    saved pass's recording) -> KeptPass, or None where it does not serve (its
+    photons aimed at a sphere that misses `aim`, or its arrays do not fit `cs`)."""
+    try:
+        with np.load(pass_file(folder, key)) as f:
+            meta = json.loads(bytes(f["meta"]).decode())
+            saved_aim = (np.asarray(meta["aim"][0], np.float64), float(meta["aim"][1]))
+            if meta["key"] != key or not _holds(saved_aim, aim):
+                return None
+            main = {name: f[f"lm_{name}"] for name in Lightmaps._fields}
+            caustic = ({name: f[f"caustic_{name}"] for name in Lightmaps._fields}
+                       if "caustic_flux" in f.files else None)
+            arrays = {name: f[f"stats_{name}"] for name in _STATS_ARRAYS}
+            recorded = np.array(f["recording"], bool)
+    except (OSError, KeyError, ValueError):
+        return None
+    if not _fits(cs.lightmaps, main) or (caustic is not None and
+                                         (cs.caustics is None or not _fits(cs.caustics, caustic))):
+        return None
+    for name in Lightmaps._fields:
+        getattr(cs.lightmaps, name)[...] = main[name]
+        if caustic is not None:
+            getattr(cs.caustics, name)[...] = caustic[name]
+    for name, value in meta["flags"].items():
+        setattr(cs, name, value)
+    stats = stats_type(**meta["stats"], **arrays,
+                       aim=None if meta["stats_aim"] is None else
+                       (np.asarray(meta["stats_aim"][0]), float(meta["stats_aim"][1])))
+    return KeptPass(key, recorded, saved_aim, cs, Lightmaps(*(a.copy() for a in cs.lightmaps)), stats)
+
+
+def _fits(lm, arrays):
+    return all(getattr(lm, name).shape == arrays[name].shape and getattr(lm, name).dtype == arrays[name].dtype
+               for name in Lightmaps._fields)
 
 
 def _feed(h, x, seen):

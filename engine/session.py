@@ -50,6 +50,9 @@ class Settings:
     # sharp as the sun, not as coarse as the texels it falls on
     bake_gather_lights: bool = True
     irradiance_cache: bool = False
+    # keep a bake's photon pass in memory: baking other objects of the unchanged
+    # scene reuses it (engine/light_reuse.py BakeLight), at the cost of a copy of its lightmaps
+    bake_keep_light: bool = True
     denoise: bool = False           # OIDN pass over renders and baked lightmaps (engine/transport/denoise.py)
     # trace 16 wavelength bands instead of RGB (engine/spectral.py); results come back as Rec.709
     spectral: bool = False
@@ -190,7 +193,7 @@ def _aim(cs, instances):
     return None if instances is None else photon_aim.sphere_around(cs.geometry, instances)
 
 
-def compile_and_trace_bake(scene, settings, *, progress=None, aim_at=None):
+def compile_and_trace_bake(scene, settings, *, progress=None, aim_at=None, kept=None, cache_dir=""):
     """compile + the photon pass a bake needs -> (compiled scene, PhotonStats).
 
     A lookup bake keeps first hits out (its direct part is gathered per texel);
@@ -200,12 +203,69 @@ def compile_and_trace_bake(scene, settings, *, progress=None, aim_at=None):
     averaged over each baked texel.
 
     aim_at: the instance ids baked; photons are aimed at the space around them
-    (importance emission, photon_aim.py). None aims at the whole scene."""
+    (importance emission, photon_aim.py). None aims at the whole scene.
+
+    kept: a light_reuse.BakeLight. A pass it holds that serves this bake (the
+    same scene and photon settings, every baked object recorded, photons aimed
+    around them) is reused instead of traced; with cache_dir, so is one saved
+    there. The pass this bake ends up with is kept (and saved to cache_dir).
+    cs.info["light_reuse"] says what was reused, or why nothing was."""
+    if kept is None or int(settings.photons) <= 0:
+        cs = _bake_compile(scene, settings)
+        return cs, _bake_trace(cs, settings, progress, aim_at)
+    from . import light_reuse
+    key, needs = light_reuse.bake_key(scene, settings), light_reuse.recording(scene)
+    found, why = kept.take(key, needs, aim_at)
+    if found is not None:
+        cs, source = found.fresh_scene(), "memory"
+    elif cache_dir:
+        found, why_disk = _saved_pass(scene, settings, key, needs, aim_at, cache_dir)
+        kept.kept, cs, source, why = found, found and found.cs, "disk", why_disk or why
+    if found is not None:
+        cs.info["light_reuse"] = {"reused": source, "key": key[:16], "kept_bytes": found.nbytes(),
+                                  "photons": int(found.stats.photons)}
+        return cs, found.stats
+    kept.clear()                # the old pass goes before this one is traced: never two in memory
+    cs = _bake_compile(scene, settings)
+    stats = _bake_trace(cs, settings, progress, aim_at)
+    new = kept.keep(key, needs, light_reuse.aim_sphere(cs, aim_at), cs, stats)
+    info = {"reused": None, "why_not": why, "key": key[:16], "kept_bytes": new.nbytes()}
+    if cache_dir:
+        info["saved"] = light_reuse.save_pass(cache_dir, new)
+    cs.info["light_reuse"] = info
+    return cs, stats
+
+
+def _saved_pass(scene, settings, key, needs, aim_at, cache_dir):
+    """A pass saved in cache_dir for this bake, loaded into a compiled scene
+    -> (KeptPass or None, why not)."""
+    from . import light_reuse
+    from .transport.photon_tracer import PhotonStats
+    recorded = light_reuse.saved_recording(cache_dir, key)
+    if recorded is None:
+        return None, ""
+    if not light_reuse.covers(recorded, needs):
+        return None, "the saved pass did not record every object baked now"
+    # compiled as the saved pass was, so that its lightmaps fit
+    scene = replace(scene, instances=[replace(i, lightmap=bool(r)) for i, r in zip(scene.instances, recorded)])
+    cs = _bake_compile(scene, settings)
+    cs.__dict__["_open_area_done"] = True          # the saved lightmaps hold the open areas
+    _bake_trace(cs, replace(settings, photons=0), None, None)   # the pass's light set, no photons
+    found = light_reuse.load_pass(cache_dir, key, cs, light_reuse.aim_sphere(cs, aim_at), PhotonStats)
+    return found, "" if found is not None else "the saved pass was aimed at other objects"
+
+
+def _bake_compile(scene, settings):
     if not settings.bake_gathers:
-        return compile_and_trace(scene, settings, progress=progress, aim_at=aim_at)
-    cs = compile(replace(scene, caustic_resolution=1.0), ahead=("bake",))
-    return cs, photon_pass(cs, settings, record_direct=True, progress=progress, caustics=True, gather=True,
-                           aim=_aim(cs, aim_at), gather_lights=settings.bake_gather_lights)
+        return compile(scene)
+    return compile(replace(scene, caustic_resolution=1.0), ahead=("bake",))
+
+
+def _bake_trace(cs, settings, progress, aim_at):
+    if not settings.bake_gathers:
+        return photon_pass(cs, settings, progress=progress, aim=_aim(cs, aim_at))
+    return photon_pass(cs, settings, record_direct=True, progress=progress, caustics=True, gather=True,
+                       aim=_aim(cs, aim_at), gather_lights=settings.bake_gather_lights)
 
 
 def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline=None, phase=None,

@@ -4,13 +4,15 @@ Where the user finds them (menus, the Bake panel) is ui/menus.py.
 """
 import bpy
 
-from ..bake import bake_api
+from ..bake import bake_api, pipeline
 from ..bake import render as render_pipeline
 from . import bake, csg_primitives, lsystem
 from . import orientation_lightmaps as ol_ops
 
 # The photon pass kept for Blender's own Bake button is freed when that bake ends.
 _HANDLERS = ("object_bake_complete", "object_bake_cancel")
+# A bake's kept photon pass belongs to the file it was traced in.
+_FILE_HANDLERS = ("load_pre",)
 # The light a render keeps for the next frame is let go when the render job (a
 # still or a whole animation) ends, unless Persistent Data is on; and on file load.
 _RENDER_HANDLERS = ("render_complete", "render_cancel", "load_pre")
@@ -22,6 +24,7 @@ classes = bake.classes + csg_primitives.classes + lsystem.classes + ol_ops.class
 def _free_bake_cache(*_args):
     bake_api.clear_cache()
     render_pipeline.LIGHT.clear()
+    pipeline.BAKE_LIGHT.clear()
 
 
 @bpy.app.handlers.persistent
@@ -31,9 +34,15 @@ def _end_of_render_job(*args):
     render_pipeline.LIGHT.end_of_job(keep=keep)
 
 
+@bpy.app.handlers.persistent
+def _free_bake_light(*_args):
+    pipeline.BAKE_LIGHT.clear()
+
+
 def _handler_pairs():
     return ([(h, _free_bake_cache) for h in _HANDLERS]
-            + [(h, _end_of_render_job) for h in _RENDER_HANDLERS])
+            + [(h, _end_of_render_job) for h in _RENDER_HANDLERS]
+            + [(h, _free_bake_light) for h in _FILE_HANDLERS])
 
 
 def register():

@@ -95,7 +95,13 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
     texel_validity: BoolProperty(
         name="Texel Validity", default=False,
         description="Fill texels that lie inside geometry (most of their rays meet back faces, as under a box "
-                    "on the floor) from their neighbours, so no light leaks out of them")
+                    "on the floor) from their neighbours, so no light leaks out of them; each object's "
+                    "<object>_LightmapValidity image shows them in red")
+    stitch_seams: BoolProperty(
+        name="Stitch Seams", default=False,
+        description="Make texels that meet across UV seams, and across edges objects share, agree where they "
+                    "meet, so a real-time engine's texture filter shows no line there (smooth edges only: a "
+                    "crease keeps its jump)")
     hook_materials: BoolProperty(
         name="Hook Materials", default=False,
         description="Add a removable 'Photon Lightmap' node setup to the materials, "
@@ -119,7 +125,8 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
                                      resolution=self.resolution or None, indirect_only=self.indirect_only,
                                      bake_pass=None if self.bake_pass == "COMBINED" else self.bake_pass,
                                      ao_distance=self.ao_distance, shadowmask_lights=self.shadowmask_lights,
-                                     texel_validity=self.texel_validity or None, pass_rays=self.pass_rays)
+                                     texel_validity=self.texel_validity or None, pass_rays=self.pass_rays,
+                                     stitch_seams=self.stitch_seams or None)
 
     def _finish(self, job):
         # Objects may have been deleted while the photon pass ran.
@@ -243,7 +250,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         else:
             label = {"scene": "compiling the scene", "kernels": "compiling kernels", "direct": "direct light",
                      "gather": "final gather", "ao": "ambient occlusion", "shadowmask": "shadowmask",
-                     "validity": "texel validity",
+                     "validity": "texel validity", "seams": "stitching seams",
                      "images": "writing images",
                      "denoise": "denoising"}
             text = label.get(st["phase"], st["phase"]) + (f" ({st['detail']})" if st["detail"] else "")
@@ -303,7 +310,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
     def draw(self, context):
         col = self.layout.column()
         for prop in ("selected_only", "photons", "resolution", "bake_pass", "indirect_only", "texel_validity",
-                     "hook_materials", "overwrite", "pack"):
+                     "stitch_seams", "hook_materials", "overwrite", "pack"):
             col.prop(self, prop)
             if prop == "bake_pass" and self.bake_pass == "AO":
                 col.prop(self, "ao_distance")

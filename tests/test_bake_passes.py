@@ -213,8 +213,17 @@ def test_cli_shadowmask_writes_one_light_per_channel(tmp_path):
     run("bake", blend, "--out", tmp_path / "ao", "--pass", "ao", "--texel-validity", "--resolution", "16",
         "--pass-rays", "4", "--json", tmp_path / "v.json")
     assert json.loads((tmp_path / "v.json").read_text())["pass_rays"] == 4
-    valid = json.loads((tmp_path / "v.json").read_text())["texel_validity"]
+    rep = json.loads((tmp_path / "v.json").read_text())
+    valid = rep["texel_validity"]
     assert valid["floor"]["invalid"] > 0 and valid["back"]["invalid"] == 0
+    # the validity image: as many red (invalid) texels as counted, none on the wall
+    for name in ("floor", "back"):
+        img = bpy.data.images.load(rep["objects"][name]["validity_image"])
+        px = np.array(img.pixels[:], np.float32).reshape(-1, 4)
+        bpy.data.images.remove(img)
+        red = (px[:, 0] > 0.5) & (px[:, 1] == 0.0) & (px[:, 3] > 0.0)
+        assert red.sum() == valid[name]["invalid"], name
+        assert np.all(px[:, 0] + px[:, 1] <= 1.0 + 1e-6)
 
 
 def test_texel_validity_fills_the_floor_under_the_box(room):
@@ -232,6 +241,10 @@ def test_texel_validity_fills_the_floor_under_the_box(room):
     assert counts["back"]["invalid"] == 0
     share = counts["floor"]["invalid"] / counts["floor"]["texels"]
     assert 0.05 < share < 0.12            # the box's footprint: 0.36 of the floor's 4 m²
+    for name in ("floor", "back"):        # the validity image: red where invalid, as counted
+        px = valid.validity_maps[name].rgba
+        assert np.count_nonzero((px[..., 0] > 0.5) & (px[..., 1] == 0.0)) == counts[name]["invalid"]
+        assert bpy.data.images[valid.validity_images[name]].get("photon_lightmaps_validity_of") == name
     ref = cycles_diffuse_bake(objs[0], RES, 256, bake_type="AO", pass_filter=())
     under = erode(ref[..., 0] == 0.0, 1)           # well inside the footprint
     a, b = plain.maps["floor"].rgba[..., 0], valid.maps["floor"].rgba[..., 0]

@@ -98,6 +98,7 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         row.prop(s, "bake_max_rays")
         sub.prop(s, "bake_time")
         sub.prop(s, "bake_error_images")
+        col.prop(s, "bake_keep_light")
         col.prop(s, "denoise")
         col.prop(s, "spectral")
         col.prop(s, "polarization")

@@ -138,6 +138,11 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
                     "photon lightmaps leave those lights' first hits out: a sun patch one bounce away "
                     "is as sharp as the sun, not as coarse as the texels it falls on (a shadow ray "
                     "per gather ray; area lights and the world stay in the lightmaps)")
+    bake_keep_light: BoolProperty(
+        name="Keep Bake Light", default=_D.bake_keep_light,
+        description="Keep the last bake's photon pass in memory: baking other objects of the unchanged "
+                    "scene reuses it instead of tracing it again (and reads the same light as their "
+                    "neighbours' bake). Costs a copy of its lightmaps; the bake's report gives the size")
     irradiance_cache: BoolProperty(
         name="Render Irradiance Cache", default=_D.irradiance_cache,
         description="Renders gather from the same sparse, interpolated points instead of at every "

@@ -36,6 +36,8 @@ WELD = 1e-6
 # orientations do. Faces meeting at up to this angle are smooth (a UV sphere of
 # 16 segments bends by 22.5 degrees between faces).
 SMOOTH_DEGREES = 30.0
+# an edge drawn by more triangles than this is left alone (a fan of coincident faces)
+MAX_FAN = 8
 
 # Seam samples: bilinear reads of side A (image ia, 4 texels, weights) and of side B
 Seams = namedtuple("Seams", ["edges", "ia", "ta", "wa", "ib", "tb", "wb"])
@@ -63,8 +65,8 @@ def mesh_charts(cs, lightmap_ids):
 def find_seams(charts, shapes):
     """The seam edges of `charts` (mesh_charts) and their sample points -> Seams.
 
-    An edge (two world endpoints, welded) drawn by exactly two triangles is a seam
-    when they lie in different lightmaps or their UVs differ there, and their
+    Two triangles drawing the same edge (its two world endpoints, welded) make a
+    seam when they lie in different lightmaps or their UVs differ there, and their
     faces meet at up to SMOOTH_DEGREES. shapes: image index of each chart ->
     (height, width)."""
     if not charts:
@@ -86,8 +88,14 @@ def find_seams(charts, shapes):
     key = key[order]
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     counts = np.diff(np.r_[starts, key.size])
-    first = order[starts[counts == 2]]
-    second = order[starts[counts == 2] + 1]
+    # every pair of the triangles drawing an edge (a wall standing on the edge two
+    # floor halves share makes three; the halves still pair)
+    pairs = [(order[starts[counts == c] + i], order[starts[counts == c] + j])
+             for c in np.unique(counts) if 2 <= c <= MAX_FAN for i in range(c) for j in range(i + 1, c)]
+    if not pairs:
+        return _empty()
+    first = np.concatenate([f for f, _ in pairs])
+    second = np.concatenate([g for _, g in pairs])
     same = ((img[tri[first]] == img[tri[second]])
             & np.all(np.abs(ua[first] - ua[second]) < 1e-4, axis=1)
             & np.all(np.abs(ub[first] - ub[second]) < 1e-4, axis=1))

@@ -4,7 +4,6 @@ there, against the plain bake of the same photon pass."""
 import json
 
 import numpy as np
-import pytest
 
 import bpy  # noqa: F401  (a missing bpy fails the suite, it is in requirements.txt)
 

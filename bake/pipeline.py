@@ -242,7 +242,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
                  gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
                  shadowmask_lights=None, texel_validity=None, pass_rays=None, keep_light=None, light_cache=None,
-                 lay_out=(), stitch_seams=None):
+                 lay_out=(), stitch_seams=None, direct_samples=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     lay_out: other objects given the Lightmap UV layers a bake of them would make,
@@ -290,7 +290,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
                                      shadowmask_lights=shadowmask_lights, texel_validity=texel_validity,
                                      pass_rays=pass_rays, bake_keep_light=keep_light, light_cache=light_cache,
-                                     stitch_seams=stitch_seams)
+                                     stitch_seams=stitch_seams, bake_direct_samples=direct_samples)
     if bake_pass == "SHADOWMASK":
         try:
             job.mask_lights = _mask_lights(job.scene, job.settings.shadowmask_lights)
@@ -799,7 +799,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
                  gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
                  shadowmask_lights=None, texel_validity=None, pass_rays=None, keep_light=None,
-                 light_cache=None, lay_out=(), stitch_seams=None):
+                 light_cache=None, lay_out=(), stitch_seams=None, direct_samples=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
@@ -832,7 +832,9 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     says which, or why not. `lay_out`: see prepare_bake. `stitch_seams` makes
     texels that meet across UV seams and edges objects share agree where they
     meet (engine/transport/seam_stitch.py; mesh lightmaps), and reports the jump
-    along the seams before and after in BakeResult.seams. `denoise` (None: the scene's setting) runs OIDN over
+    along the seams before and after in BakeResult.seams. `direct_samples`: light
+    samples per texel for the direct light (None: the scene's Bake Direct
+    Samples). `denoise` (None: the scene's setting) runs OIDN over
     each map (engine/transport/denoise.py). `progress(done, total)`
     may return False to cancel: Cancelled is raised before any image changes.
     See the module docstring for image naming, overwriting and saving.
@@ -845,7 +847,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                        spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
                        shadowmask_lights=shadowmask_lights, texel_validity=texel_validity,
                        pass_rays=pass_rays, keep_light=keep_light, light_cache=light_cache, lay_out=lay_out,
-                       stitch_seams=stitch_seams)
+                       stitch_seams=stitch_seams, direct_samples=direct_samples)
     try:
         compute_bake(job, progress)
     except BaseException:

@@ -33,6 +33,9 @@ class Settings:
     indirect: str = "GATHER"        # renders and bakes: "GATHER" (final gather) or "LOOKUP" (the thesis's)
     gather_rays: int = 8            # final-gather rays per camera sample
     bake_gather_rays: int = 256     # final-gather rays per baked texel and lit side
+    # light samples per baked texel for its direct light (stratified points, one light
+    # sample each); its noise falls about as one over the square root
+    bake_direct_samples: int = DIRECT_SAMPLES
     # Photons a gathered bake traces. Its gather rays average the photon lightmaps'
     # noise, so its error stops falling at a few hundred thousand photons (a lookup
     # bake, which reads each texel's own photons, traces `photons`).
@@ -370,13 +373,14 @@ def texel_error(lm, direct, indirect):
 def gather_direct(cs, lightmap_ids, settings):
     """Direct irradiance per texel of the given lightmaps -> (texel ids, E); add with add_direct."""
     from .transport import texel_gather
-    return texel_gather.direct_texel_irradiance(cs, lightmap_ids, DIRECT_SAMPLES, seed=int(settings.seed))
+    return texel_gather.direct_texel_irradiance(cs, lightmap_ids, int(settings.bake_direct_samples),
+                                                seed=int(settings.seed))
 
 
 def gather_direct_csg(cs, leaves, settings):
     """Direct irradiance of CSG leaf texels over their visible part -> (texel ids, E)."""
     from .transport import csg_bake
-    return csg_bake.direct_csg_texels(cs, leaves, DIRECT_SAMPLES, seed=int(settings.seed))
+    return csg_bake.direct_csg_texels(cs, leaves, int(settings.bake_direct_samples), seed=int(settings.seed))
 
 
 def add_direct(lightmaps, gathered):

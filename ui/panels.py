@@ -83,6 +83,7 @@ class PHOTON_LIGHTMAPS_PT_render(_EnginePanel, bpy.types.Panel):
         # one (an animation keeps it between its frames either way)
         col.prop(context.scene.render, "use_persistent_data", text="Keep Light Between Renders")
         col = layout.column(heading="Renders and Bakes")
+        col.prop(s, "bake_direct_samples")
         col.prop(s, "indirect")
         sub = col.column()
         sub.active = s.indirect == "GATHER"

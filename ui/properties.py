@@ -122,6 +122,10 @@ class PhotonLightmapsSceneSettings(bpy.types.PropertyGroup):
         name="Bake Gather Rays", default=_D.bake_gather_rays, min=1, soft_max=4096,
         description="Final-gather rays per baked texel and lit side: its indirect noise falls "
                     "as one over the square root of this")
+    bake_direct_samples: IntProperty(
+        name="Bake Direct Samples", default=_D.bake_direct_samples, min=1, soft_max=4096,
+        description="Light samples per baked texel for its direct light (one per stratified point): its "
+                    "noise falls about as one over the square root of this")
     bake_target_error: FloatProperty(
         name="Bake Target Error", default=_D.bake_target_error, min=0.0, max=0.5, soft_max=0.1,
         subtype='FACTOR', precision=3,

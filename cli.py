@@ -188,6 +188,10 @@ def build_parser():
                    help="fill texels that lie inside geometry (most of their rays meet back faces) from their "
                         "neighbours, count them in the JSON report, and write DIR/<object>_validity.exr (R: "
                         "the share of rays meeting back faces; invalid texels red, valid ones green)")
+    b.add_argument("--directional", action="store_true",
+                   help="also write DIR/<object>_direction.exr: which way each texel's light comes from (RGB: "
+                        "the distant light's share times its direction, world space), so normal maps show "
+                        "under baked light")
     b.add_argument("--stitch-seams", action="store_true",
                    help="make texels that meet across UV seams and edges objects share agree where they meet "
                         "(smooth edges; a crease keeps its jump); the JSON reports the jump along the seams "
@@ -578,7 +582,7 @@ def bake_main(args):
                        bake_pass=args.bake_pass, ao_distance=args.ao_distance,
                        shadowmask_lights=args.shadowmask_lights, texel_validity=args.texel_validity or None,
                        pass_rays=args.pass_rays, light_cache=light_cache, stitch_seams=args.stitch_seams or None,
-                       direct_samples=settings.bake_direct_samples,
+                       direct_samples=settings.bake_direct_samples, directional=args.directional or None,
                        # this process does not save the .blend: every mesh gets the Lightmap UVs
                        # the full bake gave it, so its saved photon pass serves this one
                        lay_out=[ob for ob in context.scene.objects if ob.type == "MESH"] if args.objects else ())
@@ -618,6 +622,7 @@ def bake_main(args):
                            **({"error": res.error[name]} if name in res.error else {}),
                            **({"error_image": res.error_paths[name]} if name in res.error_paths else {}),
                            **({"validity_image": res.validity_paths[name]} if name in res.validity_paths else {}),
+                           **({"direction_image": res.direction_paths[name]} if name in res.direction_paths else {}),
                            **({"spectral_exr": res.spectral_paths[name]} if name in res.spectral_paths else {})}
                     for name, bm in res.maps.items()},
         "skipped": res.skipped,

@@ -24,6 +24,9 @@ HOOK_PREFIX = "Photon Lightmap"
 OL_HOOK_PROP = "photon_lightmaps_ol_hook"    # on our OL nodes (value: empty name) and on the OL group (1)
 OL_GROUP = "Photon Orientation Lightmap"
 OL_PREFIX = "Photon Orientation Lightmap"
+DIRECTION_GROUP = "Photon Lightmap Direction"
+DIRECTION_PROP = "photon_lightmaps_direction_group"
+MIN_COS = 0.05      # engine/transport/directional_lightmap.MIN_COS (the hook repeats its formula)
 
 
 def hook_nodes(tree, frame, origin, lookup, vector, image, group, out, surface, tag):
@@ -116,6 +119,57 @@ def hook_group():
     return ng
 
 
+def direction_group():
+    """The shared node group of directional lightmaps: the lightmap scaled to the
+    shading normal (engine/transport/directional_lightmap.py's formula):
+    E · [k · max(0, n'·s) / max(n·s, MIN_COS) + (1 - k) (1 + n'·n) / 2], with
+    u = k s from the direction image and n the surface's true normal."""
+    ng, new = _find_or_new_group(DIRECTION_PROP, DIRECTION_GROUP,
+                                 "Photon Lightmaps: a directional lightmap read for the shading normal")
+    if not new:
+        return ng
+    io = ng.interface
+    lm_in = io.new_socket("Lightmap", in_out="INPUT", socket_type="NodeSocketColor")
+    lm_in.default_value = (0.0, 0.0, 0.0, 1.0)
+    io.new_socket("Direction", in_out="INPUT", socket_type="NodeSocketColor")
+    io.new_socket("Normal", in_out="INPUT", socket_type="NodeSocketVector")
+    io.new_socket("Lightmap", in_out="OUTPUT", socket_type="NodeSocketColor")
+    n, l = ng.nodes, ng.links
+    gi, go, geo = n.new("NodeGroupInput"), n.new("NodeGroupOutput"), n.new("ShaderNodeNewGeometry")
+
+    def vmath(op, a, b=None):
+        node = n.new("ShaderNodeVectorMath")
+        node.operation = op
+        l.new(a, node.inputs[0])
+        if b is not None:
+            l.new(b, node.inputs[1])
+        return node.outputs["Value"] if op in ("LENGTH", "DOT_PRODUCT") else node.outputs["Vector"]
+
+    def math(op, a, b=None, value=None):
+        node = n.new("ShaderNodeMath")
+        node.operation = op
+        for i, x in enumerate((a, b)):
+            if isinstance(x, float):
+                node.inputs[i].default_value = x
+            elif x is not None:
+                l.new(x, node.inputs[i])
+        return node.outputs["Value"]
+
+    u, normal, true = gi.outputs["Direction"], gi.outputs["Normal"], geo.outputs["True Normal"]
+    k = vmath("LENGTH", u)
+    s = vmath("NORMALIZE", u)
+    lit = math("DIVIDE", math("MAXIMUM", vmath("DOT_PRODUCT", normal, s), 0.0),
+               math("MAXIMUM", vmath("DOT_PRODUCT", true, s), MIN_COS))
+    ambient = math("MULTIPLY", math("ADD", vmath("DOT_PRODUCT", normal, true), 1.0), 0.5)
+    g = math("ADD", math("MULTIPLY", k, lit), math("MULTIPLY", math("SUBTRACT", 1.0, k), ambient))
+    scaled = n.new("ShaderNodeVectorMath")
+    scaled.operation = "SCALE"
+    l.new(gi.outputs["Lightmap"], scaled.inputs[0])
+    l.new(g, scaled.inputs["Scale"])
+    l.new(scaled.outputs["Vector"], go.inputs["Lightmap"])
+    return ng
+
+
 def _user_output(tree):
     outs = [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial" and not n.get(HOOK_PROP)]
     # The output Cycles renders (the export's rule): the hook shows the light of that surface.
@@ -168,12 +222,14 @@ def remove_hook_nodes(mat):
     return len(ours)
 
 
-def add_lightmap_hook(ob, image, baked_objects=(), warnings=None, parts=(), materials=None):
+def add_lightmap_hook(ob, image, baked_objects=(), warnings=None, parts=(), materials=None, direction=None):
     """Adds (or refreshes) our hook in every material of `ob`; returns the material names.
 
     materials: the materials to hook instead of `ob`'s slots (a CSG solid's Boolean
     result also shows its operands' materials); parts: objects whose surface is in
     this image (a CSG solid's operands), so sharing a material with them is fine.
+    direction: a directional bake's direction image; the lightmap is then read
+    for the shading normal (the BSDF's Normal input, so normal maps show).
     """
     warnings = warnings if warnings is not None else []
     ng = hook_group()
@@ -206,6 +262,8 @@ def add_lightmap_hook(ob, image, baked_objects=(), warnings=None, parts=(), mate
         uv.uv_map = LIGHTMAP_UV
         grp = hook_nodes(tree, frame, (x0, y0), uv, uv.outputs["UV"], image, ng, out, surface, _tag)
         _link_base_color(tree, surface, grp, mat, warnings)
+        if direction is not None:
+            _add_direction(tree, frame, (x0, y0), uv, grp, surface, direction)
         # EEVEE prefers an output whose target is exactly EEVEE over an "All" one, active
         # or not, so ours needs no active flag (setting it would clear the user's).
         theirs = [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial"
@@ -215,6 +273,30 @@ def add_lightmap_hook(ob, image, baked_objects=(), warnings=None, parts=(), mate
                             "which EEVEE keeps using: the lightmap hook is not shown there")
         done.append(mat.name)
     return done
+
+
+def _add_direction(tree, frame, origin, uv, grp, surface, image):
+    """Directional lightmap: the direction image (same UVs) and the direction group
+    between the lightmap's image and the hook group."""
+    tex = _tag(tree.nodes.new("ShaderNodeTexImage"), "Direction Image")
+    tex.image, tex.interpolation, tex.extension = image, "Linear", "EXTEND"
+    dg = _tag(tree.nodes.new("ShaderNodeGroup"), "Direction")
+    dg.node_tree = direction_group()
+    for node, dx, dy in ((tex, -500, -300), (dg, -350, -150)):
+        node.parent = frame
+        node.location = (origin[0] + dx, origin[1] + dy)
+    tree.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+    lightmap = grp.inputs["Lightmap"].links[0].from_socket
+    tree.links.new(lightmap, dg.inputs["Lightmap"])
+    tree.links.new(tex.outputs["Color"], dg.inputs["Direction"])
+    node = surface.node if surface is not None else None
+    normal = _source(node.inputs["Normal"]) if node is not None and "Normal" in node.inputs else None
+    if normal is None:
+        geo = _tag(tree.nodes.new("ShaderNodeNewGeometry"), "Geometry")
+        geo.parent, geo.location = frame, (origin[0] - 700, origin[1] - 300)
+        normal = geo.outputs["Normal"]
+    tree.links.new(normal, dg.inputs["Normal"])
+    tree.links.new(dg.outputs["Lightmap"], grp.inputs["Lightmap"])
 
 
 def _link_base_color(tree, surface, grp, mat, warnings):
@@ -240,7 +322,7 @@ def remove_lightmap_hook(materials=None):
     mats = bpy.data.materials if materials is None else materials
     removed = sum(remove_hook_nodes(m) for m in mats)
     for ng in list(bpy.data.node_groups):
-        if ng.get(HOOK_PROP) and ng.library is None and ng.users == 0:
+        if (ng.get(HOOK_PROP) or ng.get(DIRECTION_PROP)) and ng.library is None and ng.users == 0:
             bpy.data.node_groups.remove(ng)
     return removed
 

@@ -33,8 +33,12 @@ ERROR_FILE_SUFFIX = "_error"
 # texel validity's image (R: the share of rays meeting back faces; invalid texels red, valid green)
 VALIDITY = "validity"
 VALIDITY_FILE_SUFFIX = "_validity"
+# a directional bake's image (RGB: the light's share k times its direction s, world space)
+DIRECTION = "direction"
+DIRECTION_FILE_SUFFIX = "_direction"
 _KINDS = {"": (IMAGE_SUFFIX, OWNER_PROP), ERROR: ("_LightmapError", "photon_lightmaps_error_of"),
-          VALIDITY: ("_LightmapValidity", "photon_lightmaps_validity_of")}
+          VALIDITY: ("_LightmapValidity", "photon_lightmaps_validity_of"),
+          DIRECTION: ("_LightmapDirection", "photon_lightmaps_direction_of")}
 LIGHTMAP_DIR = "lightmaps"
 
 

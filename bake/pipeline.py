@@ -47,6 +47,7 @@ class BakeSettings(session.Settings):
     shadowmask_lights: str = ""  # SHADOWMASK: the lights (names, comma-separated) of channels R, G, B, A
     texel_validity: bool = False  # fill texels inside geometry from their neighbours (texel_validity.py)
     stitch_seams: bool = False    # texels meeting across UV seams agree where they meet (seam_stitch.py)
+    directional: bool = False     # also each texel's light direction (directional_lightmap.py)
     overwrite: bool = False
     save_dir: str = ""
     pack: bool = False
@@ -104,6 +105,11 @@ class BakeResult:
     validity_maps: dict = field(default_factory=dict)
     validity_images: dict = field(default_factory=dict)
     validity_paths: dict = field(default_factory=dict)
+    # directional bakes: object name -> BakedMap (RGB = k s, the distant light's share times its
+    # direction, world space; A = coverage); images "<object>_LightmapDirection", files "<object>_direction.exr"
+    direction_maps: dict = field(default_factory=dict)
+    direction_images: dict = field(default_factory=dict)
+    direction_paths: dict = field(default_factory=dict)
     # with spectral_exr: object name -> (height, width, bands) E/pi per band, and its file
     spectral_maps: dict = field(default_factory=dict)
     spectral_paths: dict = field(default_factory=dict)
@@ -242,7 +248,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
                  gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
                  shadowmask_lights=None, texel_validity=None, pass_rays=None, keep_light=None, light_cache=None,
-                 lay_out=(), stitch_seams=None, direct_samples=None):
+                 lay_out=(), stitch_seams=None, direct_samples=None, directional=None):
     """Main thread: Lightmap UV layers for the objects, then the scene export.
 
     lay_out: other objects given the Lightmap UV layers a bake of them would make,
@@ -290,7 +296,8 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                                      spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
                                      shadowmask_lights=shadowmask_lights, texel_validity=texel_validity,
                                      pass_rays=pass_rays, bake_keep_light=keep_light, light_cache=light_cache,
-                                     stitch_seams=stitch_seams, bake_direct_samples=direct_samples)
+                                     stitch_seams=stitch_seams, bake_direct_samples=direct_samples,
+                                     directional=directional)
     if bake_pass == "SHADOWMASK":
         try:
             job.mask_lights = _mask_lights(job.scene, job.settings.shadowmask_lights)
@@ -648,6 +655,7 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
         else:
             result.seconds.update(session.bake_texels(
                 cs, ids, leaves, job.settings, direct=job.direct, deadline=deadline, should_stop=should_stop,
+                directional=job.settings.directional,
                 phase=lambda name, n: phase(name, f"{n:,} texels" if name != "kernels" else
                                             f"compiled in a second process, {n:.0f} s (first run)")))
     if job.settings.texel_validity and masks is None:
@@ -691,6 +699,8 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
                                "their RGB lightmaps are")
     if job.settings.bake_error_images and getattr(cs, "bake_error", None) is not None:
         result.error_maps = _error_maps(cs, job, solids)
+    if job.settings.directional and not ao:
+        result.direction_maps = _direction_maps(cs, job, result)
     result.seconds["extract"] = time.perf_counter() - t1
     if job.settings.denoise:
         phase("denoise", f"{len(result.maps):,} images")
@@ -705,6 +715,22 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
         result.seconds["seams"] = time.perf_counter() - t3
     job.cs = cs
     return job
+
+
+def _direction_maps(cs, job, result):
+    """A directional bake's direction image per baked mesh or primitive object
+    (engine/transport/directional_lightmap.py); CSG solids are told they get none."""
+    from ..engine.transport import directional_lightmap, open_area
+    lm = cs.lightmaps
+    E_lum = open_area.baked(lm, np.arange(lm.area.shape[0])).mean(axis=1)
+    channels = directional_lightmap.direction_channels(cs, E_lum)
+    out = {}
+    for name, bm in result.maps.items():
+        if name in job.csg:
+            result.warnings.append(f"object '{name}': directional lightmaps are not made for exact CSG solids")
+            continue
+        out[name] = BakedMap(name, images.texel_rgba(lm, bm.lightmap_id, channels), bm.lightmap_id)
+    return out
 
 
 def _stitch_seams(cs, job, result):
@@ -761,7 +787,9 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
     for maps, names, paths, kind, suffix in (
             (result.error_maps, result.error_images, result.error_paths, images.ERROR, images.ERROR_FILE_SUFFIX),
             (result.validity_maps, result.validity_images, result.validity_paths, images.VALIDITY,
-             images.VALIDITY_FILE_SUFFIX)):
+             images.VALIDITY_FILE_SUFFIX),
+            (result.direction_maps, result.direction_images, result.direction_paths, images.DIRECTION,
+             images.DIRECTION_FILE_SUFFIX)):
         for name, bm in maps.items():
             if name not in result.maps:
                 continue                      # deleted during the bake (the operator dropped its map)
@@ -785,9 +813,11 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
         for name, bm in result.maps.items():
             ob = bpy.data.objects[name]
             parts = sorted(bm.tiles) if bm.tiles else job.booleans.get(name, ())
+            direction = result.direction_images.get(name)
             result.hooked += hooks.add_lightmap_hook(ob, bpy.data.images[result.images[name]],
                                                baked_objects=baked, warnings=result.warnings,
-                                               parts=parts, materials=csg_atlas.solid_materials(ob, parts))
+                                               parts=parts, materials=csg_atlas.solid_materials(ob, parts),
+                                               direction=bpy.data.images[direction] if direction else None)
     result.seconds["bake"] = result.seconds.get("extract", 0.0) + time.perf_counter() - t0
     result.seconds["total"] = time.perf_counter() - job.t_start
     return result
@@ -799,7 +829,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
                  gather_lights=None, spectral_exr=None, bake_pass=None, ao_distance=None,
                  shadowmask_lights=None, texel_validity=None, pass_rays=None, keep_light=None,
-                 light_cache=None, lay_out=(), stitch_seams=None, direct_samples=None):
+                 light_cache=None, lay_out=(), stitch_seams=None, direct_samples=None, directional=None):
     """Bakes the lightmaps of mesh `objects` to images "<object>_Lightmap" -> BakeResult.
 
     One photon pass for all of them; per texel the direct light (unless
@@ -834,7 +864,9 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
     meet (engine/transport/seam_stitch.py; mesh lightmaps), and reports the jump
     along the seams before and after in BakeResult.seams. `direct_samples`: light
     samples per texel for the direct light (None: the scene's Bake Direct
-    Samples). `denoise` (None: the scene's setting) runs OIDN over
+    Samples). `directional` also writes each object's direction image
+    (BakeResult.direction_maps; engine/transport/directional_lightmap.py), which
+    a material hook uses to light normal maps. `denoise` (None: the scene's setting) runs OIDN over
     each map (engine/transport/denoise.py). `progress(done, total)`
     may return False to cancel: Cancelled is raised before any image changes.
     See the module docstring for image naming, overwriting and saving.
@@ -847,7 +879,7 @@ def bake_objects(context_or_depsgraph, objects, *, photons=None, seed=None, reso
                        spectral_exr=spectral_exr, bake_pass=bake_pass, ao_distance=ao_distance,
                        shadowmask_lights=shadowmask_lights, texel_validity=texel_validity,
                        pass_rays=pass_rays, keep_light=keep_light, light_cache=light_cache, lay_out=lay_out,
-                       stitch_seams=stitch_seams, direct_samples=direct_samples)
+                       stitch_seams=stitch_seams, direct_samples=direct_samples, directional=directional)
     try:
         compute_bake(job, progress)
     except BaseException:

@@ -109,6 +109,7 @@ class KeptPass:
         cs.info = {k: v for k, v in self.cs.info.items() if k not in ("cluster", "irradiance_cache")}
         cs.timings, cs.rays = {}, {}
         cs.__dict__.pop("bake_error", None)
+        cs.__dict__.pop("bake_moments", None)
         return cs
 
 

@@ -272,7 +272,7 @@ def _bake_trace(cs, settings, progress, aim_at):
 
 
 def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline=None, phase=None,
-                should_stop=None):
+                should_stop=None, directional=False):
     """A bake's texel values into cs.lightmaps -> seconds per part.
 
     Direct light per texel (unless direct=False), plus either the photons' own
@@ -285,14 +285,17 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
     while it waits on a helper compiling the bake kernels ("kernels", seconds).
     On a cluster (settings.cluster) the gathers' kernel calls are its tasks
     (Cluster.kernels), with the same result. should_stop() -> True cancels
-    (Cancelled) between the parts, and on a cluster between its tasks."""
+    (Cancelled) between the parts, and on a cluster between its tasks.
+    directional: the direct light's moments of the lightmaps' texels go to
+    cs.bake_moments = (texel ids, moments (K, texel_gather.MOMENTS), direct E
+    (K, bands)), for a directional bake (bake/directional.py)."""
     with _on_cluster(cs, settings, "bake") as cluster:
         with cluster.kernels(should_stop) if cluster is not None else contextlib.nullcontext():
             return _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase,
-                                should_stop or (lambda: False))
+                                should_stop or (lambda: False), directional)
 
 
-def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase, should_stop):
+def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase, should_stop, directional=False):
     from .transport import texel_gather
     lightmap_ids, csg_leaves = list(lightmap_ids), list(csg_leaves)
     phase = phase or (lambda name, texels: None)
@@ -304,8 +307,14 @@ def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase
     parts = []
     if direct:
         phase("direct", texels)
+    cs.bake_moments = None
     if direct and lightmap_ids:
-        parts.append(gather_direct(cs, lightmap_ids, settings))
+        ids, E = gather_direct(cs, lightmap_ids, settings, moments=directional)
+        if directional:
+            nb = cs.n_bands
+            cs.bake_moments = (ids, E[:, nb:], E[:, :nb].copy())
+            E = E[:, :nb]
+        parts.append((ids, E))
     if direct and csg_leaves:
         parts.append(gather_direct_csg(cs, csg_leaves, settings))
     seconds["direct"] = time.perf_counter() - t0
@@ -370,11 +379,12 @@ def texel_error(lm, direct, indirect):
     return ids, rel, indirect.rays * DIRECT_SAMPLES
 
 
-def gather_direct(cs, lightmap_ids, settings):
-    """Direct irradiance per texel of the given lightmaps -> (texel ids, E); add with add_direct."""
+def gather_direct(cs, lightmap_ids, settings, moments=False):
+    """Direct irradiance per texel of the given lightmaps -> (texel ids, E); add with add_direct.
+    moments: E's rows end with the direct light's moments (texel_gather.MOMENTS)."""
     from .transport import texel_gather
     return texel_gather.direct_texel_irradiance(cs, lightmap_ids, int(settings.bake_direct_samples),
-                                                seed=int(settings.seed))
+                                                seed=int(settings.seed), moments=moments)
 
 
 def gather_direct_csg(cs, leaves, settings):

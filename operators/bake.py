@@ -97,6 +97,10 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         description="Fill texels that lie inside geometry (most of their rays meet back faces, as under a box "
                     "on the floor) from their neighbours, so no light leaks out of them; each object's "
                     "<object>_LightmapValidity image shows them in red")
+    directional: BoolProperty(
+        name="Directional", default=False,
+        description="Also bake which way each texel's light comes from (<object>_LightmapDirection), so "
+                    "normal-mapped materials show their bumps under baked light (with Hook Materials, EEVEE)")
     stitch_seams: BoolProperty(
         name="Stitch Seams", default=False,
         description="Make texels that meet across UV seams, and across edges objects share, agree where they "
@@ -126,7 +130,8 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
                                      bake_pass=None if self.bake_pass == "COMBINED" else self.bake_pass,
                                      ao_distance=self.ao_distance, shadowmask_lights=self.shadowmask_lights,
                                      texel_validity=self.texel_validity or None, pass_rays=self.pass_rays,
-                                     stitch_seams=self.stitch_seams or None)
+                                     stitch_seams=self.stitch_seams or None,
+                                     directional=self.directional or None)
 
     def _finish(self, job):
         # Objects may have been deleted while the photon pass ran.
@@ -310,7 +315,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
     def draw(self, context):
         col = self.layout.column()
         for prop in ("selected_only", "photons", "resolution", "bake_pass", "indirect_only", "texel_validity",
-                     "stitch_seams", "hook_materials", "overwrite", "pack"):
+                     "directional", "stitch_seams", "hook_materials", "overwrite", "pack"):
             col.prop(self, prop)
             if prop == "bake_pass" and self.bake_pass == "AO":
                 col.prop(self, "ao_distance")

@@ -154,7 +154,7 @@ def direct_irradiance_stratum(g, ls, stack, p, n, state, out, strata, rad, sides
                                                                    u1, u2, rad)
                 if ok:
                     _add_unshadowed(g, stack, px, py, pz, sg * nx, sg * ny, sg * nz, eps, wx, wy, wz,
-                                    math.inf, scale * w_sel, rad, out)
+                                    math.inf, scale * w_sel, rad, out, sg)
             continue
         state, u1 = next_float(state)
         state, u2 = next_float(state)
@@ -168,14 +168,18 @@ def direct_irradiance_stratum(g, ls, stack, p, n, state, out, strata, rad, sides
         if sides == 2 and wx * nx + wy * ny + wz * nz < 0.0:
             sg = -1.0
         _add_unshadowed(g, stack, px, py, pz, sg * nx, sg * ny, sg * nz, eps, wx, wy, wz, dist,
-                        scale * w_sel, rad, out)
+                        scale * w_sel, rad, out, sg)
     return state
 
 
 @njit(**INLINE)
-def _add_unshadowed(g, stack, px, py, pz, nx, ny, nz, eps, wx, wy, wz, dist, scale, rad, out):
+def _add_unshadowed(g, stack, px, py, pz, nx, ny, nz, eps, wx, wy, wz, dist, scale, rad, out, sg):
     """out += rad · cos · scale when direction w reaches distance dist from p
-    (offset along n, the lit side) unoccluded and above that side."""
+    (offset along n, the lit side) unoccluded and above that side. An `out`
+    longer than rad (directional bakes) also gets, after the bands, the light's
+    direction weighted by its irradiance averaged over the bands; light on the
+    back (sg -1) of an open surface, which its texel sums with the front's, as
+    if from the mirrored direction in front."""
     cos_r = wx * nx + wy * ny + wz * nz
     if cos_r <= 0.0:
         return
@@ -183,8 +187,18 @@ def _add_unshadowed(g, stack, px, py, pz, nx, ny, nz, eps, wx, wy, wz, dist, sca
     if tmax <= 0.0 or occluded(g, stack, px + eps * nx, py + eps * ny, pz + eps * nz, wx, wy, wz, 0.0, tmax):
         return
     c = cos_r * scale
-    for b in range(out.shape[0]):
+    nb = rad.shape[0]
+    mean = 0.0
+    for b in range(nb):
         out[b] += rad[b] * c
+        mean += rad[b] * c
+    if out.shape[0] > nb:
+        mean /= nb
+        if sg < 0.0:
+            wx, wy, wz = wx - 2.0 * cos_r * nx, wy - 2.0 * cos_r * ny, wz - 2.0 * cos_r * nz
+        out[nb] += mean * wx
+        out[nb + 1] += mean * wy
+        out[nb + 2] += mean * wz
 
 
 @njit(cache=True, inline="always")
@@ -342,22 +356,38 @@ def texel_stream(tx, it, xor):
     return stream_state(tx.key[it] ^ xor, tx.local[it])
 
 
+# A directional bake's moments per texel, after its bands: the direct light's
+# direction weighted by its band-mean irradiance (3), and the surface normal (3),
+# both averaged over the texel's samples.
+MOMENTS = 6
+
+
+@njit(cache=True, inline="always")
+def _add_normal(e, nb, nx, ny, nz):
+    """The sample's normal into a directional bake's moments (nothing otherwise)."""
+    if e.shape[0] >= nb + MOMENTS:
+        e[nb + 3] += nx
+        e[nb + 4] += ny
+        e[nb + 5] += nz
+
+
 @njit(cache=True, nogil=True)
-def _gather_mesh(g, ls, tx, n_samples, out, start, stop):
-    """Direct light of mesh texels start..stop: the block's scratch, then the core."""
-    nb = out.shape[1]
-    _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, np.empty(STACK_WORDS, np.int32), np.empty((2, nb)))
+def _gather_mesh(g, ls, tx, n_samples, nb, out, start, stop):
+    """Direct light of mesh texels start..stop: the block's scratch, then the core.
+    out: (texels, nb) irradiance per band, or (texels, nb + MOMENTS) with the
+    moments of a directional bake after it (texel_moments)."""
+    _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, np.empty(STACK_WORDS, np.int32),
+                      np.empty(out.shape[1]), np.empty(nb))
 
 
 # The per-sample loop compiles without NRT: with it, every read of a field of the
 # scene tuples is an atomic incref and decref, which two threads contend for
 # (half the kernel's time, measured with perf); scratch comes from the wrapper.
 @njit(**CORE)
-def _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, stack, scratch):
-    nb = out.shape[1]
-    e, rad = scratch[0], scratch[1]
+def _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, stack, e, rad):
+    nb = rad.shape[0]
     for it in range(start, stop):
-        for b in range(nb):
+        for b in range(out.shape[1]):
             out[it, b] = 0.0
         pieces = mesh_texel_pieces(g, tx, it)
         if not (pieces[2] > 0.0):
@@ -367,7 +397,7 @@ def _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, stack, scratch):
         for batch in range(2):
             k = grid_side(n)
             state, shift = texel_shift(state, k)
-            for b in range(nb):
+            for b in range(e.shape[0]):
                 e[b] = 0.0
             s1 = 0.0
             s2 = 0.0
@@ -378,6 +408,7 @@ def _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, stack, scratch):
                 ok, px, py, pz, nx, ny, nz, _, _, _ = mesh_texel_sample(g, tx, pieces, u1, u2)
                 if not ok:
                     continue
+                _add_normal(e, nb, nx, ny, nz)
                 before = 0.0
                 for b in range(nb):
                     before += e[b]
@@ -390,7 +421,7 @@ def _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, stack, scratch):
                 s1 += v
                 s2 += v * v
             inv = 1.0 / n
-            for b in range(nb):
+            for b in range(e.shape[0]):
                 out[it, b] = e[b] * inv
             mean = s1 * inv
             if batch == 1 or not _spread(mean, s2 * inv):
@@ -399,20 +430,21 @@ def _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, stack, scratch):
 
 
 @njit(cache=True, nogil=True)
-def _gather_prim(g, ls, tx, n_samples, out, start, stop):
-    """Direct light of primitive texels start..stop: the block's scratch, then the core."""
-    nb = out.shape[1]
-    _gather_prim_core(g, ls, tx, n_samples, out, start, stop, np.empty(STACK_WORDS, np.int32), np.empty((3, nb)))
+def _gather_prim(g, ls, tx, n_samples, nb, out, start, stop):
+    """Direct light of primitive texels start..stop: the block's scratch, then the
+    core (out as _gather_mesh's)."""
+    m = out.shape[1]
+    _gather_prim_core(g, ls, tx, n_samples, out, start, stop, np.empty(STACK_WORDS, np.int32),
+                      np.empty((2, m)), np.empty(nb))
 
 
 @njit(**CORE)
-def _gather_prim_core(g, ls, tx, n_samples, out, start, stop, stack, scratch):
+def _gather_prim_core(g, ls, tx, n_samples, out, start, stop, stack, scratch, rad):
     """_gather_prim without NRT (see _gather_mesh_core)."""
-    nb = out.shape[1]
-    e, ew, rad = scratch[0], scratch[1], scratch[2]
+    e, ew = scratch[0], scratch[1]
     k = grid_side(n_samples)
     for it in range(start, stop):
-        for b in range(nb):
+        for b in range(ew.shape[0]):
             ew[b] = 0.0
         sides = tx.sides[tx.lm[it]]
         state = texel_stream(tx, it, NO_XOR)
@@ -425,14 +457,15 @@ def _gather_prim_core(g, ls, tx, n_samples, out, start, stop, stack, scratch):
             ok, jac, px, py, pz, nx, ny, nz, _, _ = prim_texel_sample(tx, it, u1, u2)
             if not ok:
                 continue
-            for b in range(nb):
+            for b in range(e.shape[0]):
                 e[b] = 0.0
+            _add_normal(e, rad.shape[0], nx, ny, nz)
             state = direct_irradiance_stratum(g, ls, stack, (px, py, pz), (nx, ny, nz), state, e,
                                               (light_stratum(s, k, shift), k), rad, sides)
-            for b in range(nb):
+            for b in range(e.shape[0]):
                 ew[b] += jac * e[b]
             wsum += jac
-        for b in range(nb):
+        for b in range(ew.shape[0]):
             out[it, b] = ew[b] / wsum if wsum > 0.0 else 0.0
 
 
@@ -529,13 +562,14 @@ class _MeshTexels:
             cat[k] = cat[k].astype(np.int64)
         return MeshTexels(**cat)
 
-    def gather(self, cs, n):
-        """(texel ids, E) of the collected texels; None when there are none."""
+    def gather(self, cs, n, moments=False):
+        """(texel ids, E) of the collected texels (E's rows end with the MOMENTS
+        with `moments`); None when there are none."""
         tx = self.packed()
         if tx is None:
             return None
-        out = np.zeros((tx.texel.size, cs.n_bands))
-        parallel.run(_gather_mesh, out.shape[0], cs.geometry, cs.lights, tx, n, out, remote=True)
+        out = np.zeros((tx.texel.size, cs.n_bands + (MOMENTS if moments else 0)))
+        parallel.run(_gather_mesh, out.shape[0], cs.geometry, cs.lights, tx, n, cs.n_bands, out, remote=True)
         return tx.texel, out
 
 
@@ -584,13 +618,14 @@ class _PrimTexels:
                           ncof=np.stack(pl["ncof"]), res=np.asarray(pl["res"], np.int64),
                           sides=np.asarray(pl["sides"], np.int64), **cat)
 
-    def gather(self, cs, n):
-        """(texel ids, E) of the collected texels; None when there are none."""
+    def gather(self, cs, n, moments=False):
+        """(texel ids, E) of the collected texels (E's rows end with the MOMENTS
+        with `moments`); None when there are none."""
         tx = self.packed()
         if tx is None:
             return None
-        out = np.zeros((tx.texel.size, cs.n_bands))
-        parallel.run(_gather_prim, out.shape[0], cs.geometry, cs.lights, tx, n, out, remote=True)
+        out = np.zeros((tx.texel.size, cs.n_bands + (MOMENTS if moments else 0)))
+        parallel.run(_gather_prim, out.shape[0], cs.geometry, cs.lights, tx, n, cs.n_bands, out, remote=True)
         return tx.texel, out
 
 
@@ -736,14 +771,15 @@ def by_texel(parts, nb):
     return ids[order], E[order]
 
 
-def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAMPLES, seed=0):
+def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAMPLES, seed=0, moments=False):
     """Direct irradiance averaged over each measured texel of the given lightmaps.
 
     Returns (texel_ids int64[K], E float64[K, n_bands]): the global texel indices
     (those finalize() computes: area above the sliver threshold) and their
     direct irradiance in W/m² (both sides summed on open surfaces). Nothing in
     `cs` changes; `add_direct` folds the result into the lightmaps.
-    lightmap_ids None: all instance lightmaps of the scene.
+    lightmap_ids None: all instance lightmaps of the scene. moments: each E row
+    also holds, after the bands, the MOMENTS of a directional bake.
     """
     n = int(samples_per_texel)
     if n < 1:
@@ -755,7 +791,8 @@ def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAM
         lightmap_ids = owners.keys()
     lightmap_ids = sorted({int(l) for l in lightmap_ids})
     mesh, prim = collect_texels(cs, owners, lightmap_ids, seed)
-    ids, E = by_texel([mesh.gather(cs, n), prim.gather(cs, n)], cs.n_bands)
+    ids, E = by_texel([mesh.gather(cs, n, moments), prim.gather(cs, n, moments)],
+                      cs.n_bands + (MOMENTS if moments else 0))
     cs.timings["direct_gather"] = time.perf_counter() - t0
     return ids, E
 

@@ -128,7 +128,6 @@ def test_normal_maps_show_under_a_directional_lightmap():
     print(f"\n{errors}")
     u = reports[True].direction_maps["plane"].rgba
     u = u[..., :3][u[..., 3] >= 1.0 - 1e-6]
-    k = np.linalg.norm(u, axis=1)
     sun = np.array(bpy.data.objects["sun"].matrix_world.to_3x3().col[2])    # toward the sun
     assert np.allclose(u, sun, atol=0.01)                 # the sun alone: k = 1
     assert errors[True] < 0.02 and errors[False] > 0.15

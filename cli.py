@@ -600,6 +600,7 @@ def bake_main(args):
                     "shadowmask": res.seconds.get("shadowmask", 0.0),
                     "validity": res.seconds.get("validity", 0.0),
                     "seams": res.seconds.get("seams", 0.0),
+                    "direction": res.seconds.get("direction", 0.0),
                     "bake": res.seconds.get("bake", 0.0),
                     "denoise": res.seconds.get("denoise", 0.0),
                     "total": time.perf_counter() - t0},

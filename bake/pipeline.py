@@ -700,7 +700,9 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
     if job.settings.bake_error_images and getattr(cs, "bake_error", None) is not None:
         result.error_maps = _error_maps(cs, job, solids)
     if job.settings.directional and not ao:
+        t_dir = time.perf_counter()
         result.direction_maps = _direction_maps(cs, job, result)
+        result.seconds["direction"] = time.perf_counter() - t_dir
     result.seconds["extract"] = time.perf_counter() - t1
     if job.settings.denoise:
         phase("denoise", f"{len(result.maps):,} images")

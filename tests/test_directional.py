@@ -141,6 +141,7 @@ def test_cli_directional_writes_the_direction_image(tmp_path):
     run("bake", blend, "--out", tmp_path / "maps", "--resolution", "16", "--photons", "10000", "--directional",
         "--json", tmp_path / "r.json")
     rep = json.loads((tmp_path / "r.json").read_text())
+    assert rep["seconds"]["direction"] > 0.0
     img = bpy.data.images.load(rep["objects"]["plane"]["direction_image"])
     px = np.array(img.pixels[:], np.float32).reshape(-1, 4)
     bpy.data.images.remove(img)

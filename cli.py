@@ -567,7 +567,7 @@ def bake_main(args):
     check_writable(out_dir)
     light_cache = os.path.abspath(args.light_cache) if args.light_cache else None
     if light_cache:
-        check_writable(light_cache)
+        check_writable(light_cache, "the photon pass (--light-cache)")
 
     progress = progress_line("photons")
 

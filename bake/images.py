@@ -263,8 +263,9 @@ def current_pixels(image, width, height):
     return out
 
 
-def check_writable(folder):
-    """Creates the output folder (a Blender "//" path is fine) -> raises an InputError if it cannot take files."""
+def check_writable(folder, what="the lightmaps"):
+    """Creates the output folder (a Blender "//" path is fine) -> raises an InputError if it cannot take files
+    (`what`: what would be written there, for the message)."""
     import bpy
     if not folder:
         return
@@ -274,5 +275,5 @@ def check_writable(folder):
         with tempfile.NamedTemporaryFile(dir=path, prefix=".photon_lightmaps_probe"):
             pass
     except OSError as exc:
-        raise InputError(f"{path}: cannot write the lightmaps there ({exc.strerror or exc}); "
+        raise InputError(f"{path}: cannot write {what} there ({exc.strerror or exc}); "
                          "choose another folder") from exc

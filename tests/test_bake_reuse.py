@@ -173,6 +173,10 @@ def test_cli_rebakes_named_objects_from_a_light_cache(tmp_path):
     bad = run("bake", blend, "--out", out, "--objects", "floor,nothing", check=False)
     assert bad.returncode == 2 and "--objects: no object named 'nothing'" in bad.stderr
     assert "Traceback" not in bad.stderr
+    blocked = tmp_path / "file"
+    blocked.write_text("")                       # a file where the folder should be
+    bad = run("bake", blend, "--out", out, "--light-cache", blocked / "light", check=False)
+    assert bad.returncode == 2 and "cannot write the photon pass (--light-cache) there" in bad.stderr
 
 
 def _exr(path):

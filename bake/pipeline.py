@@ -79,7 +79,8 @@ class BakeResult:
     # texel validity: object name -> {"invalid": texels filled from neighbours, "texels": measured}
     validity: dict = None
     # with stitch_seams: {"edges", "samples", "jump_before", "jump_after" (mean relative jump of the
-    # two sides' bilinear reads along the seams), their 95th percentiles, "texels_changed"}
+    # two sides' bilinear reads along the seams), their 95th percentiles, "texels_changed", and for a
+    # directional bake "direction_jump_before", "direction_jump_after" (its direction images')}
     seams: dict = None
     # the photon pass: {"reused": "memory" | "disk" | None, "why_not", "key", "kept_bytes", "saved"}
     light_reuse: dict = None
@@ -737,7 +738,9 @@ def _direction_maps(cs, job, result):
 
 def _stitch_seams(cs, job, result):
     """Seam stitching over the baked mesh lightmaps, all together (seams between
-    objects too): engine/lightmaps/seam_stitch.py -> BakeResult.seams."""
+    objects too), and over their direction images if the bake is directional, which
+    are read across the seams as the lightmaps are: engine/transport/seam_stitch.py
+    -> BakeResult.seams."""
     from ..engine.transport import seam_stitch
     lm = cs.lightmaps
     by_id = {bm.lightmap_id: bm for name, bm in result.maps.items()
@@ -751,9 +754,16 @@ def _stitch_seams(cs, job, result):
     before = seam_stitch.seam_jump(seams, images, channels)
     changed = seam_stitch.stitch(seams, images, holds, channels)
     after = seam_stitch.seam_jump(seams, images, channels)
-    return {"edges": seams.edges, "samples": int(seams.ia.size), "jump_before": before[0],
-            "jump_before_p95": before[1], "jump_after": after[0], "jump_after_p95": after[1],
-            "texels_changed": changed}
+    report = {"edges": seams.edges, "samples": int(seams.ia.size), "jump_before": before[0],
+              "jump_before_p95": before[1], "jump_after": after[0], "jump_after_p95": after[1],
+              "texels_changed": changed}
+    directions = {bm.lightmap_id: bm.rgba for bm in result.direction_maps.values()}
+    if directions and charts:
+        images = [directions[lid] for lid, _, _ in charts]
+        report["direction_jump_before"] = seam_stitch.seam_jump(seams, images)[0]
+        seam_stitch.stitch(seams, images, holds)
+        report["direction_jump_after"] = seam_stitch.seam_jump(seams, images)[0]
+    return report
 
 
 def _denoise_map(cs, bm):

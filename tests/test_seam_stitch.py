@@ -79,7 +79,8 @@ def test_stitching_closes_the_seams_and_keeps_the_surface():
     to 33 %). Covered texels move by 0.15 % on average: the gutters take up the change."""
     _, objs = halves_and_ball()
     plain = bake.bake_objects(bpy.context, objs, seed=1, resolution=32)
-    stitched = bake.bake_objects(bpy.context, objs, seed=1, resolution=32, stitch_seams=True, overwrite=True)
+    stitched = bake.bake_objects(bpy.context, objs, seed=1, resolution=32, stitch_seams=True, overwrite=True,
+                                 directional=True)
     assert stitched.light_reuse["reused"] == "memory"          # the same light, stitched
     rep = stitched.seams
     print(f"\n{rep}")
@@ -87,6 +88,8 @@ def test_stitching_closes_the_seams_and_keeps_the_surface():
     assert rep["jump_after"] < rep["jump_before"] / 10 and rep["jump_after"] < 0.005
     noise = np.mean([e["rel_error_mean"] for e in stitched.error.values()])
     assert rep["jump_after"] < noise
+    # the direction images are stitched along the same seams
+    assert rep["direction_jump_after"] < rep["direction_jump_before"] / 10
     moved = []
     for name, bm in plain.maps.items():
         a, b = bm.rgba, stitched.maps[name].rgba

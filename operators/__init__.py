@@ -24,7 +24,6 @@ classes = bake.classes + csg_primitives.classes + lsystem.classes + ol_ops.class
 def _free_bake_cache(*_args):
     bake_api.clear_cache()
     render_pipeline.LIGHT.clear()
-    pipeline.BAKE_LIGHT.clear()
 
 
 @bpy.app.handlers.persistent
@@ -66,3 +65,4 @@ def unregister():
         bpy.utils.unregister_class(cls)
     bake_api.clear_cache()
     render_pipeline.LIGHT.clear()
+    pipeline.BAKE_LIGHT.clear()

@@ -185,3 +185,11 @@ def _exr(path):
         return np.array(img.pixels[:], np.float32)
     finally:
         bpy.data.images.remove(img)
+
+
+def test_loading_a_file_lets_the_kept_pass_go(room):
+    """The kept pass belongs to the file it was traced in: loading another lets it go."""
+    baked([bpy.data.objects["floor"]])
+    assert pipeline.BAKE_LIGHT.kept is not None
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    assert pipeline.BAKE_LIGHT.kept is None

@@ -150,3 +150,16 @@ def test_cli_directional_writes_the_direction_image(tmp_path):
     u = px[covered, :3]
     sun = np.array(bpy.data.objects["sun"].matrix_world.to_3x3().col[2])
     assert np.allclose(u / np.linalg.norm(u, axis=1, keepdims=True), sun, atol=0.01)
+
+
+def test_a_directional_bake_leaves_the_lightmap_as_it_was():
+    """The moments ride along in the direct gather's rows: the lightmap itself is the
+    plain bake's, bit for bit (the same photon pass, reused)."""
+    from test_seam_stitch import halves_and_ball
+    _, objs = halves_and_ball()
+    plain = bake.bake_objects(bpy.context, objs, seed=1, resolution=16)
+    directional = bake.bake_objects(bpy.context, objs, seed=1, resolution=16, directional=True, overwrite=True)
+    assert directional.light_reuse["reused"] == "memory"
+    for name, bm in plain.maps.items():
+        assert np.array_equal(bm.rgba, directional.maps[name].rgba), name
+    assert set(directional.direction_maps) == set(plain.maps)

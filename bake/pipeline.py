@@ -272,6 +272,8 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
         raise SceneError(f"AO distance: must be a positive number of metres, got {ao_distance}")
     if pass_rays is not None and not 1 <= int(pass_rays) <= 65536:
         raise SceneError(f"pass rays: must be 1 to 65536 rays per point, got {pass_rays}")
+    if direct_samples is not None and not 1 <= int(direct_samples) <= 1 << 20:
+        raise SceneError(f"direct samples: must be 1 to {1 << 20} light samples per texel, got {direct_samples}")
     wanted = _wanted(depsgraph, objects, result.skipped)
     extra = [ob for ob in _wanted(depsgraph, lay_out, {}) if ob.name not in {w.name for w in wanted}]
     booleans = {}                   # Booleans of plain meshes: baked as Blender's result

@@ -196,6 +196,8 @@ def test_a_pass_that_contradicts_indirect_only_is_refused(room):
         bake.bake_objects(bpy.context, [bpy.data.objects["floor"]], bake_pass="AO", indirect_only=True)
     with pytest.raises(SceneError, match="use one of"):
         bake.bake_objects(bpy.context, [bpy.data.objects["floor"]], bake_pass="shadow")
+    with pytest.raises(SceneError, match="direct samples: must be 1 to"):
+        bake.bake_objects(bpy.context, [bpy.data.objects["floor"]], direct_samples=0)
 
 
 def test_cli_shadowmask_writes_one_light_per_channel(tmp_path):

@@ -26,7 +26,6 @@ OL_GROUP = "Photon Orientation Lightmap"
 OL_PREFIX = "Photon Orientation Lightmap"
 DIRECTION_GROUP = "Photon Lightmap Direction"
 DIRECTION_PROP = "photon_lightmaps_direction_group"
-MIN_COS = 0.05      # engine/transport/directional_lightmap.MIN_COS (the hook repeats its formula)
 
 
 def hook_nodes(tree, frame, origin, lookup, vector, image, group, out, surface, tag):
@@ -124,6 +123,7 @@ def direction_group():
     shading normal (engine/transport/directional_lightmap.py's formula):
     E · [k · max(0, n'·s) / max(n·s, MIN_COS) + (1 - k) (1 + n'·n) / 2], with
     u = k s from the direction image and n the surface's true normal."""
+    from ..engine.transport.directional_lightmap import MIN_COS
     ng, new = _find_or_new_group(DIRECTION_PROP, DIRECTION_GROUP,
                                  "Photon Lightmaps: a directional lightmap read for the shading normal")
     if not new:
@@ -145,7 +145,7 @@ def direction_group():
             l.new(b, node.inputs[1])
         return node.outputs["Value"] if op in ("LENGTH", "DOT_PRODUCT") else node.outputs["Vector"]
 
-    def math(op, a, b=None, value=None):
+    def math(op, a, b=None):
         node = n.new("ShaderNodeMath")
         node.operation = op
         for i, x in enumerate((a, b)):

@@ -24,7 +24,7 @@ import os
 import numpy as np
 
 from .compile import checked_camera
-from .lightmaps.lightmap import Lightmaps
+from .lightmaps.lightmap import STATE_DILATED, Lightmaps
 
 
 def light_key(scene, settings):
@@ -113,7 +113,10 @@ class KeptPass:
         return cs
 
 
-# What a saved pass keeps of its compiled scene besides the lightmaps
+# What a saved pass keeps: the lightmap fields its photons (and the open-area
+# estimate before them) filled in; the layout (offsets, areas, split texels) comes
+# from compiling the same scene again. And the flags the pass set on the scene.
+_PASS_FIELDS = ("open", "flux", "flux_sq", "hits", "irradiance", "state")
 _PASS_FLAGS = ("caustics_traced", "lightmaps_hold_direct")
 _STATS_ARRAYS = ("emitted", "absorbed", "escaped", "truncated")
 
@@ -148,10 +151,10 @@ def save_pass(folder, kept):
     """Writes `kept` to the folder (one file per key; written whole, then renamed,
     so a reader never sees half of one) -> its path."""
     os.makedirs(folder, exist_ok=True)
-    arrays = {f"lm_{name}": a for name, a in zip(Lightmaps._fields, kept.lightmaps)}
+    arrays = {f"lm_{name}": getattr(kept.lightmaps, name) for name in _PASS_FIELDS}
     cs = kept.cs
     if cs.caustics is not None and cs.caustics_traced:
-        arrays.update({f"caustic_{name}": a for name, a in zip(Lightmaps._fields, cs.caustics)})
+        arrays.update({f"caustic_{name}": getattr(cs.caustics, name) for name in _PASS_FIELDS})
     arrays.update({f"stats_{name}": getattr(kept.stats, name) for name in _STATS_ARRAYS})
     meta = {"key": kept.key, "aim": [list(map(float, kept.aim[0])), float(kept.aim[1])],
             "flags": {name: bool(getattr(cs, name)) for name in _PASS_FLAGS},
@@ -177,25 +180,28 @@ def saved_recording(folder, key):
 
 def load_pass(folder, key, cs, aim, stats_type):
     """The pass saved under `key` into the compiled scene `cs` (compiled with the
-    saved pass's recording) -> KeptPass, or None where it does not serve (its
-    photons aimed at a sphere that misses `aim`, or its arrays do not fit `cs`)."""
+    saved pass's recording) -> (KeptPass, "") or (None, why not): its photons aimed
+    at a sphere that misses `aim`, or its arrays do not fit `cs` (shapes, types,
+    finite values, texel states: a damaged file is not read)."""
     try:
         with np.load(pass_file(folder, key)) as f:
             meta = json.loads(bytes(f["meta"]).decode())
             saved_aim = (np.asarray(meta["aim"][0], np.float64), float(meta["aim"][1]))
-            if meta["key"] != key or not _holds(saved_aim, aim):
-                return None
-            main = {name: f[f"lm_{name}"] for name in Lightmaps._fields}
-            caustic = ({name: f[f"caustic_{name}"] for name in Lightmaps._fields}
+            if meta["key"] != key:
+                return None, "the saved pass is of another scene"
+            if not _holds(saved_aim, aim):
+                return None, "the saved pass was aimed at other objects"
+            main = {name: f[f"lm_{name}"] for name in _PASS_FIELDS}
+            caustic = ({name: f[f"caustic_{name}"] for name in _PASS_FIELDS}
                        if "caustic_flux" in f.files else None)
             arrays = {name: f[f"stats_{name}"] for name in _STATS_ARRAYS}
             recorded = np.array(f["recording"], bool)
     except (OSError, KeyError, ValueError):
-        return None
+        return None, "the saved pass cannot be read"
     if not _fits(cs.lightmaps, main) or (caustic is not None and
                                          (cs.caustics is None or not _fits(cs.caustics, caustic))):
-        return None
-    for name in Lightmaps._fields:
+        return None, "the saved pass does not fit the scene (or is damaged)"
+    for name in _PASS_FIELDS:
         getattr(cs.lightmaps, name)[...] = main[name]
         if caustic is not None:
             getattr(cs.caustics, name)[...] = caustic[name]
@@ -204,12 +210,20 @@ def load_pass(folder, key, cs, aim, stats_type):
     stats = stats_type(**meta["stats"], **arrays,
                        aim=None if meta["stats_aim"] is None else
                        (np.asarray(meta["stats_aim"][0]), float(meta["stats_aim"][1])))
-    return KeptPass(key, recorded, saved_aim, cs, Lightmaps(*(a.copy() for a in cs.lightmaps)), stats)
+    return KeptPass(key, recorded, saved_aim, cs, Lightmaps(*(a.copy() for a in cs.lightmaps)), stats), ""
 
 
 def _fits(lm, arrays):
-    return all(getattr(lm, name).shape == arrays[name].shape and getattr(lm, name).dtype == arrays[name].dtype
-               for name in Lightmaps._fields)
+    """Saved pass arrays that can go into `lm` as they are: its shapes and types,
+    finite values, and texel states the kernels know."""
+    for name in _PASS_FIELDS:
+        a, b = getattr(lm, name), arrays[name]
+        if a.shape != b.shape or a.dtype != b.dtype:
+            return False
+        if b.dtype.kind == "f" and not np.all(np.isfinite(b)):
+            return False
+    state = arrays["state"]
+    return bool(np.all((state >= 0) & (state <= STATE_DILATED)))
 
 
 def _feed(h, x, seen):

@@ -219,12 +219,14 @@ def compile_and_trace_bake(scene, settings, *, progress=None, aim_at=None, kept=
     from . import light_reuse
     key, needs = light_reuse.bake_key(scene, settings), light_reuse.recording(scene)
     found, why = kept.take(key, needs, aim_at)
-    if found is not None:
-        cs, source = found.fresh_scene(), "memory"
-    elif cache_dir:
+    source = "memory"
+    if found is None and cache_dir:
         found, why_disk = _saved_pass(scene, settings, key, needs, aim_at, cache_dir)
-        kept.kept, cs, source, why = found, found and found.cs, "disk", why_disk or why
+        source, why = "disk", why_disk or why
+        kept.kept = found                   # a loaded pass is kept as a traced one would be
     if found is not None:
+        # a pass from memory is copied; one just loaded is this bake's own scene already
+        cs = found.fresh_scene() if source == "memory" else found.cs
         cs.info["light_reuse"] = {"reused": source, "key": key[:16], "kept_bytes": found.nbytes(),
                                   "photons": int(found.stats.photons)}
         return cs, found.stats
@@ -254,8 +256,7 @@ def _saved_pass(scene, settings, key, needs, aim_at, cache_dir):
     cs = _bake_compile(scene, settings)
     cs.__dict__["_open_area_done"] = True          # the saved lightmaps hold the open areas
     _bake_trace(cs, replace(settings, photons=0), None, None)   # the pass's light set, no photons
-    found = light_reuse.load_pass(cache_dir, key, cs, light_reuse.aim_sphere(cs, aim_at), PhotonStats)
-    return found, "" if found is not None else "the saved pass was aimed at other objects"
+    return light_reuse.load_pass(cache_dir, key, cs, light_reuse.aim_sphere(cs, aim_at), PhotonStats)
 
 
 def _bake_compile(scene, settings):
@@ -288,7 +289,7 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
     (Cancelled) between the parts, and on a cluster between its tasks.
     directional: the direct light's moments of the lightmaps' texels go to
     cs.bake_moments = (texel ids, moments (K, texel_gather.MOMENTS), direct E
-    (K, bands)), for a directional bake (bake/directional.py)."""
+    (K, bands)), for a directional bake (transport/directional_lightmap.py)."""
     with _on_cluster(cs, settings, "bake") as cluster:
         with cluster.kernels(should_stop) if cluster is not None else contextlib.nullcontext():
             return _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase,

@@ -138,6 +138,16 @@ def test_a_saved_pass_is_reused_from_its_folder(room, tmp_path):
     assert again.light_reuse["reused"] == "disk", again.light_reuse
     assert again.stats.rays == full.stats.rays and np.array_equal(again.stats.emitted, full.stats.emitted)
     assert np.array_equal(again.maps["floor"].rgba, full.maps["floor"].rgba)
+    # a damaged file (a NaN in the saved flux) is not read: the pass is traced again
+    path = full.light_reuse["saved"]
+    with np.load(path) as f:
+        arrays = dict(f)
+    arrays["lm_flux"][0, 0] = np.nan
+    np.savez(path, **arrays)
+    damaged = baked([bpy.data.objects["floor"]], light_cache=str(tmp_path), keep_light=False)
+    assert damaged.light_reuse["reused"] is None
+    assert damaged.light_reuse["why_not"] == "the saved pass does not fit the scene (or is damaged)"
+    assert np.array_equal(damaged.maps["floor"].rgba, full.maps["floor"].rgba)
     moved = bpy.data.objects["tall_box"]
     moved.location.x += 0.05
     assert baked([bpy.data.objects["floor"]], light_cache=str(tmp_path)).light_reuse["reused"] is None

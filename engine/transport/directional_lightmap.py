@@ -57,10 +57,9 @@ def direction_channels(cs, E_lum):
     u = np.zeros((lm.area.shape[0], 3))
     if moments is not None and moments[0].size:
         ids, mom, E_direct = moments
-        assert mom.shape[1] == MOMENTS
-        n = mom[:, 3:6]
-        n = np.divide(n, np.linalg.norm(n, axis=1, keepdims=True), out=np.zeros_like(n),
-                      where=np.linalg.norm(n, axis=1, keepdims=True) > 0.0)
+        n = mom[:, 3:MOMENTS]
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        n = np.divide(n, length, out=np.zeros_like(n), where=length > 0.0)
         E = E_lum[ids]
         ambient = np.maximum(E - E_direct.mean(axis=1), 0.0)
         v = np.divide(mom[:, 0:3] + AMBIENT_MOMENT * ambient[:, None] * n, E[:, None],

@@ -74,7 +74,7 @@ def find_seams(charts, shapes):
     P = np.concatenate([p for _, p, _ in charts])
     UV = np.concatenate([uv for _, _, uv in charts])
     img = np.concatenate([np.full(len(p), k, np.int64) for k, (_, p, _) in enumerate(charts)])
-    a, b = np.repeat(np.arange(3)[None], len(P), 0).ravel(), np.repeat(np.array([[1, 2, 0]]), len(P), 0).ravel()
+    a, b = np.tile([0, 1, 2], len(P)), np.tile([1, 2, 0], len(P))      # each triangle's edges a -> b
     tri = np.repeat(np.arange(len(P)), 3)
     pa, pb = P[tri, a], P[tri, b]
     size = max(float(np.ptp(P.reshape(-1, 3), axis=0).max()), 1e-12)
@@ -109,11 +109,12 @@ def find_seams(charts, shapes):
     n = np.maximum(np.ceil(texels * SAMPLES_PER_TEXEL).astype(np.int64), 2)
     edge = np.repeat(np.arange(first.size), n)
     t = (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n) + 0.5) / np.repeat(n, n)
+    hw = np.array([shapes[k] for k in range(len(charts))])
     side = []
     for e in (first, second):
         u = ua[e][edge] + t[:, None] * (ub[e][edge] - ua[e][edge])
         i = img[tri[e]][edge]
-        side.append((i, *_bilinear(u, np.array([shapes[k] for k in range(len(charts))])[i])))
+        side.append((i, *_bilinear(u, hw[i])))
     (ia, ta, wa), (ib, tb, wb) = side
     return Seams(int(first.size), ia, ta, wa, ib, tb, wb)
 

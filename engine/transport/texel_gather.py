@@ -375,7 +375,7 @@ def _add_normal(e, nb, nx, ny, nz):
 def _gather_mesh(g, ls, tx, n_samples, nb, out, start, stop):
     """Direct light of mesh texels start..stop: the block's scratch, then the core.
     out: (texels, nb) irradiance per band, or (texels, nb + MOMENTS) with the
-    moments of a directional bake after it (texel_moments)."""
+    moments of a directional bake after it (MOMENTS)."""
     _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, np.empty(STACK_WORDS, np.int32),
                       np.empty(out.shape[1]), np.empty(nb))
 

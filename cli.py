@@ -188,10 +188,12 @@ def build_parser():
                    help="fill texels that lie inside geometry (most of their rays meet back faces) from their "
                         "neighbours, count them in the JSON report, and write DIR/<object>_validity.exr (R: "
                         "the share of rays meeting back faces; invalid texels red, valid ones green)")
-    b.add_argument("--directional", action="store_true",
-                   help="also write DIR/<object>_direction.exr: which way each texel's light comes from (RGB: "
-                        "the distant light's share times its direction, world space), so normal maps show "
-                        "under baked light")
+    b.add_argument("--directional", nargs="?", const="dominant", choices=("dominant", "sh"),
+                   help="also bake which way each texel's light comes from, so normal maps show under baked "
+                        "light: 'dominant' (the default) writes DIR/<object>_direction.exr (RGB: the distant "
+                        "light's share times its direction, world space); 'sh' writes first-order spherical "
+                        "harmonics per colour, DIR/<object>_l1x.exr, _l1y.exr, _l1z.exr (RGB: that axis's "
+                        "coefficient; L0 = lightmap - L1 . normal)")
     b.add_argument("--stitch-seams", action="store_true",
                    help="make texels that meet across UV seams and edges objects share agree where they meet "
                         "(smooth edges; a crease keeps its jump); the JSON reports the jump along the seams "
@@ -614,6 +616,7 @@ def bake_main(args):
         "texel_validity": res.validity,
         "light_reuse": res.light_reuse,
         "seams": res.seams,
+        "directional": res.directional,
         "irradiance_cache": res.irradiance_cache,
         "cluster": res.cluster,
         "target_error": float(settings.bake_target_error) if settings.bake_gathers else 0.0,
@@ -624,6 +627,8 @@ def bake_main(args):
                            **({"error_image": res.error_paths[name]} if name in res.error_paths else {}),
                            **({"validity_image": res.validity_paths[name]} if name in res.validity_paths else {}),
                            **({"direction_image": res.direction_paths[name]} if name in res.direction_paths else {}),
+                           **({"l1_images": [res.l1_paths[a][name] for a in "xyz"]}
+                              if name in res.l1_paths["x"] else {}),
                            **({"spectral_exr": res.spectral_paths[name]} if name in res.spectral_paths else {})}
                     for name, bm in res.maps.items()},
         "skipped": res.skipped,

@@ -26,6 +26,8 @@ OL_GROUP = "Photon Orientation Lightmap"
 OL_PREFIX = "Photon Orientation Lightmap"
 DIRECTION_GROUP = "Photon Lightmap Direction"
 DIRECTION_PROP = "photon_lightmaps_direction_group"
+L1_GROUP = "Photon Lightmap L1"
+L1_PROP = "photon_lightmaps_l1_group"
 
 
 def hook_nodes(tree, frame, origin, lookup, vector, image, group, out, surface, tag):
@@ -170,6 +172,48 @@ def direction_group():
     return ng
 
 
+def l1_group():
+    """The shared node group of L1 SH lightmaps: per colour, the lightmap moved to
+    the shading normal n' by its first-order coefficients,
+    max(0, E + L1x (n'x - nx) + L1y (n'y - ny) + L1z (n'z - nz)), n the surface's
+    true normal (engine/transport/directional_lightmap.py l1_channels)."""
+    ng, new = _find_or_new_group(L1_PROP, L1_GROUP,
+                                 "Photon Lightmaps: an L1 SH lightmap read for the shading normal")
+    if not new:
+        return ng
+    io = ng.interface
+    lm_in = io.new_socket("Lightmap", in_out="INPUT", socket_type="NodeSocketColor")
+    lm_in.default_value = (0.0, 0.0, 0.0, 1.0)
+    for a in "xyz":
+        io.new_socket("L1" + a, in_out="INPUT", socket_type="NodeSocketColor")
+    io.new_socket("Normal", in_out="INPUT", socket_type="NodeSocketVector")
+    io.new_socket("Lightmap", in_out="OUTPUT", socket_type="NodeSocketColor")
+    n, l = ng.nodes, ng.links
+    gi, go, geo = n.new("NodeGroupInput"), n.new("NodeGroupOutput"), n.new("ShaderNodeNewGeometry")
+
+    def vmath(op, a, b=None, scale=None):
+        node = n.new("ShaderNodeVectorMath")
+        node.operation = op
+        l.new(a, node.inputs[0])
+        if b is not None:
+            l.new(b, node.inputs[1])
+        if scale is not None:
+            l.new(scale, node.inputs["Scale"])
+        return node.outputs["Vector"]
+
+    d = n.new("ShaderNodeSeparateXYZ")
+    l.new(vmath("SUBTRACT", gi.outputs["Normal"], geo.outputs["True Normal"]), d.inputs[0])
+    total = gi.outputs["Lightmap"]
+    for a, axis in zip("xyz", "XYZ"):
+        total = vmath("ADD", total, vmath("SCALE", gi.outputs["L1" + a], scale=d.outputs[axis]))
+    zero = n.new("ShaderNodeVectorMath")
+    zero.operation = "MAXIMUM"
+    l.new(total, zero.inputs[0])
+    zero.inputs[1].default_value = (0.0, 0.0, 0.0)
+    l.new(zero.outputs["Vector"], go.inputs["Lightmap"])
+    return ng
+
+
 def _user_output(tree):
     outs = [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial" and not n.get(HOOK_PROP)]
     # The output Cycles renders (the export's rule): the hook shows the light of that surface.
@@ -222,7 +266,8 @@ def remove_hook_nodes(mat):
     return len(ours)
 
 
-def add_lightmap_hook(ob, image, baked_objects=(), warnings=None, parts=(), materials=None, direction=None):
+def add_lightmap_hook(ob, image, baked_objects=(), warnings=None, parts=(), materials=None, direction=None,
+                      l1=None):
     """Adds (or refreshes) our hook in every material of `ob`; returns the material names.
 
     materials: the materials to hook instead of `ob`'s slots (a CSG solid's Boolean
@@ -230,6 +275,7 @@ def add_lightmap_hook(ob, image, baked_objects=(), warnings=None, parts=(), mate
     this image (a CSG solid's operands), so sharing a material with them is fine.
     direction: a directional bake's direction image; the lightmap is then read
     for the shading normal (the BSDF's Normal input, so normal maps show).
+    l1: an L1 SH bake's three images (x, y, z), read the same way.
     """
     warnings = warnings if warnings is not None else []
     ng = hook_group()
@@ -263,7 +309,11 @@ def add_lightmap_hook(ob, image, baked_objects=(), warnings=None, parts=(), mate
         grp = hook_nodes(tree, frame, (x0, y0), uv, uv.outputs["UV"], image, ng, out, surface, _tag)
         _link_base_color(tree, surface, grp, mat, warnings)
         if direction is not None:
-            _add_direction(tree, frame, (x0, y0), uv, grp, surface, direction)
+            _add_direction(tree, frame, (x0, y0), uv, grp, surface, {"Direction": direction},
+                           direction_group())
+        elif l1 is not None:
+            _add_direction(tree, frame, (x0, y0), uv, grp, surface, dict(zip(("L1x", "L1y", "L1z"), l1)),
+                           l1_group())
         # EEVEE prefers an output whose target is exactly EEVEE over an "All" one, active
         # or not, so ours needs no active flag (setting it would clear the user's).
         theirs = [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial"
@@ -275,20 +325,20 @@ def add_lightmap_hook(ob, image, baked_objects=(), warnings=None, parts=(), mate
     return done
 
 
-def _add_direction(tree, frame, origin, uv, grp, surface, image):
-    """Directional lightmap: the direction image (same UVs) and the direction group
-    between the lightmap's image and the hook group."""
-    tex = _tag(tree.nodes.new("ShaderNodeTexImage"), "Direction Image")
-    tex.image, tex.interpolation, tex.extension = image, "Linear", "EXTEND"
+def _add_direction(tree, frame, origin, uv, grp, surface, images, group):
+    """Directional lightmap: its images (same UVs; group input name -> image) and
+    `group` between the lightmap's image and the hook group."""
     dg = _tag(tree.nodes.new("ShaderNodeGroup"), "Direction")
-    dg.node_tree = direction_group()
-    for node, dx, dy in ((tex, -500, -300), (dg, -350, -150)):
-        node.parent = frame
-        node.location = (origin[0] + dx, origin[1] + dy)
-    tree.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+    dg.node_tree = group
+    dg.parent, dg.location = frame, (origin[0] - 350, origin[1] - 150)
+    for i, (socket, image) in enumerate(images.items()):
+        tex = _tag(tree.nodes.new("ShaderNodeTexImage"), socket + " Image")
+        tex.image, tex.interpolation, tex.extension = image, "Linear", "EXTEND"
+        tex.parent, tex.location = frame, (origin[0] - 500, origin[1] - 300 - 250 * i)
+        tree.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+        tree.links.new(tex.outputs["Color"], dg.inputs[socket])
     lightmap = grp.inputs["Lightmap"].links[0].from_socket
     tree.links.new(lightmap, dg.inputs["Lightmap"])
-    tree.links.new(tex.outputs["Color"], dg.inputs["Direction"])
     node = surface.node if surface is not None else None
     normal = _source(node.inputs["Normal"]) if node is not None and "Normal" in node.inputs else None
     if normal is None:
@@ -322,7 +372,7 @@ def remove_lightmap_hook(materials=None):
     mats = bpy.data.materials if materials is None else materials
     removed = sum(remove_hook_nodes(m) for m in mats)
     for ng in list(bpy.data.node_groups):
-        if (ng.get(HOOK_PROP) or ng.get(DIRECTION_PROP)) and ng.library is None and ng.users == 0:
+        if (ng.get(HOOK_PROP) or ng.get(DIRECTION_PROP) or ng.get(L1_PROP)) and ng.library is None and ng.users == 0:
             bpy.data.node_groups.remove(ng)
     return removed
 

@@ -36,9 +36,13 @@ VALIDITY_FILE_SUFFIX = "_validity"
 # a directional bake's image (RGB: the light's share k times its direction s, world space)
 DIRECTION = "direction"
 DIRECTION_FILE_SUFFIX = "_direction"
+# an L1 SH bake's images, one per axis (RGB: that axis's first-order coefficient per colour)
+L1 = {a: "l1" + a for a in "xyz"}
+L1_FILE_SUFFIX = {a: "_l1" + a for a in "xyz"}
 _KINDS = {"": (IMAGE_SUFFIX, OWNER_PROP), ERROR: ("_LightmapError", "photon_lightmaps_error_of"),
           VALIDITY: ("_LightmapValidity", "photon_lightmaps_validity_of"),
-          DIRECTION: ("_LightmapDirection", "photon_lightmaps_direction_of")}
+          DIRECTION: ("_LightmapDirection", "photon_lightmaps_direction_of"),
+          **{L1[a]: ("_LightmapL1" + a, "photon_lightmaps_l1" + a + "_of") for a in "xyz"}}
 LIGHTMAP_DIR = "lightmaps"
 
 

@@ -16,6 +16,7 @@ from ..engine.lightmaps import lightmap
 from ..engine import light_reuse, session
 from ..engine import spectral
 from ..engine.lightmaps import texel_areas
+from ..engine.shading import spectrum
 from ..engine.core.scene import SceneError
 from ..export import csg as csg_export
 from ..export import uv_layers
@@ -29,6 +30,9 @@ from .images import BakedMap
 # engine/transport/ambient_occlusion.py: no photons; written as the image's value),
 # SHADOWMASK (up to four lights' visibility, one per channel, engine/transport/shadowmask.py).
 BAKE_PASSES = ("COMBINED", "DIRECT", "INDIRECT", "AO", "SHADOWMASK")
+# Directional bakes: one dominant direction per texel (as Unity's and Bakery's MonoSH), or
+# first-order spherical harmonics per band (as Godot's and Bakery's SH).
+DIRECTIONAL_MODES = ("DOMINANT", "SH")
 
 # The last bake's photon pass (Keep Bake Light): the next bake of the unchanged scene
 # reuses it. Let go on file load (operators/__init__.py) and when the scene changes.
@@ -47,7 +51,9 @@ class BakeSettings(session.Settings):
     shadowmask_lights: str = ""  # SHADOWMASK: the lights (names, comma-separated) of channels R, G, B, A
     texel_validity: bool = False  # fill texels inside geometry from their neighbours (texel_validity.py)
     stitch_seams: bool = False    # texels meeting across UV seams agree where they meet (seam_stitch.py)
-    directional: bool = False     # also each texel's light direction (directional_lightmap.py)
+    # also which way each texel's light comes from (directional_lightmap.py): "" none,
+    # DIRECTIONAL_MODES "DOMINANT" (one direction, of the light's luminance) or "SH" (L1 per band)
+    directional: str = ""
     overwrite: bool = False
     save_dir: str = ""
     pack: bool = False
@@ -111,6 +117,13 @@ class BakeResult:
     direction_maps: dict = field(default_factory=dict)
     direction_images: dict = field(default_factory=dict)
     direction_paths: dict = field(default_factory=dict)
+    # L1 SH bakes, per axis "x", "y", "z": object name -> BakedMap (RGB = that axis's L1
+    # coefficient per colour, world space, as E/pi; A = coverage); images
+    # "<object>_LightmapL1x" ..., files "<object>_l1x.exr" ...
+    l1_maps: dict = field(default_factory=lambda: {a: {} for a in "xyz"})
+    l1_images: dict = field(default_factory=lambda: {a: {} for a in "xyz"})
+    l1_paths: dict = field(default_factory=lambda: {a: {} for a in "xyz"})
+    directional: dict = None       # the mode, the moments' memory and the images' (bytes)
     # with spectral_exr: object name -> (height, width, bands) E/pi per band, and its file
     spectral_maps: dict = field(default_factory=dict)
     spectral_paths: dict = field(default_factory=dict)
@@ -244,6 +257,22 @@ def run_unwraps(plan, progress=None, should_stop=None):
                    progress=progress, should_stop=should_stop)
 
 
+def directional_mode(value):
+    """A directional option as given (None: unset; False or "": none; True: "DOMINANT";
+    or a DIRECTIONAL_MODES name, any case) -> None, "" or a mode; SceneError otherwise."""
+    if value is None or value is False:
+        return None if value is None else ""
+    if value is True:
+        return "DOMINANT"
+    mode = str(value).strip().upper()
+    if mode in ("", "NONE"):
+        return ""
+    if mode not in DIRECTIONAL_MODES:
+        raise SceneError(f"directional: must be one of {', '.join(m.lower() for m in DIRECTIONAL_MODES)}, "
+                         f"got '{value}'")
+    return mode
+
+
 def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, resolution=None,
                  indirect_only=False, denoise=None, indirect=None, bake_gather_rays=None,
                  bake_target_error=None, bake_time=None, error_images=None, irradiance_cache=None,
@@ -274,6 +303,7 @@ def prepare_bake(context_or_depsgraph, objects, *, photons=None, seed=None, reso
         raise SceneError(f"pass rays: must be 1 to 65536 rays per point, got {pass_rays}")
     if direct_samples is not None and not 1 <= int(direct_samples) <= 1 << 20:
         raise SceneError(f"direct samples: must be 1 to {1 << 20} light samples per texel, got {direct_samples}")
+    directional = directional_mode(directional)
     wanted = _wanted(depsgraph, objects, result.skipped)
     extra = [ob for ob in _wanted(depsgraph, lay_out, {}) if ob.name not in {w.name for w in wanted}]
     booleans = {}                   # Booleans of plain meshes: baked as Blender's result
@@ -658,7 +688,7 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
         else:
             result.seconds.update(session.bake_texels(
                 cs, ids, leaves, job.settings, direct=job.direct, deadline=deadline, should_stop=should_stop,
-                directional=job.settings.directional,
+                directional=bool(job.settings.directional),
                 phase=lambda name, n: phase(name, f"{n:,} texels" if name != "kernels" else
                                             f"compiled in a second process, {n:.0f} s (first run)")))
     if job.settings.texel_validity and masks is None:
@@ -704,7 +734,7 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
         result.error_maps = _error_maps(cs, job, solids)
     if job.settings.directional and not ao:
         t_dir = time.perf_counter()
-        result.direction_maps = _direction_maps(cs, job, result)
+        _direction_maps(cs, job, result)
         result.seconds["direction"] = time.perf_counter() - t_dir
     result.seconds["extract"] = time.perf_counter() - t1
     if job.settings.denoise:
@@ -723,19 +753,39 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
 
 
 def _direction_maps(cs, job, result):
-    """A directional bake's direction image per baked mesh or primitive object
-    (engine/transport/directional_lightmap.py); CSG solids are told they get none."""
+    """A directional bake's images per baked mesh or primitive object
+    (engine/transport/directional_lightmap.py): its direction image (DOMINANT) or
+    its three L1 images (SH) into `result`; CSG solids are told they get none."""
     from ..engine.transport import directional_lightmap, open_area
     lm = cs.lightmaps
-    E_lum = open_area.baked(lm, np.arange(lm.area.shape[0])).mean(axis=1)
-    channels = directional_lightmap.direction_channels(cs, E_lum)
-    out = {}
+    E = open_area.baked(lm, np.arange(lm.area.shape[0]))
+    sh = job.settings.directional == "SH"
+    if sh:
+        L1 = directional_lightmap.l1_channels(cs, E)
+        axes = []
+        for a in range(3):
+            rgba = np.zeros((L1.shape[0], 4))
+            rgba[:, :3] = spectrum.as_rgb(L1[:, :, a], cs.spectral) / math.pi
+            rgba[:, 3] = lm.coverage
+            axes.append(rgba)
+    else:
+        channels = directional_lightmap.direction_channels(cs, E)
+    moments = getattr(cs, "bake_moments", None)
+    nbytes = 0
     for name, bm in result.maps.items():
         if name in job.csg:
             result.warnings.append(f"object '{name}': directional lightmaps are not made for exact CSG solids")
             continue
-        out[name] = BakedMap(name, images.texel_rgba(lm, bm.lightmap_id, channels), bm.lightmap_id)
-    return out
+        if sh:
+            for a, rgba in zip("xyz", axes):
+                result.l1_maps[a][name] = BakedMap(name, images.texel_rgba(lm, bm.lightmap_id, rgba), bm.lightmap_id)
+                nbytes += result.l1_maps[a][name].rgba.nbytes
+        else:
+            result.direction_maps[name] = BakedMap(name, images.texel_rgba(lm, bm.lightmap_id, channels),
+                                                   bm.lightmap_id)
+            nbytes += result.direction_maps[name].rgba.nbytes
+    result.directional = {"mode": job.settings.directional.lower(), "image_bytes": int(nbytes),
+                          "moment_bytes": int(sum(a.nbytes for a in moments)) if moments else 0}
 
 
 def _stitch_seams(cs, job, result):
@@ -759,12 +809,13 @@ def _stitch_seams(cs, job, result):
     report = {"edges": seams.edges, "samples": int(seams.ia.size), "jump_before": before[0],
               "jump_before_p95": before[1], "jump_after": after[0], "jump_after_p95": after[1],
               "texels_changed": changed}
-    directions = {bm.lightmap_id: bm.rgba for bm in result.direction_maps.values()}
-    if directions and charts:
-        images = [directions[lid] for lid, _, _ in charts]
-        report["direction_jump_before"] = seam_stitch.seam_jump(seams, images)[0]
-        seam_stitch.stitch(seams, images, holds)
-        report["direction_jump_after"] = seam_stitch.seam_jump(seams, images)[0]
+    for key, maps in [("direction", result.direction_maps)] + [("l1" + a, result.l1_maps[a]) for a in "xyz"]:
+        by_lid = {bm.lightmap_id: bm.rgba for bm in maps.values()}
+        if by_lid and charts:
+            images = [by_lid[lid] for lid, _, _ in charts]
+            report[key + "_jump_before"] = seam_stitch.seam_jump(seams, images)[0]
+            seam_stitch.stitch(seams, images, holds)
+            report[key + "_jump_after"] = seam_stitch.seam_jump(seams, images)[0]
     return report
 
 
@@ -803,7 +854,9 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
             (result.validity_maps, result.validity_images, result.validity_paths, images.VALIDITY,
              images.VALIDITY_FILE_SUFFIX),
             (result.direction_maps, result.direction_images, result.direction_paths, images.DIRECTION,
-             images.DIRECTION_FILE_SUFFIX)):
+             images.DIRECTION_FILE_SUFFIX)) + tuple(
+            (result.l1_maps[a], result.l1_images[a], result.l1_paths[a], images.L1[a], images.L1_FILE_SUFFIX[a])
+            for a in "xyz"):
         for name, bm in maps.items():
             if name not in result.maps:
                 continue                      # deleted during the bake (the operator dropped its map)
@@ -828,10 +881,12 @@ def commit_bake(job, *, overwrite=False, save_dir=None, pack=False, hook_materia
             ob = bpy.data.objects[name]
             parts = sorted(bm.tiles) if bm.tiles else job.booleans.get(name, ())
             direction = result.direction_images.get(name)
+            l1 = [result.l1_images[a].get(name) for a in "xyz"]
             result.hooked += hooks.add_lightmap_hook(ob, bpy.data.images[result.images[name]],
                                                baked_objects=baked, warnings=result.warnings,
                                                parts=parts, materials=csg_atlas.solid_materials(ob, parts),
-                                               direction=bpy.data.images[direction] if direction else None)
+                                               direction=bpy.data.images[direction] if direction else None,
+                                               l1=[bpy.data.images[i] for i in l1] if all(l1) else None)
     result.seconds["bake"] = result.seconds.get("extract", 0.0) + time.perf_counter() - t0
     result.seconds["total"] = time.perf_counter() - job.t_start
     return result

@@ -287,9 +287,11 @@ def bake_texels(cs, lightmap_ids, csg_leaves, settings, *, direct=True, deadline
     On a cluster (settings.cluster) the gathers' kernel calls are its tasks
     (Cluster.kernels), with the same result. should_stop() -> True cancels
     (Cancelled) between the parts, and on a cluster between its tasks.
-    directional: the direct light's moments of the lightmaps' texels go to
-    cs.bake_moments = (texel ids, moments (K, texel_gather.MOMENTS), direct E
-    (K, bands)), for a directional bake (transport/directional_lightmap.py)."""
+    directional: the moments of the lightmaps' texels go to cs.bake_moments =
+    (texel ids, moments (K, 3 per band + the normal's 3), E (K, bands) of the
+    light they cover), for a directional bake (transport/directional_lightmap.py):
+    the direct light's and the gather's (the photons' own light, in a bake
+    without the gather, has no direction)."""
     with _on_cluster(cs, settings, "bake") as cluster:
         with cluster.kernels(should_stop) if cluster is not None else contextlib.nullcontext():
             return _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase,
@@ -309,10 +311,10 @@ def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase
     if direct:
         phase("direct", texels)
     cs.bake_moments = None
+    nb = cs.n_bands
     if direct and lightmap_ids:
         ids, E = gather_direct(cs, lightmap_ids, settings, moments=directional)
         if directional:
-            nb = cs.n_bands
             cs.bake_moments = (ids, E[:, nb:], E[:, :nb].copy())
             E = E[:, :nb]
         parts.append((ids, E))
@@ -336,7 +338,10 @@ def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase
                                     max_rays=max(1, int(settings.bake_max_rays) // DIRECT_SAMPLES),
                                     direct=direct_E,
                                     time_budget=None if deadline is None else deadline - time.perf_counter(),
-                                    cached=bool(settings.bake_irradiance_cache), info=cache_info)
+                                    cached=bool(settings.bake_irradiance_cache), info=cache_info,
+                                    moments=directional)
+    if directional:
+        cs.bake_moments = _summed_moments(cs.bake_moments, (indirect.ids, indirect.moments, indirect.E), nb)
     if cache_info:
         cs.info["irradiance_cache"] = cache_info
     bake_gather.set_gathered(cs.lightmaps, direct_E, indirect)
@@ -344,6 +349,22 @@ def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase
     seconds["gather"] = time.perf_counter() - t1
     _kernels_done(cs, "bake")
     return seconds
+
+
+def _summed_moments(a, b, nb):
+    """Two parts' (ids, moments, E) over the union of their texel rows (either may be None)."""
+    import numpy as np
+    parts = [p for p in (a, b) if p is not None and p[1] is not None]
+    if not parts:
+        return None
+    ids = np.union1d(*[np.asarray(p[0], np.int64) for p in parts]) if len(parts) > 1 else np.asarray(parts[0][0])
+    mom = np.zeros((ids.size, parts[0][1].shape[1]))
+    E = np.zeros((ids.size, nb))
+    for p_ids, p_mom, p_E in parts:
+        at = np.searchsorted(ids, p_ids)
+        mom[at] += p_mom
+        E[at] += p_E
+    return ids, mom, E
 
 
 def bake_ao(cs, lightmap_ids, settings, distance, *, rays=16, should_stop=None):

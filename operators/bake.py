@@ -97,10 +97,17 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
         description="Fill texels that lie inside geometry (most of their rays meet back faces, as under a box "
                     "on the floor) from their neighbours, so no light leaks out of them; each object's "
                     "<object>_LightmapValidity image shows them in red")
-    directional: BoolProperty(
-        name="Directional", default=False,
-        description="Also bake which way each texel's light comes from (<object>_LightmapDirection), so "
-                    "normal-mapped materials show their bumps under baked light (with Hook Materials, EEVEE)")
+    directional: EnumProperty(
+        name="Directional", default="NONE",
+        description="Also bake which way each texel's light comes from, so normal-mapped materials show their "
+                    "bumps under baked light (with Hook Materials, EEVEE)",
+        items=(("NONE", "None", "The lightmap alone"),
+               ("DOMINANT", "Dominant Direction",
+                "One direction per texel, of the light's brightness (<object>_LightmapDirection): exact for one "
+                "key light plus sky"),
+               ("SH", "L1 SH per Colour",
+                "First-order spherical harmonics per colour (<object>_LightmapL1x, y, z): light of different "
+                "colours from different sides, but a key light's lobe widened")))
     stitch_seams: BoolProperty(
         name="Stitch Seams", default=False,
         description="Make texels that meet across UV seams, and across edges objects share, agree where they "
@@ -131,7 +138,7 @@ class PHOTON_LIGHTMAPS_OT_bake(ObjectModeOperator, ImageOutputOptions, bpy.types
                                      ao_distance=self.ao_distance, shadowmask_lights=self.shadowmask_lights,
                                      texel_validity=self.texel_validity or None, pass_rays=self.pass_rays,
                                      stitch_seams=self.stitch_seams or None,
-                                     directional=self.directional or None)
+                                     directional="" if self.directional == "NONE" else self.directional)
 
     def _finish(self, job):
         # Objects may have been deleted while the photon pass ran.

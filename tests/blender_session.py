@@ -42,12 +42,13 @@ def read_image(path):
 
 
 def cycles_diffuse_bake(ob, res, samples, *, seed=0, bounces=8, margin=4, uv_layer="Lightmap",
-                        bake_type="DIFFUSE", pass_filter=("DIRECT", "INDIRECT")):
+                        bake_type="DIFFUSE", pass_filter=("DIRECT", "INDIRECT"), **options):
     """Cycles' Diffuse bake of `ob` (Direct + Indirect, no Color) into a new res x res float
     image -> (res, res, 4) pixels, rows bottom-up. CPU, no clamping (it would bias Cycles
     low), no denoising, no adaptive sampling, `bounces` max and diffuse bounces. The image
     and its node are removed again, and the render engine is put back. bake_type and
-    pass_filter: another of Cycles' bakes (AO; Diffuse with Direct or Indirect alone)."""
+    pass_filter: another of Cycles' bakes (AO; Diffuse with Direct or Indirect alone;
+    NORMAL, with options normal_space="OBJECT"). options: more of object.bake's."""
     scene = bpy.context.scene
     engine = scene.render.engine
     scene.render.engine = "CYCLES"
@@ -70,7 +71,7 @@ def cycles_diffuse_bake(ob, res, samples, *, seed=0, bounces=8, margin=4, uv_lay
         ob.select_set(True)
         bpy.context.view_layer.objects.active = ob
         bpy.ops.object.bake(type=bake_type, pass_filter=set(pass_filter), uv_layer=uv_layer,
-                            margin=margin, use_clear=True, target="IMAGE_TEXTURES")
+                            margin=margin, use_clear=True, target="IMAGE_TEXTURES", **options)
         px = np.empty(res * res * 4, np.float32)
         img.pixels.foreach_get(px)
     finally:

@@ -31,6 +31,7 @@ from ..geometry import csg_trace
 from ..lightmaps import lightmap
 from . import texel_gather
 from .csg_bake import csg_texel_items, csg_texel_sample
+from .directional_lightmap import AMBIENT_MOMENT
 from .final_gather import gather_irradiance
 from .kernel_scene import kernel_scene
 from .path_vertex import new_path_scratch
@@ -47,45 +48,74 @@ GatherPass = namedtuple("GatherPass", [
     "rays",       # int64[K] gather rays per point and lit side of each item (0: skipped)
     "order",      # int64[K] the order items are handed out in (_order)
     "stream",     # uint64 xored into the texels' stream keys (STREAM_XOR, STREAM_XOR_2)
+    "bands",      # the bands of a row; rows wider than this are a directional bake's (moments after)
 ])
 
 
 @njit(**CORE)
 def point_indirect(scene, w, mode, n_rays, p, n, side, state, out):
     """Gathered indirect irradiance at a bake point into out (added): along n
-    (side >= 0) and against it (side <= 0); w.count[0] gains the rays traced."""
+    (side >= 0) and against it (side <= 0); w.count[0] gains the rays traced.
+    A directional bake's row takes the back side's moments as if mirrored to
+    the front, as its direct light's (texel_gather._add_unshadowed)."""
+    nb = w.tp.shape[0]
     for sgn in (1.0, -1.0):
         if side * sgn < 0.0:
             continue
         f = (sgn * n[0], sgn * n[1], sgn * n[2])
+        if sgn < 0.0:
+            mirror_moments(out, nb, n)
         state = gather_irradiance(scene, w, p, f, f, n_rays, mode, state, out, (typed(0), w.bands, w.tp))
+        if sgn < 0.0:
+            mirror_moments(out, nb, n)
     return state
 
 
+@njit(cache=True, inline="always")
+def mirror_moments(out, nb, n):
+    """A directional row's moments reflected in the plane of normal n (nothing for
+    a plain row). Twice is none: around a call, it mirrors what the call adds."""
+    if out.shape[0] <= nb:
+        return
+    for b in range(nb):
+        j = nb + 3 * b
+        d = 2.0 * (out[j] * n[0] + out[j + 1] * n[1] + out[j + 2] * n[2])
+        out[j] -= d * n[0]
+        out[j + 1] -= d * n[1]
+        out[j + 2] -= d * n[2]
+
+
 @njit(cache=True)
-def add_caustic(lmc, lid, face, s, t, tmp, out):
+def add_caustic(lmc, lid, face, s, t, n, tmp, out):
+    """The caustic lightmap's irradiance at (s, t) into out (tmp: scratch of the
+    bands). A directional row takes it as uniform over the hemisphere about n:
+    the caustic map keeps no direction."""
     lightmap.lookup(lmc, lid, face, s, t, lightmap.MODE_CONSTANT, tmp)
-    for b in range(out.shape[0]):
+    nb = tmp.shape[0]
+    for b in range(nb):
         out[b] += tmp[b]
+    if out.shape[0] > nb:
+        texel_gather.add_moment(out, nb, tmp, AMBIENT_MOMENT, n[0], n[1], n[2])
 
 
 @njit(cache=True, inline="always")
-def add_mesh_caustic(scene, tx, it, t, b1, b2, tmp, out):
+def add_mesh_caustic(scene, tx, it, t, b1, b2, n, tmp, out):
     """The caustic lightmap of mesh texel it at barycentrics (b1, b2) of triangle t, added to out."""
     uv = scene.geometry.tri_uv[t]
     b0 = 1.0 - b1 - b2
     add_caustic(scene.caustic_maps, tx.lid[it], 0, b0 * uv[0, 0] + b1 * uv[1, 0] + b2 * uv[2, 0],
-                b0 * uv[0, 1] + b1 * uv[1, 1] + b2 * uv[2, 1], tmp, out)
+                b0 * uv[0, 1] + b1 * uv[1, 1] + b2 * uv[2, 1], n, tmp, out)
 
 
 @njit(cache=True)
-def _accumulate(w, ep, e, q):
-    """e += w·ep; q += (w², w²·x, w²·x²) of the point's band mean x (for the error estimate)."""
-    nb = ep.shape[0]
+def _accumulate(w, ep, e, q, nb):
+    """e += w·ep (the whole row); q += (w², w²·x, w²·x²) of the point's band mean
+    x over its nb bands (for the error estimate)."""
     x = 0.0
     for b in range(nb):
-        e[b] += w * ep[b]
         x += ep[b]
+    for b in range(ep.shape[0]):
+        e[b] += w * ep[b]
     x /= nb
     w2 = w * w
     q[0] += w2
@@ -94,31 +124,32 @@ def _accumulate(w, ep, e, q):
 
 
 @njit(cache=True)
-def _variance(q, wsum, e):
-    """Variance of the weighted mean of the point values (band mean), treating the
-    texel's points as independent: conservative, as they are stratified."""
+def _variance(q, wsum, e, nb):
+    """Variance of the weighted mean of the point values (band mean of e's first
+    nb), treating the texel's points as independent: conservative, as they are
+    stratified."""
     if wsum <= 0.0:
         return 0.0
     m = 0.0
-    for b in range(e.shape[0]):
+    for b in range(nb):
         m += e[b]
-    m /= e.shape[0] * wsum
+    m /= nb * wsum
     return max(q[2] - 2.0 * m * q[1] + m * m * q[0], 0.0) / (wsum * wsum)
 
 
 @njit(cache=True, nogil=True)
 def _indirect_mesh(scene, tx, job, out, var, start, stop):
-    """The gather of mesh texels start..stop: the block's scratch, then the core."""
-    nb = out.shape[1]
-    _indirect_mesh_core(scene, tx, job, out, var, start, stop, new_path_scratch(nb), np.empty((2, nb)),
-                        np.empty(3))
+    """The gather of mesh texels start..stop: the block's scratch, then the core.
+    out: (texels, job.bands), or a directional bake's wider rows."""
+    _indirect_mesh_core(scene, tx, job, out, var, start, stop, new_path_scratch(job.bands),
+                        np.empty((2, out.shape[1])), np.empty(3))
 
 
 # Per-point loops compile without NRT, as texel_gather's kernels do (a read of a
 # scene tuple's field would otherwise be a contended atomic incref and decref).
 @njit(**CORE)
 def _indirect_mesh_core(scene, tx, job, out, var, start, stop, w, bands, q):
-    nb = out.shape[1]
+    nb = job.bands
     e, ep = bands[0], bands[1]
     n_points = job.points
     k = texel_gather.grid_side(n_points)
@@ -127,7 +158,7 @@ def _indirect_mesh_core(scene, tx, job, out, var, start, stop, w, bands, q):
         n_rays = job.rays[it]
         if n_rays <= 0:
             continue
-        for b in range(nb):
+        for b in range(e.shape[0]):
             e[b] = 0.0
         q[0] = q[1] = q[2] = 0.0
         pieces = texel_gather.mesh_texel_pieces(scene.geometry, tx, it)
@@ -139,30 +170,31 @@ def _indirect_mesh_core(scene, tx, job, out, var, start, stop, w, bands, q):
                 u1, u2 = texel_gather.jitter(s, k, j1, j2)
                 ok, px, py, pz, nx, ny, nz, t, b1, b2 = texel_gather.mesh_texel_sample(
                     scene.geometry, tx, pieces, u1, u2)
-                for b in range(nb):
+                for b in range(ep.shape[0]):
                     ep[b] = 0.0
                 if ok:
+                    texel_gather.add_normal(ep, nb, nx, ny, nz)
                     state = point_indirect(scene, w, job.mode, n_rays, (px, py, pz), (nx, ny, nz), tx.side[it],
                                            state, ep)
                     if scene.caustics:
-                        add_mesh_caustic(scene, tx, it, t, b1, b2, w.ind, ep)
-                _accumulate(1.0, ep, e, q)
-        var[it] = _variance(q, float(n_points), e)
-        for b in range(nb):
+                        add_mesh_caustic(scene, tx, it, t, b1, b2, (nx, ny, nz), w.ind, ep)
+                _accumulate(1.0, ep, e, q, nb)
+        var[it] = _variance(q, float(n_points), e, nb)
+        for b in range(e.shape[0]):
             out[it, b] = e[b] / n_points
 
 
 @njit(cache=True, nogil=True)
 def _indirect_prim(scene, tx, job, out, var, start, stop):
-    """The gather of primitive texels start..stop: the block's scratch, then the core."""
-    nb = out.shape[1]
-    _indirect_prim_core(scene, tx, job, out, var, start, stop, new_path_scratch(nb), np.empty((2, nb)),
-                        np.empty(3))
+    """The gather of primitive texels start..stop: the block's scratch, then the core
+    (out as _indirect_mesh's)."""
+    _indirect_prim_core(scene, tx, job, out, var, start, stop, new_path_scratch(job.bands),
+                        np.empty((2, out.shape[1])), np.empty(3))
 
 
 @njit(**CORE)
 def _indirect_prim_core(scene, tx, job, out, var, start, stop, w, bands, q):
-    nb = out.shape[1]
+    nb = job.bands
     e, ew = bands[0], bands[1]
     n_points = job.points
     k = texel_gather.grid_side(n_points)
@@ -171,7 +203,7 @@ def _indirect_prim_core(scene, tx, job, out, var, start, stop, w, bands, q):
         n_rays = job.rays[it]
         if n_rays <= 0:
             continue
-        for b in range(nb):
+        for b in range(ew.shape[0]):
             ew[b] = 0.0
         q[0] = q[1] = q[2] = 0.0
         side = 0 if tx.sides[tx.lm[it]] == 2 else 1
@@ -184,15 +216,16 @@ def _indirect_prim_core(scene, tx, job, out, var, start, stop, w, bands, q):
             ok, jac, px, py, pz, nx, ny, nz, cs_, ct = texel_gather.prim_texel_sample(tx, it, u1, u2)
             if not ok:
                 continue
-            for b in range(nb):
+            for b in range(e.shape[0]):
                 e[b] = 0.0
+            texel_gather.add_normal(e, nb, nx, ny, nz)
             state = point_indirect(scene, w, job.mode, n_rays, (px, py, pz), (nx, ny, nz), side, state, e)
             if scene.caustics:
-                add_caustic(scene.caustic_maps, tx.lid[it], tx.face[it], cs_, ct, w.ind, e)
-            _accumulate(jac, e, ew, q)
+                add_caustic(scene.caustic_maps, tx.lid[it], tx.face[it], cs_, ct, (nx, ny, nz), w.ind, e)
+            _accumulate(jac, e, ew, q, nb)
             wsum += jac
-        var[it] = _variance(q, wsum, ew)
-        for b in range(nb):
+        var[it] = _variance(q, wsum, ew, nb)
+        for b in range(ew.shape[0]):
             out[it, b] = ew[b] / wsum if wsum > 0.0 else 0.0
 
 
@@ -225,8 +258,8 @@ def _indirect_csg(scene, tx, job, acc, wsum, q, start, stop):
                 e[b] = 0.0
             state = point_indirect(scene, w, job.mode, n_rays, (px, py, pz), (nx, ny, nz), 1, state, e)
             if scene.caustics:
-                add_caustic(scene.caustic_maps, tx.lid[it], tx.face[it], cs_, ct, w.ind, e)
-            _accumulate(jac, e, acc[row], q[row])
+                add_caustic(scene.caustic_maps, tx.lid[it], tx.face[it], cs_, ct, (nx, ny, nz), w.ind, e)
+            _accumulate(jac, e, acc[row], q[row], nb)
             wsum[row] += jac
 
 
@@ -235,17 +268,20 @@ Gathered = namedtuple("Gathered", [
     "E",      # float64[K, B] indirect irradiance (W/m²)
     "se",     # float64[K] its standard error (band mean), from the spread over the texel's points
     "rays",   # int64[K]  gather rays per point and lit side that the texel got
-])
+    "moments",  # float64[K, W - B] a directional bake's moments after the bands (texel_gather.moment_width), or None
+], defaults=(None,))
 
 
 class Texels:
     """The packed texel items of one bake (mesh, primitive and CSG) and the
     kernel inputs they share; run() is one gather pass over them."""
 
-    def __init__(self, cs, lightmap_ids, csg_leaves, points, mode, seed):
+    def __init__(self, cs, lightmap_ids, csg_leaves, points, mode, seed, moments=False):
         if not getattr(cs, "lightmaps_hold_direct", False) and np.any(cs.lightmaps.flux):
             raise ValueError("a bake's final gather needs a photon pass that recorded direct light")
         self.cs, self.points, self.mode = cs, int(points), int(mode)
+        # a directional bake's mesh and primitive rows carry moments (CSG solids' do not)
+        self.width = texel_gather.moment_width(cs.n_bands) if moments else cs.n_bands
         self.scene = kernel_scene(cs, inst_side=texel_gather.instance_sides(cs))
         self.mesh = self.prim = self.csg = None
         ids = sorted({int(l) for l in lightmap_ids})
@@ -263,10 +299,11 @@ class Texels:
 
     def job(self, item_rays, stream):
         """The GatherPass of one part's items."""
-        return GatherPass(self.mode, self.points, item_rays, _order(item_rays), stream)
+        return GatherPass(self.mode, self.points, item_rays, _order(item_rays), stream, self.cs.n_bands)
 
     def run(self, item_rays, stream, cached=False):
-        """One pass, item_rays[part][item] rays per point -> (ids, E, var, rays) per texel row.
+        """One pass, item_rays[part][item] rays per point -> (ids, E, var, rays) per texel row
+        (E: rows self.width wide; a CSG part's rows, the bands alone).
         cached: mesh texels interpolate an irradiance cache whose records get
         rays-per-point × points rays each (engine/transport/irradiance_cache.py); those no
         record reaches are gathered per texel. Also sets self.seconds, the time
@@ -276,12 +313,13 @@ class Texels:
         t0 = time.perf_counter()
         if self.mesh is not None:
             tx, r = self.mesh, item_rays[i]
-            out, var = np.zeros((tx.texel.size, nb)), np.zeros(tx.texel.size)
+            out, var = np.zeros((tx.texel.size, self.width)), np.zeros(tx.texel.size)
             todo = r
             if cached and r.size:
                 from .irradiance_cache import cached_mesh_gather
                 out, var, fallback, self.cache_info = cached_mesh_gather(
-                    self.cs, self.scene, self.mode, tx, self.points, int(r.max()) * self.points, stream)
+                    self.cs, self.scene, self.mode, tx, self.points, int(r.max()) * self.points, stream,
+                    self.width)
                 todo = np.zeros_like(r)
                 todo[fallback] = r[fallback]
             if todo.any():
@@ -293,7 +331,7 @@ class Texels:
             i += 1
         if self.prim is not None:
             tx, r = self.prim, item_rays[i]
-            out, var = np.zeros((tx.texel.size, nb)), np.zeros(tx.texel.size)
+            out, var = np.zeros((tx.texel.size, self.width)), np.zeros(tx.texel.size)
             parallel.run(_indirect_prim, out.shape[0], self.scene, tx, self.job(r, stream), out, var, remote=True)
             parts.append((tx.texel, out, var, r))
             i += 1
@@ -304,12 +342,14 @@ class Texels:
             parallel.run(_indirect_csg, tx.lm.shape[0], self.scene, tx, self.job(r, stream), acc, wsum, q,
                          remote=True)
             rows = np.flatnonzero(wsum > 0.0).astype(np.int64)
-            var = np.array([_variance(q[j], wsum[j], acc[j]) for j in rows])
+            var = np.array([_variance(q[j], wsum[j], acc[j], nb) for j in rows])
             # a row's rays: those of the item (texel) it belongs to
             row_rays = np.zeros(n_rows, np.int64)
             for it_row, k in zip(*csg_rows(self.cs.lightmaps, tx.row)):
                 row_rays[it_row] = r[k]
-            parts.append((rows, acc[rows] / wsum[rows][:, None], var, row_rays[rows]))
+            E = np.zeros((rows.size, self.width))
+            E[:, :nb] = acc[rows] / wsum[rows][:, None]
+            parts.append((rows, E, var, row_rays[rows]))
         self.seconds = time.perf_counter() - t0
         return parts
 
@@ -332,17 +372,20 @@ def csg_rows(lm, cell_rows):
     return np.concatenate(rows), np.concatenate(owner)
 
 
-def _joined(parts, nb):
+def _joined(parts, nb, width):
+    """The parts' rows (width wide) sorted by texel row, bands and moments apart."""
     if not parts:
-        return Gathered(np.zeros(0, np.int64), np.zeros((0, nb)), np.zeros(0), np.zeros(0, np.int64))
+        parts = [(np.zeros(0, np.int64), np.zeros((0, width)), np.zeros(0), np.zeros(0, np.int64))]
     cat = [np.concatenate([p[j] for p in parts]) for j in range(4)]
     order = np.argsort(cat[0], kind="stable")
-    return Gathered(cat[0][order], cat[1][order], np.sqrt(cat[2][order]), cat[3][order].astype(np.int64))
+    E = cat[1][order]
+    return Gathered(cat[0][order], np.ascontiguousarray(E[:, :nb]), np.sqrt(cat[2][order]), cat[3][order].astype(np.int64),
+                    E[:, nb:] if width > nb else None)
 
 
 def gathered_indirect(cs, lightmap_ids=(), csg_leaves=(), points=texel_gather.DEFAULT_SAMPLES, rays=4,
                       mode=lightmap.MODE_BILINEAR, seed=0, target_error=0.0, max_rays=None, direct=None,
-                      time_budget=None, cached=False, info=None):
+                      time_budget=None, cached=False, info=None, moments=False):
     """Indirect irradiance (gather + caustics) of the measured texels of the given
     instance lightmaps and CSG leaves -> Gathered(ids, E, se, rays) over the same
     texels as texel_gather.direct_texel_irradiance / csg_bake.direct_csg_texels
@@ -364,15 +407,16 @@ def gathered_indirect(cs, lightmap_ids=(), csg_leaves=(), points=texel_gather.DE
     cache (engine/transport/irradiance_cache.py: records with points × rays rays each at a
     sparse, adaptive set of places, interpolated at every texel's points); an
     adaptive second pass adds per-texel rays as before. info (a dict) gets the
-    cache's counts."""
+    cache's counts. moments: Gathered.moments holds the mesh and primitive
+    texels' moments for a directional bake (CSG texels': zeros)."""
     points, rays = int(points), int(rays)
     if points < 1 or rays < 1:
         raise ValueError(f"points and rays must be >= 1, got {points}, {rays}")
     t0 = time.perf_counter()
-    tex = Texels(cs, lightmap_ids, csg_leaves, points, mode, seed)
+    tex = Texels(cs, lightmap_ids, csg_leaves, points, mode, seed, moments)
     item_rows = tex.item_rows()
     first = _joined(tex.run([np.full(r.size, rays, np.int64) for r in item_rows], STREAM_XOR, cached),
-                    cs.n_bands)
+                    cs.n_bands, tex.width)
     if info is not None and getattr(tex, "cache_info", None):
         info.update(tex.cache_info)
     t_first = tex.seconds
@@ -389,7 +433,7 @@ def gathered_indirect(cs, lightmap_ids=(), csg_leaves=(), points=texel_gather.DE
         need = _extra_need(first, direct, float(target_error), rays, cap, budget)
         extra = _by_item(cs.lightmaps, tex, first.ids, need, item_rows)
         if any(e.any() for e in extra):
-            second = _joined(tex.run(extra, STREAM_XOR_2), cs.n_bands)
+            second = _joined(tex.run(extra, STREAM_XOR_2), cs.n_bands, tex.width)
             got = _combined(first, second)
     cs.timings["bake_gather"] = time.perf_counter() - t0
     return got
@@ -462,16 +506,22 @@ def _total_mean(ids, E, direct):
 
 
 def _combined(a, b):
-    """Two passes over the same texels, weighted by their rays: E, its error and the rays."""
-    nb = a.E.shape[1]
+    """Two passes over the same texels, weighted by their rays: E (and moments), its error and the rays."""
     pos = np.searchsorted(a.ids, b.ids)
-    E, var, n = a.E.copy(), a.se ** 2, a.rays.astype(np.float64)
+    var, n = a.se ** 2, a.rays.astype(np.float64)
     ra, rb = n[pos], b.rays.astype(np.float64)
     tot = np.maximum(ra + rb, 1.0)
-    E[pos] = (ra[:, None] * a.E[pos] + rb[:, None] * b.E) / tot[:, None]
+
+    def mixed(xa, xb):
+        if xa is None:
+            return None
+        x = xa.copy()
+        x[pos] = (ra[:, None] * xa[pos] + rb[:, None] * xb) / tot[:, None]
+        return x
+
     var[pos] = (ra ** 2 * var[pos] + rb ** 2 * b.se ** 2) / tot ** 2
     n[pos] = ra + rb
-    return Gathered(a.ids, E.reshape(-1, nb), np.sqrt(var), n.astype(np.int64))
+    return Gathered(a.ids, mixed(a.E, b.E), np.sqrt(var), n.astype(np.int64), mixed(a.moments, b.moments))
 
 
 def set_gathered(lm, direct, indirect):

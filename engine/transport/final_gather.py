@@ -47,7 +47,7 @@ from .path_vertex import leave_surface
 from ..core.jit import CORE, typed
 from ..geometry.raycast import intersect_closest
 from ..core.sampling import cosine_hemisphere, next_float, to_world
-from .texel_gather import direct_irradiance_at
+from .texel_gather import add_moment, direct_irradiance_at
 
 GOLDEN = 0.6180339887498949
 CHAIN = 3          # vertices a gather ray follows through glossy lobes
@@ -74,7 +74,11 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
     (Ward & Heckbert's split), and each ray's own estimate and the distance to
     what it met first (inf: nothing) also go to cell_e[i] and cell_t[i], for
     the record's gradients. Otherwise cell_e and cell_t are not touched (any
-    arrays of their types do)."""
+    arrays of their types do).
+
+    An `out` longer than the bands (a directional bake's row,
+    texel_gather.moment_width) also gets each ray's light times the direction
+    it left p in (texel_gather.add_moment)."""
     rings, cell_e, cell_t = cells
     g, ms, ls, lm, ol = scene.geometry, scene.materials, scene.lights, scene.lightmaps, scene.orientation
     inst_side = scene.inst_side
@@ -82,7 +86,8 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
     px, py, pz = p
     fx, fy, fz = fn
     sx, sy, sz = sn
-    nb = out.shape[0]
+    nb = tp.shape[0]
+    directional = out.shape[0] > nb
     ox0, oy0, oz0 = leave_surface(p, fn, fn)
     state, o1 = next_float(state)
     state, o2 = next_float(state)
@@ -112,9 +117,15 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
             u1 = (i + o1) * wr
             u2 = (o2 + i * GOLDEN) % 1.0
             lx, ly, lz = cosine_hemisphere(u1, u2)
+            if directional:
+                # the ray's own light first, for its moment
+                dst = w.ray
+                for b in range(nb):
+                    dst[b] = 0.0
         dx, dy, dz = to_world(lx, ly, lz, sx, sy, sz)
         if dx * fx + dy * fy + dz * fz <= 0.0:
             continue
+        d0x, d0y, d0z = dx, dy, dz
         ox, oy, oz = ox0, oy0, oz0
         for b in range(nb):
             tp[b] = wr if rings == 0 else 1.0
@@ -191,9 +202,12 @@ def gather_irradiance(scene, w, p, fn, sn, n_rays, mode, state, out, cells):
             for b in range(nb):
                 tp[b] *= f[b]
             ox, oy, oz = leave_surface((qx, qy, qz), (nx, ny, nz), (dx, dy, dz))
-        if rings > 0:
+        if rings > 0 or directional:
+            scale = wr if rings > 0 else 1.0
             for b in range(nb):
-                out[b] += wr * dst[b]
+                out[b] += scale * dst[b]
+            if directional:
+                add_moment(out, nb, dst, scale, d0x, d0y, d0z)
     w.wave[dispersion.WAVE_BAND] = band0
     w.wave[dispersion.WAVE_NM] = nm0
     return state

@@ -46,7 +46,7 @@ from numba import njit
 from . import texel_gather
 from ..core import parallel
 from . import final_gather
-from .bake_gather import GatherPass, add_mesh_caustic
+from .bake_gather import GatherPass, add_mesh_caustic, mirror_moments
 from .path_vertex import new_path_scratch
 from ..core.jit import CORE
 from ..lightmaps.lightmap import MODE_BILINEAR as LM_MODE_BILINEAR
@@ -83,11 +83,12 @@ def strata(n_rays):
 def _records(scene, mode, sites, strata, rec, start, stop):
     """Records start..stop-1: the block's scratch, then the core. sites = (pos,
     nrm, key, size) of each record; strata = (rings, sectors); rec = (E, se,
-    radius, gt, gr), the records' columns to fill."""
-    nb = rec[0].shape[1]
+    radius, gt, gr), the records' columns to fill (E wider than the bands: a
+    directional bake's, its moments after them)."""
+    nb = rec[3].shape[1]
     n = strata[0] * strata[1]
     _records_core(scene, mode, sites, strata, rec, start, stop, new_path_scratch(nb),
-                  (np.empty(nb), np.empty((n, nb)), np.empty(n)))
+                  (np.empty(rec[0].shape[1]), np.empty((n, nb)), np.empty(n)))
 
 
 @njit(**CORE)
@@ -96,14 +97,14 @@ def _records_core(scene, mode, sites, strata, rec, start, stop, w, cells):
     n_theta, n_phi = strata
     E, se, radius, gt, gr = rec
     e, cell_e, cell_t = cells
-    nb = E.shape[1]
+    nb = gt.shape[1]
     n = n_theta * n_phi
     wc = 1.0 / n
     for r in range(start, stop):
         state = stream_state(key[r] ^ STREAM_RECORD, r)
         p = (pos[r, 0], pos[r, 1], pos[r, 2])
         nx, ny, nz = nrm[r, 0], nrm[r, 1], nrm[r, 2]
-        for b in range(nb):
+        for b in range(e.shape[0]):
             e[b] = 0.0
         final_gather.gather_irradiance(scene, w, p, (nx, ny, nz), (nx, ny, nz), n, mode, state, e,
                                        (n_theta, cell_e, cell_t))
@@ -111,7 +112,7 @@ def _records_core(scene, mode, sites, strata, rec, start, stop, w, cells):
         for c in range(n):
             if cell_t[c] > 0.0 and cell_t[c] < math.inf:
                 inv += 1.0 / cell_t[c]
-        for b in range(nb):
+        for b in range(e.shape[0]):
             E[r, b] = e[b]
         # standard error of the mean from neighbouring pairs of cells: a pair's
         # difference holds both cells' variance (and a little of the light's change)
@@ -141,7 +142,7 @@ def _gradients(cell_e, cell_t, n_theta, n_phi, tx, ty, tz, bx, by, bz, E, R, r, 
     to the cell's azimuth). Each is capped so that at the edge of the record's
     reach it moves E by at most E itself: a gradient measured over a nearby
     contact must not push an interpolated value below zero."""
-    nb = E.shape[1]
+    nb = gt.shape[1]
     n = n_theta * n_phi
     for b in range(nb):
         gx = gy = gz = 0.0
@@ -285,21 +286,22 @@ def _interpolate(scene, tx, job, rec, out, var, misses, start, stop):
     """Items job.order[start:stop] of mesh texels tx: the block's scratch, then the core.
     job: the bake's GatherPass (points and stream; order: the items to do); rec:
     the records (Records); misses = (miss, miss_pos, miss_nrm), the first point
-    of each item that no record reaches."""
-    nb = out.shape[1]
-    _interpolate_core(scene, tx, job, rec, out, var, misses, start, stop, np.empty((3, nb)))
+    of each item that no record reaches. out: (items, job.bands), or a
+    directional bake's wider rows (the records' E as wide)."""
+    _interpolate_core(scene, tx, job, rec, out, var, misses, start, stop, np.empty((3, out.shape[1])),
+                      np.empty(job.bands))
 
 
 @njit(**CORE)
-def _interpolate_core(scene, tx, job, rec, out, var, misses, start, stop, bands):
+def _interpolate_core(scene, tx, job, rec, out, var, misses, start, stop, bands, caustic):
     miss, miss_pos, miss_nrm = misses
     e, ep, tmp = bands[0], bands[1], bands[2]
-    nb = out.shape[1]
+    nb = job.bands
     n_points = job.points
     k = texel_gather.grid_side(n_points)
     for j in range(start, stop):
         it = job.order[j]
-        for b in range(nb):
+        for b in range(e.shape[0]):
             e[b] = 0.0
         miss[it] = 0
         v2 = 0.0
@@ -317,8 +319,9 @@ def _interpolate_core(scene, tx, job, rec, out, var, misses, start, stop, bands)
                 if not ok:
                     continue
                 n_ok += 1
-                for b in range(nb):
+                for b in range(ep.shape[0]):
                     ep[b] = 0.0
+                texel_gather.add_normal(ep, nb, nx, ny, nz)
                 for sgn in (1.0, -1.0):
                     if tx.side[it] * sgn < 0.0:
                         continue
@@ -330,14 +333,17 @@ def _interpolate_core(scene, tx, job, rec, out, var, misses, start, stop, bands)
                             miss_pos[it, 0], miss_pos[it, 1], miss_pos[it, 2] = px, py, pz
                             miss_nrm[it, 0], miss_nrm[it, 1], miss_nrm[it, 2] = fx, fy, fz
                         continue
-                    for b in range(nb):
+                    if sgn < 0.0:
+                        # the back side's moments as if from the front (bake_gather.point_indirect)
+                        mirror_moments(tmp, nb, (nx, ny, nz))
+                    for b in range(ep.shape[0]):
                         ep[b] += tmp[b]
                     v2 += vs
                 if scene.caustics:
-                    add_mesh_caustic(scene, tx, it, t, b1, b2, tmp, ep)
-                for b in range(nb):
+                    add_mesh_caustic(scene, tx, it, t, b1, b2, (nx, ny, nz), caustic, ep)
+                for b in range(e.shape[0]):
                     e[b] += ep[b]
-        for b in range(nb):
+        for b in range(e.shape[0]):
             out[it, b] = e[b] / n_ok if n_ok > 0 else 0.0
         # neighbouring points read the same records: their errors are not
         # independent, so the texel keeps the mean per-point variance
@@ -348,13 +354,15 @@ def _interpolate_core(scene, tx, job, rec, out, var, misses, start, stop, bands)
 def lookup(rec, p, n, out):
     """Ward's weighted mean of the records (Records) that reach p, each moved to p
     and tilted to normal n by its gradients -> (weight sum, variance of the mean
-    from the records' errors); out[bands] the irradiance (0 weights: none)."""
+    from the records' errors); out[bands] the irradiance (0 weights: none). An
+    out as wide as the records' E also gets their moments' weighted mean (no
+    gradients)."""
     px, py, pz = p
     nx, ny, nz = n
     rec_pos, rec_nrm, rec_E, rec_se, rec_R, rec_gt, rec_gr = rec.pos, rec.nrm, rec.E, rec.se, rec.R, rec.gt, rec.gr
     cell = rec.cell
-    nb = out.shape[0]
-    for b in range(nb):
+    nb = rec_gt.shape[1]
+    for b in range(out.shape[0]):
         out[b] = 0.0
     h = _hash(np.int64(math.floor(px / cell)), np.int64(math.floor(py / cell)),
               np.int64(math.floor(pz / cell)), rec.mask)
@@ -376,8 +384,10 @@ def lookup(rec, p, n, out):
             v = (rec_E[r, b] + dx * rec_gt[r, b, 0] + dy * rec_gt[r, b, 1] + dz * rec_gt[r, b, 2]
                  + ax * rec_gr[r, b, 0] + ay * rec_gr[r, b, 1] + az * rec_gr[r, b, 2])
             out[b] += w * max(v, 0.0)
+        for b in range(nb, out.shape[0]):
+            out[b] += w * rec_E[r, b]
     if wsum > 0.0:
-        for b in range(nb):
+        for b in range(out.shape[0]):
             out[b] /= wsum
         return wsum, w2v / (wsum * wsum)
     return 0.0, 0.0
@@ -481,10 +491,10 @@ def _sided(cat, items, pos, nrm):
 class Cache:
     """Records of one bake, grown round by round."""
 
-    def __init__(self, nb):
+    def __init__(self, nb, width=None):
         self.pos = np.zeros((0, 3))
         self.nrm = np.zeros((0, 3))
-        self.E = np.zeros((0, nb))
+        self.E = np.zeros((0, width or nb))    # a directional bake's: the moments after the bands
         self.se = np.zeros(0)
         self.R = np.zeros(0)
         self.gt = np.zeros((0, nb, 3))      # translational gradient dE/dx
@@ -495,8 +505,8 @@ class Cache:
         n = pos.shape[0]
         if n == 0:
             return
-        nb = self.E.shape[1]
-        E, se, R = np.zeros((n, nb)), np.zeros(n), np.zeros(n)
+        nb = self.gt.shape[1]
+        E, se, R = np.zeros((n, self.E.shape[1])), np.zeros(n), np.zeros(n)
         gt, gr = np.zeros((n, nb, 3)), np.zeros((n, nb, 3))
         # the record's id in the key: records of later rounds at the same texel differ
         keyed = key ^ (np.arange(first_id, first_id + n, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15))
@@ -513,24 +523,26 @@ class Cache:
         self.rays += n * n_theta * n_phi
 
 
-def cached_mesh_gather(cs, scene, mode, cat, n_points, n_rays, stream):
+def cached_mesh_gather(cs, scene, mode, cat, n_points, n_rays, stream, width=None):
     """The gather of the mesh items `cat` (bake_gather's MeshTexels) through
     the irradiance cache -> (E (K, B), var (K,), fallback items, info): the items in
-    `fallback` were not reached by any record and must be gathered per texel."""
-    out, var, missed, info, _ = _build(cs, scene, mode, cat, n_points, n_rays, stream)
+    `fallback` were not reached by any record and must be gathered per texel.
+    width: a directional bake's row width (texel_gather.moment_width): E's rows
+    are then its rows, moments and all."""
+    out, var, missed, info, _ = _build(cs, scene, mode, cat, n_points, n_rays, stream, width)
     return out, var, missed, info
 
 
-def _build(cs, scene, mode, cat, n_points, n_rays, stream):
+def _build(cs, scene, mode, cat, n_points, n_rays, stream, width=None):
     """Records placed for the items of `cat`, round by round -> (E, var, missed, info,
     (cache, grid)) with E and var interpolated at every item's points."""
     nb = cs.n_bands
     K = cat.texel.size
     size = _texel_sizes(cs, cat)
-    cache = Cache(nb)
+    cache = Cache(nb, width)
     pos, nrm, key, owner = _site_points(cs, cat, _first_sites(cs, cat), stream)
     cache.add(scene, mode, pos, nrm, key, size[owner], n_rays, 0)
-    out, var = np.zeros((K, nb)), np.zeros(K)
+    out, var = np.zeros((K, width or nb)), np.zeros(K)
     miss = np.zeros(K, np.int64)
     rounds = 0
     miss_pos, miss_nrm = np.zeros((K, 3)), np.zeros((K, 3))
@@ -556,7 +568,7 @@ def _build(cs, scene, mode, cat, n_points, n_rays, stream):
             clamped_for[0] = cache.pos.shape[0]
             grid[0] = Grid(cache.pos, cache.R)
         gr = grid[0]
-        job = GatherPass(int(mode), int(n_points), np.zeros(0, np.int64), items, stream)
+        job = GatherPass(int(mode), int(n_points), np.zeros(0, np.int64), items, stream, nb)
         parallel.run(_interpolate, items.size, scene, cat, job, records(cache, gr), out, var,
                      (miss, miss_pos, miss_nrm), remote=True)
         return items[miss[items] > 0]

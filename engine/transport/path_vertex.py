@@ -26,10 +26,11 @@ PathScratch = namedtuple("PathScratch", [
     "tp",               # the path's throughput, per band
     "e", "lg",          # direct light: diffuse irradiance and glossy radiance, per band
     "ind",              # a lookup's irradiance, per band
+    "ray",              # one gather ray's irradiance, per band (directional bakes)
     "closure",          # bsdf.closure_scalars of the hit (bsdf.closure_size)
     "stack",            # the ray traversal's stack (geometry/raycast.py)
     "count",            # count[0]: rays traced
-    "bands",            # the nine band arrays above as the rows of one array (a 2-D argument where one is due)
+    "bands",            # the ten band arrays above as the rows of one array (a 2-D argument where one is due)
     "wave",             # the path's wavelength state (dispersion.WAVE_*): the band it keeps (-1: all), nm
     "pol",              # Stokes vectors (photons) or rows (camera paths) per band, and a frame (polarization.py)
 ])
@@ -39,8 +40,9 @@ PathScratch = namedtuple("PathScratch", [
 def path_scratch(nb, stack, count):
     """Scratch for a path of nb bands that traverses with `stack` and counts its rays in count[0]
     (two paths of one thread, a camera path and its gathers, share both)."""
-    r = np.empty((9, nb))
-    return PathScratch(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], np.empty(bsdf.closure_size(nb)), stack, count, r,
+    r = np.empty((10, nb))
+    return PathScratch(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], np.empty(bsdf.closure_size(nb)),
+                       stack, count, r,
                        np.full(2, -1.0), np.zeros(polarization.pol_size(nb)))
 
 

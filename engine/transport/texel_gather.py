@@ -176,10 +176,9 @@ def direct_irradiance_stratum(g, ls, stack, p, n, state, out, strata, rad, sides
 def _add_unshadowed(g, stack, px, py, pz, nx, ny, nz, eps, wx, wy, wz, dist, scale, rad, out, sg):
     """out += rad · cos · scale when direction w reaches distance dist from p
     (offset along n, the lit side) unoccluded and above that side. An `out`
-    longer than rad (directional bakes) also gets, after the bands, the light's
-    direction weighted by its irradiance averaged over the bands; light on the
-    back (sg -1) of an open surface, which its texel sums with the front's, as
-    if from the mirrored direction in front."""
+    longer than rad (a directional bake's row) also gets the light's moments
+    (add_moment); light on the back (sg -1) of an open surface, which its texel
+    sums with the front's, as if from the mirrored direction in front."""
     cos_r = wx * nx + wy * ny + wz * nz
     if cos_r <= 0.0:
         return
@@ -188,17 +187,12 @@ def _add_unshadowed(g, stack, px, py, pz, nx, ny, nz, eps, wx, wy, wz, dist, sca
         return
     c = cos_r * scale
     nb = rad.shape[0]
-    mean = 0.0
     for b in range(nb):
         out[b] += rad[b] * c
-        mean += rad[b] * c
     if out.shape[0] > nb:
-        mean /= nb
         if sg < 0.0:
             wx, wy, wz = wx - 2.0 * cos_r * nx, wy - 2.0 * cos_r * ny, wz - 2.0 * cos_r * nz
-        out[nb] += mean * wx
-        out[nb + 1] += mean * wy
-        out[nb + 2] += mean * wz
+        add_moment(out, nb, rad, c, wx, wy, wz)
 
 
 @njit(cache=True, inline="always")
@@ -356,26 +350,40 @@ def texel_stream(tx, it, xor):
     return stream_state(tx.key[it] ^ xor, tx.local[it])
 
 
-# A directional bake's moments per texel, after its bands: the direct light's
-# direction weighted by its band-mean irradiance (3), and the surface normal (3),
-# both averaged over the texel's samples.
-MOMENTS = 6
+# A directional bake's row per texel: its nb bands, then each band's moment (the
+# directions its light comes from weighted by that band's irradiance, 3 per band),
+# then the surface normal (3), all averaged over the texel's samples. A plain
+# bake's row is the bands alone; the kernels tell the two apart by the row's width.
+@njit(cache=True, inline="always")
+def moment_width(nb):
+    """The width of a directional bake's row of nb bands."""
+    return 4 * nb + 3
 
 
 @njit(cache=True, inline="always")
-def _add_normal(e, nb, nx, ny, nz):
-    """The sample's normal into a directional bake's moments (nothing otherwise)."""
-    if e.shape[0] >= nb + MOMENTS:
-        e[nb + 3] += nx
-        e[nb + 4] += ny
-        e[nb + 5] += nz
+def add_moment(out, nb, e, scale, wx, wy, wz):
+    """Light e[band] · scale from direction w into the moments of row `out`."""
+    for b in range(nb):
+        v = e[b] * scale
+        out[nb + 3 * b] += v * wx
+        out[nb + 3 * b + 1] += v * wy
+        out[nb + 3 * b + 2] += v * wz
+
+
+@njit(cache=True, inline="always")
+def add_normal(e, nb, nx, ny, nz):
+    """The sample's normal into a directional bake's row (nothing into a plain one)."""
+    if e.shape[0] > nb:
+        e[4 * nb] += nx
+        e[4 * nb + 1] += ny
+        e[4 * nb + 2] += nz
 
 
 @njit(cache=True, nogil=True)
 def _gather_mesh(g, ls, tx, n_samples, nb, out, start, stop):
     """Direct light of mesh texels start..stop: the block's scratch, then the core.
-    out: (texels, nb) irradiance per band, or (texels, nb + MOMENTS) with the
-    moments of a directional bake after it (MOMENTS)."""
+    out: (texels, nb) irradiance per band, or a directional bake's rows
+    (texels, moment_width(nb))."""
     _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, np.empty(STACK_WORDS, np.int32),
                       np.empty(out.shape[1]), np.empty(nb))
 
@@ -408,7 +416,7 @@ def _gather_mesh_core(g, ls, tx, n_samples, out, start, stop, stack, e, rad):
                 ok, px, py, pz, nx, ny, nz, _, _, _ = mesh_texel_sample(g, tx, pieces, u1, u2)
                 if not ok:
                     continue
-                _add_normal(e, nb, nx, ny, nz)
+                add_normal(e, nb, nx, ny, nz)
                 before = 0.0
                 for b in range(nb):
                     before += e[b]
@@ -459,7 +467,7 @@ def _gather_prim_core(g, ls, tx, n_samples, out, start, stop, stack, scratch, ra
                 continue
             for b in range(e.shape[0]):
                 e[b] = 0.0
-            _add_normal(e, rad.shape[0], nx, ny, nz)
+            add_normal(e, rad.shape[0], nx, ny, nz)
             state = direct_irradiance_stratum(g, ls, stack, (px, py, pz), (nx, ny, nz), state, e,
                                               (light_stratum(s, k, shift), k), rad, sides)
             for b in range(e.shape[0]):
@@ -563,12 +571,12 @@ class _MeshTexels:
         return MeshTexels(**cat)
 
     def gather(self, cs, n, moments=False):
-        """(texel ids, E) of the collected texels (E's rows end with the MOMENTS
-        with `moments`); None when there are none."""
+        """(texel ids, E) of the collected texels (a directional bake's rows,
+        moment_width wide, with `moments`); None when there are none."""
         tx = self.packed()
         if tx is None:
             return None
-        out = np.zeros((tx.texel.size, cs.n_bands + (MOMENTS if moments else 0)))
+        out = np.zeros((tx.texel.size, moment_width(cs.n_bands) if moments else cs.n_bands))
         parallel.run(_gather_mesh, out.shape[0], cs.geometry, cs.lights, tx, n, cs.n_bands, out, remote=True)
         return tx.texel, out
 
@@ -619,12 +627,12 @@ class _PrimTexels:
                           sides=np.asarray(pl["sides"], np.int64), **cat)
 
     def gather(self, cs, n, moments=False):
-        """(texel ids, E) of the collected texels (E's rows end with the MOMENTS
-        with `moments`); None when there are none."""
+        """(texel ids, E) of the collected texels (a directional bake's rows,
+        moment_width wide, with `moments`); None when there are none."""
         tx = self.packed()
         if tx is None:
             return None
-        out = np.zeros((tx.texel.size, cs.n_bands + (MOMENTS if moments else 0)))
+        out = np.zeros((tx.texel.size, moment_width(cs.n_bands) if moments else cs.n_bands))
         parallel.run(_gather_prim, out.shape[0], cs.geometry, cs.lights, tx, n, cs.n_bands, out, remote=True)
         return tx.texel, out
 
@@ -778,8 +786,8 @@ def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAM
     (those finalize() computes: area above the sliver threshold) and their
     direct irradiance in W/m² (both sides summed on open surfaces). Nothing in
     `cs` changes; `add_direct` folds the result into the lightmaps.
-    lightmap_ids None: all instance lightmaps of the scene. moments: each E row
-    also holds, after the bands, the MOMENTS of a directional bake.
+    lightmap_ids None: all instance lightmaps of the scene. moments: E's rows
+    are a directional bake's (moment_width wide).
     """
     n = int(samples_per_texel)
     if n < 1:
@@ -792,7 +800,7 @@ def direct_texel_irradiance(cs, lightmap_ids=None, samples_per_texel=DEFAULT_SAM
     lightmap_ids = sorted({int(l) for l in lightmap_ids})
     mesh, prim = collect_texels(cs, owners, lightmap_ids, seed)
     ids, E = by_texel([mesh.gather(cs, n, moments), prim.gather(cs, n, moments)],
-                      cs.n_bands + (MOMENTS if moments else 0))
+                      moment_width(cs.n_bands) if moments else cs.n_bands)
     cs.timings["direct_gather"] = time.perf_counter() - t0
     return ids, E
 

@@ -132,11 +132,12 @@ def test_normal_maps_show_under_a_directional_lightmap():
     """EEVEE through the material hook against Cycles rendering the normal-mapped
     material itself (256 samples, the same camera): with the directional lightmap the
     relative RMSE is 0.0044 (bound 0.02); the plain lightmap, which cannot see the
-    bumps, is 0.18 off (bound: above 0.15)."""
+    bumps, is 0.18 off (bound: above 0.15). L1 SH, which widens the sun's lobe, lies
+    between (0.074)."""
     scene, ob = normal_mapped_plane()
     cycles = render(scene, "CYCLES")
     errors, reports = {}, {}
-    for directional in (False, True):
+    for directional in (False, True, "SH"):
         res = bake.bake_objects(bpy.context, [ob], resolution=32, seed=1, hook_materials=True,
                                 directional=directional, overwrite=True)
         reports[directional] = res
@@ -148,6 +149,7 @@ def test_normal_maps_show_under_a_directional_lightmap():
     sun = np.array(bpy.data.objects["sun"].matrix_world.to_3x3().col[2])    # toward the sun
     assert np.allclose(u, sun, atol=0.01)                 # the sun alone: k = 1
     assert errors[True] < 0.02 and errors[False] > 0.15
+    assert errors[True] < errors["SH"] < errors[False]
 
 
 def test_cli_directional_writes_the_direction_image(tmp_path):
@@ -302,3 +304,16 @@ def test_cli_directional_sh_writes_three_images(tmp_path):
     d = np.stack(L1, axis=1)
     # a white sun alone: each colour's L1 points at it
     assert np.allclose(d / np.linalg.norm(d, axis=1, keepdims=True), sun, atol=0.02)
+
+
+def test_an_unknown_directional_mode_is_one_clear_error():
+    from photon_lightmaps.engine.core.scene import SceneError
+    _, ob = normal_mapped_plane()
+    before = [uv.name for uv in ob.data.uv_layers]
+    try:
+        bake.bake_objects(bpy.context, [ob], resolution=8, directional="l2")
+    except SceneError as e:
+        assert "directional: must be one of dominant, sh, got 'l2'" in str(e)
+    else:
+        raise AssertionError("no SceneError")
+    assert [uv.name for uv in ob.data.uv_layers] == before

@@ -671,7 +671,7 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
     # --time / Bake Time counts the export too, which prepare_bake did
     deadline = (t0 + job.settings.bake_time - result.seconds.get("export", 0.0)
                 if job.settings.bake_time > 0 else None)
-    ao = job.settings.bake_pass in ("AO", "SHADOWMASK")      # occlusion: no light, no CSG
+    ao = job.settings.bake_pass in ("AO", "SHADOWMASK")      # occlusion: no light
     masks = None
     with kernel_watch.watching(on_compile):
         if job.settings.bake_pass == "SHADOWMASK":
@@ -681,10 +681,10 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
             result.seconds.update(seconds)
             result.mask_lights = list(job.mask_lights[0])
         elif ao:
-            phase("ao", f"{len(ids):,} objects")
+            phase("ao", f"{len(ids) + len(solids):,} objects")
             result.seconds.update(session.bake_ao(cs, ids, job.settings, job.settings.ao_distance,
-                                                  rays=job.settings.pass_rays,
-                                                  should_stop=should_stop))
+                                                  rays=job.settings.pass_rays, should_stop=should_stop,
+                                                  csg_leaves=leaves))
         else:
             result.seconds.update(session.bake_texels(
                 cs, ids, leaves, job.settings, direct=job.direct, deadline=deadline, should_stop=should_stop,
@@ -711,9 +711,8 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
     t1 = time.perf_counter()
     phase("images", f"{len(job.targets):,} objects")
     for name, i in job.targets.items():
-        if name in job.csg and ao:
-            result.skipped[name] = (f"exact CSG solid: the {job.settings.bake_pass.lower()} pass bakes meshes "
-                                    "and primitives")
+        if name in job.csg and masks is not None:
+            result.skipped[name] = "exact CSG solid: the shadowmask pass bakes meshes and primitives"
             continue
         if name in job.csg:
             bm = csg_atlas.atlas(cs, job, name, solids[name])

@@ -367,14 +367,16 @@ def _summed_moments(a, b, nb):
     return ids, mom, E
 
 
-def bake_ao(cs, lightmap_ids, settings, distance, *, rays=16, should_stop=None):
+def bake_ao(cs, lightmap_ids, settings, distance, *, rays=16, should_stop=None, csg_leaves=()):
     """The ambient-occlusion pass of a bake into cs.lightmaps (E = π·AO, so the
-    bake's E/π is AO; engine/transport/ambient_occlusion.py) -> seconds."""
+    bake's E/π is AO; engine/transport/ambient_occlusion.py) -> seconds.
+    csg_leaves: (instance, leaf) pairs of CSG solids (csg_bake.solid_leaves)."""
     from .transport import ambient_occlusion
     t0 = time.perf_counter()
     with _on_cluster(cs, settings, "bake") as cluster:
         with cluster.kernels(should_stop) if cluster is not None else contextlib.nullcontext():
-            ambient_occlusion.bake_ao(cs, lightmap_ids, distance, rays=int(rays), seed=int(settings.seed))
+            ambient_occlusion.bake_ao(cs, lightmap_ids, distance, rays=int(rays), seed=int(settings.seed),
+                                      csg_leaves=list(csg_leaves))
     return {"ao": time.perf_counter() - t0}
 
 

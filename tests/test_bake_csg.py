@@ -310,3 +310,33 @@ def test_user_edited_operand_layer_is_left_alone_with_a_warning():
     assert any("'Sph'" in w and "left out" in w for w in res.warnings), res.warnings
     assert np.array_equal(uv_layers.read_uvs(sph.data.uv_layers["Lightmap"]), uv)
     assert res.csg["Cyl"]["skipped"].keys() == {"Sph"}
+
+
+def test_ao_pass_bakes_csg_solids_over_their_boundary():
+    """The slotted slab under a 4 x 4 m plate 0.5 m above its top: every top texel's
+    AO within 1 m is the share of cosine rays that pass the plate's height first,
+    (h / d)² = 0.25 (the plate reaches past the slab by more than any occluded ray
+    goes sideways, sqrt(d² - h²)), split texels beside the slot too: only the
+    points on the solid's boundary count. The slot's walls, 4 cm apart, see each
+    other: nearly no AO."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    slab, _ = slotted_slab()
+    me = bpy.data.meshes.new("plate")
+    z = SLAB_TOP + 0.5
+    me.from_pydata([(2, -2, z), (6, -2, z), (6, 2, z), (2, 2, z)], [], [(0, 1, 2, 3)])
+    bpy.context.scene.collection.objects.link(bpy.data.objects.new("plate", me))
+    res = bake.bake_objects(bpy.context, [slab], resolution=RES, seed=3, bake_pass="AO", ao_distance=1.0)
+    assert "Slab" in res.maps and not res.skipped
+    top = block(res.maps["Slab"], "Slab")[:, 4 * RES:5 * RES]      # face 4: +z
+    full = top[..., 3] >= 1.0 - 1e-9
+    split = (top[..., 3] > 0.05) & ~full
+    ao = top[..., 0]
+    print(f"\nAO on the top: {ao[full].mean():.4f} over {full.sum()} texels, split {ao[split]}")
+    assert full.sum() > 200 and split.sum() >= RES
+    # 256 stratified rays a texel: a texel's sd is 0.025 (measured), the mean's 0.0017;
+    # seeds 2 to 5 gave means 0.2548, 0.2507, 0.2498 and 0.2497
+    assert abs(ao[full].mean() - 0.25) < 0.005 and np.abs(ao[full] - 0.25).max() < 0.1
+    assert np.abs(ao[split] - 0.25).max() < 0.1
+    walls = [block(res.maps["Slab"], leaf) for leaf in res.maps["Slab"].tiles if leaf != "Slab"]
+    seen = np.concatenate([w[..., 0][w[..., 3] > 0.5] for w in walls])
+    assert seen.size and seen.mean() < 0.1

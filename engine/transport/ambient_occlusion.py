@@ -23,20 +23,22 @@ DEFAULT_POINTS = 16
 DEFAULT_RAYS = 16
 
 
-def texel_ao(cs, lightmap_ids, distance, points=DEFAULT_POINTS, rays=DEFAULT_RAYS, seed=0):
-    """AO of the measured texels of the given instance lightmaps -> (texel ids, AO float64[K])."""
+def texel_ao(cs, lightmap_ids, distance, points=DEFAULT_POINTS, rays=DEFAULT_RAYS, seed=0, csg_leaves=()):
+    """AO of the measured texels of the given instance lightmaps and CSG leaves
+    ((instance, csg_bake.solid_leaves entry) pairs: over the solid's boundary only)
+    -> (texel ids, AO float64[K])."""
     if not float(distance) > 0.0:
         raise ValueError(f"AO distance must be positive, got {distance}")
     ids, ao = texel_rays.per_texel(cs, lightmap_ids, texel_rays.OCCLUSION, points=points, rays=rays, xor=AO_XOR,
-                                   seed=seed, distance=distance)
+                                   seed=seed, distance=distance, csg_leaves=csg_leaves)
     return ids, ao[:, 0]
 
 
-def bake_ao(cs, lightmap_ids, distance, points=DEFAULT_POINTS, rays=DEFAULT_RAYS, seed=0):
+def bake_ao(cs, lightmap_ids, distance, points=DEFAULT_POINTS, rays=DEFAULT_RAYS, seed=0, csg_leaves=()):
     """The AO pass into cs.lightmaps: E = π·AO on every measured texel (the photon
     flux replaced), then finalize (dilation) -> (texel ids, AO)."""
     from .bake_gather import set_gathered
-    ids, ao = texel_ao(cs, lightmap_ids, distance, points, rays, seed)
+    ids, ao = texel_ao(cs, lightmap_ids, distance, points, rays, seed, csg_leaves)
     nb = cs.lightmaps.flux.shape[1]
     cs.lightmaps.flux[:] = 0.0
     set_gathered(cs.lightmaps, (ids, np.repeat(math.pi * ao[:, None], nb, axis=1)),

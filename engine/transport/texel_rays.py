@@ -13,7 +13,9 @@ of rays from the side the surface faces:
 
 A texel's answer is the mean over its points (primitive charts: weighted by the
 chart's area element); a point that falls outside the texel's surface counts
-as 0. One kernel per surface kind answers all three, so a scene compiles it
+as 0. On exact CSG solids (csg_bake.py) only the points on the solid's boundary
+count, weighted the same way, and a texel the boundary splits gets an answer per
+region, as its light does. One kernel per surface kind answers all three, so a scene compiles it
 once whichever pass it bakes. Each texel follows its own random stream, keyed
 by the pass (`xor`): results do not depend on threads or machines
 (parallel.run(remote=True)).
@@ -26,9 +28,11 @@ from numba import njit
 from ..core import parallel
 from ..core.jit import CORE
 from ..core.sampling import cosine_hemisphere, next_float, to_world
+from ..geometry import csg, csg_trace
 from ..geometry.raycast import STACK_WORDS, intersect_closest, occluded
 from ..shading.lights import sample_light
 from . import texel_gather
+from .csg_bake import csg_texel_items, csg_texel_sample
 from .path_vertex import ray_epsilon
 
 OCCLUSION, VISIBILITY, BACKFACES = 0, 1, 2
@@ -148,9 +152,38 @@ def _prim_core(g, ls, tx, query, xor, out, start, stop, stack, scratch):
             out[it, c] = acc[c] / wsum if wsum > 0.0 else 0.0
 
 
-def per_texel(cs, lightmap_ids, kind, *, points, rays, xor, seed=0, distance=math.inf, lights=None):
+@njit(cache=True, nogil=True)
+def _csg(g, ls, tx, query, xor, acc, wsum, start, stop):
+    """CSG leaf texels (csg_bake.CsgTexels) start..stop: acc[row] += J·answers and
+    wsum[row] += J over the points on the solid's boundary (a split texel's by the
+    region of the point's cell). An item's rows are its own: blocks never share one."""
+    cb = csg_trace.csg_base(tx.buf)
+    n_points = query[4]
+    k = texel_gather.grid_side(n_points)
+    stack = np.empty(STACK_WORDS, np.int32)
+    bits = np.empty(3 * csg.MAX_WORK + 8, np.int32)
+    point = np.empty(acc.shape[1])
+    for it in range(start, stop):
+        state = texel_gather.texel_stream(tx, it, xor)
+        for s in range(n_points):
+            state, j1 = next_float(state)
+            state, j2 = next_float(state)
+            u1, u2 = texel_gather.jitter(s, k, j1, j2)
+            ok, row, jac, px, py, pz, nx, ny, nz, _, _ = csg_texel_sample(tx, it, cb, bits, u1, u2)
+            if not ok:
+                continue
+            for c in range(point.shape[0]):
+                point[c] = 0.0
+            state = _point_query(g, ls, stack, query, (px, py, pz), (nx, ny, nz), state, point)
+            for c in range(point.shape[0]):
+                acc[row, c] += jac * point[c]
+            wsum[row] += jac
+
+
+def per_texel(cs, lightmap_ids, kind, *, points, rays, xor, seed=0, distance=math.inf, lights=None, csg_leaves=()):
     """The answers of query `kind` over the measured texels of the given instance lightmaps
-    -> (texel ids, float64[K, channels]): one channel, or one per light for VISIBILITY."""
+    and CSG leaves ((instance, csg_bake.solid_leaves entry) pairs) -> (texel ids,
+    float64[K, channels]): one channel, or one per light for VISIBILITY."""
     points, rays = int(points), int(rays)
     if points < 1 or rays < 1:
         raise ValueError(f"points and rays per texel must be >= 1, got {points}, {rays}")
@@ -175,4 +208,12 @@ def per_texel(cs, lightmap_ids, kind, *, points, rays, xor, seed=0, distance=mat
         out = np.zeros((tx.texel.size, channels))
         parallel.run(_prim, out.shape[0], cs.geometry, cs.lights, tx, query, np.uint64(xor), out, remote=True)
         parts.append((tx.texel, out))
+    tx = csg_texel_items(cs, list(csg_leaves), seed) if csg_leaves else None
+    if tx is not None:
+        rows = cs.lightmaps.area.shape[0]
+        acc, wsum = np.zeros((rows, channels)), np.zeros(rows)
+        parallel.run(_csg, tx.lm.shape[0], cs.geometry, cs.lights, tx, query, np.uint64(xor), acc, wsum,
+                     remote=True)
+        ids = np.flatnonzero(wsum > 0.0).astype(np.int64)
+        parts.append((ids, acc[ids] / wsum[ids][:, None]))
     return texel_gather.by_texel(parts, channels)

@@ -579,12 +579,13 @@ def _error_stats(cs, job, solids):
     return out
 
 
-def _fill_invalid(cs, job, ids):
-    """Texel validity over the baked lightmaps `ids`: texels inside geometry filled from
-    their neighbours -> ({object: {"invalid", "texels"}}, {object: validity BakedMap}, seconds)."""
+def _fill_invalid(cs, job, ids, leaves=(), solids=None):
+    """Texel validity over the baked lightmaps `ids` and CSG leaves `leaves` (their
+    solids' leaf lists in `solids`): texels inside geometry filled from their
+    neighbours -> ({object: {"invalid", "texels"}}, {object: validity BakedMap}, seconds)."""
     from ..engine.transport import texel_validity
     t0 = time.perf_counter()
-    rows, share = texel_validity.backface_share(cs, ids, seed=int(job.settings.seed))
+    rows, share = texel_validity.backface_share(cs, ids, seed=int(job.settings.seed), csg_leaves=leaves)
     invalid = share > texel_validity.INVALID_SHARE
     lm = cs.lightmaps
     channels = np.zeros((lm.area.shape[0], 4))
@@ -594,12 +595,21 @@ def _fill_invalid(cs, job, ids):
     counts, maps = {}, {}
     for name, i in job.targets.items():
         if name in job.csg:
-            continue
-        lm_id = cs.instance_lightmaps[i][0]
-        sl = lightmap.texel_slice(lm, lm_id)
-        inside = (rows >= sl.start) & (rows < sl.stop)
+            # a solid's texels are its leaves' rows (a split texel's regions are counted with it)
+            mine = np.concatenate([np.arange(s.start, s.stop) for s in
+                                   (lightmap.texel_slice(lm, d["lightmap"]) for d in solids[name])] or [[]])
+            inside = np.isin(rows, mine)
+            # the colours through the solid's atlas, as its error image (the layouts store E/pi)
+            carrier = lm._replace(irradiance=math.pi * channels[:, :3])
+            bm = csg_atlas.atlas(cs, job, name, solids[name], lightmaps=carrier)
+            if bm is not None:
+                maps[name] = bm
+        else:
+            lm_id = cs.instance_lightmaps[i][0]
+            sl = lightmap.texel_slice(lm, lm_id)
+            inside = (rows >= sl.start) & (rows < sl.stop)
+            maps[name] = BakedMap(name, images.texel_rgba(lm, lm_id, channels), lm_id)
         counts[name] = {"invalid": int(np.count_nonzero(inside & invalid)), "texels": int(np.count_nonzero(inside))}
-        maps[name] = BakedMap(name, images.texel_rgba(lm, lm_id, channels), lm_id)
     texel_validity.dilate_over(lm, rows[invalid])
     return counts, maps, time.perf_counter() - t0
 
@@ -693,7 +703,8 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
                                             f"compiled in a second process, {n:.0f} s (first run)")))
     if job.settings.texel_validity and masks is None:
         phase("validity", f"{len(ids):,} objects")
-        result.validity, result.validity_maps, result.seconds["validity"] = _fill_invalid(cs, job, ids)
+        result.validity, result.validity_maps, result.seconds["validity"] = _fill_invalid(cs, job, ids, leaves,
+                                                                                          solids)
     if getattr(cs, "bake_error", None) is not None:
         result.error = _error_stats(cs, job, solids)
     result.irradiance_cache = cs.info.get("irradiance_cache")

@@ -340,3 +340,30 @@ def test_ao_pass_bakes_csg_solids_over_their_boundary():
     walls = [block(res.maps["Slab"], leaf) for leaf in res.maps["Slab"].tiles if leaf != "Slab"]
     seen = np.concatenate([w[..., 0][w[..., 3] > 0.5] for w in walls])
     assert seen.size and seen.mean() < 0.1
+
+
+def test_texel_validity_finds_the_part_of_a_solid_inside_a_box():
+    """The slotted slab (x from 3 to 5) with its left quarter inside a closed box (x < 3.5):
+    the top's texels there see only the box's inside (back faces) and are invalid,
+    the rest valid; the validity image shows it in the solid's atlas (R = 1 inside,
+    G = 1 outside), and the report counts the solid's texels."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    slab, _ = slotted_slab()
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(2.75, 0.0, 1.0))
+    box = bpy.context.active_object
+    box.scale = (1.5, 4.0, 2.0)                    # x from 2 to 3.5
+    point_light()
+    res = bake.bake_objects(bpy.context, [slab], resolution=RES, seed=3, photons=20_000, texel_validity=True)
+    counts = res.validity["Slab"]
+    top = block(res.validity_maps["Slab"], "Slab")[:, 4 * RES:5 * RES]      # face 4: +z
+    full = top[..., 3] >= 1.0 - 1e-9
+    x = 3.0 + 2.0 * (np.arange(RES) + 0.5) / RES                            # texel centres along the top's u
+    print(f"\n{counts}; top R by column: {np.round(top[..., 0].mean(axis=0), 2)}")
+    cols_in, cols_out = x < 3.5 - 0.2, x > 3.5 + 0.2
+    assert np.all(top[full & cols_in[None, :], 0] > 0.9) and np.all(top[full & cols_out[None, :], 0] < 0.1)
+    assert np.all(top[full & cols_out[None, :], 1] > 0.9)
+    assert counts["texels"] > 6 * RES * RES * 0.5 and counts["invalid"] >= (RES // 4) * RES
+    # the invalid texels hold their valid neighbours' light, not the box's darkness
+    light = block(res.maps["Slab"], "Slab")[:, 4 * RES:5 * RES, 0]
+    first_valid = int(np.argmax(cols_out))
+    assert np.all(light[:, :4][full[:, :4]] > 0.5 * light[:, first_valid].min())

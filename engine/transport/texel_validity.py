@@ -23,11 +23,12 @@ DEFAULT_POINTS = 8
 DEFAULT_RAYS = 8
 
 
-def backface_share(cs, lightmap_ids, points=DEFAULT_POINTS, rays=DEFAULT_RAYS, seed=0):
+def backface_share(cs, lightmap_ids, points=DEFAULT_POINTS, rays=DEFAULT_RAYS, seed=0, csg_leaves=()):
     """Share of rays meeting back faces, per measured texel of the given instance
-    lightmaps -> (texel ids, share float64[K])."""
+    lightmaps and CSG leaves ((instance, csg_bake.solid_leaves entry) pairs: over
+    the solid's boundary) -> (texel ids, share float64[K])."""
     ids, share = texel_rays.per_texel(cs, lightmap_ids, texel_rays.BACKFACES, points=points, rays=rays,
-                                      xor=VALIDITY_XOR, seed=seed)
+                                      xor=VALIDITY_XOR, seed=seed, csg_leaves=csg_leaves)
     return ids, share[:, 0]
 
 

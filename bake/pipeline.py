@@ -687,7 +687,8 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
         if job.settings.bake_pass == "SHADOWMASK":
             phase("shadowmask", ", ".join(job.mask_lights[0]))
             masks, seconds = session.bake_shadowmask(cs, ids, job.settings, job.mask_lights[1],
-                                                     samples=job.settings.pass_rays, should_stop=should_stop)
+                                                     samples=job.settings.pass_rays, should_stop=should_stop,
+                                                     csg_leaves=leaves)
             result.seconds.update(seconds)
             result.mask_lights = list(job.mask_lights[0])
         elif ao:
@@ -723,7 +724,9 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
     phase("images", f"{len(job.targets):,} objects")
     for name, i in job.targets.items():
         if name in job.csg and masks is not None:
-            result.skipped[name] = "exact CSG solid: the shadowmask pass bakes meshes and primitives"
+            bm = _solid_mask(cs, job, name, solids[name], masks)
+            if bm is not None:
+                result.maps[name] = bm
             continue
         if name in job.csg:
             bm = csg_atlas.atlas(cs, job, name, solids[name])
@@ -760,6 +763,17 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
         result.seconds["seams"] = time.perf_counter() - t3
     job.cs = cs
     return job
+
+
+def _solid_mask(cs, job, name, leaves, masks):
+    """A CSG solid's shadowmask in its atlas layout: lights 1 to 3 in RGB and the fourth
+    in A, as a mesh's (its A holds no coverage); masks: every lightmap row's four."""
+    lm = cs.lightmaps
+    bm = csg_atlas.atlas(cs, job, name, leaves, lightmaps=lm._replace(irradiance=math.pi * masks[:, :3]))
+    if bm is not None:
+        fourth = np.repeat(math.pi * masks[:, 3:4], 3, axis=1)
+        bm.rgba[..., 3] = csg_atlas.atlas(cs, job, name, leaves, lightmaps=lm._replace(irradiance=fourth)).rgba[..., 0]
+    return bm
 
 
 def _direction_maps(cs, job, result):

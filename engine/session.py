@@ -380,16 +380,16 @@ def bake_ao(cs, lightmap_ids, settings, distance, *, rays=16, should_stop=None, 
     return {"ao": time.perf_counter() - t0}
 
 
-def bake_shadowmask(cs, lightmap_ids, settings, lights, *, samples=16, should_stop=None):
+def bake_shadowmask(cs, lightmap_ids, settings, lights, *, samples=16, should_stop=None, csg_leaves=()):
     """Shadowmask of the compiled lights `lights` (rows of cs.lights, up to four):
     every lightmap row's visibility per light, dilated (engine/transport/shadowmask.py)
-    -> (float64 (rows, 4), seconds)."""
+    -> (float64 (rows, 4), seconds). csg_leaves: (instance, leaf) pairs of CSG solids."""
     from .transport import shadowmask
     t0 = time.perf_counter()
     with _on_cluster(cs, settings, "bake") as cluster:
         with cluster.kernels(should_stop) if cluster is not None else contextlib.nullcontext():
             ids, V = shadowmask.texel_visibility(cs, lightmap_ids, lights, samples=int(samples),
-                                                 seed=int(settings.seed))
+                                                 seed=int(settings.seed), csg_leaves=list(csg_leaves))
     channels = shadowmask.mask_channels(cs, ids, V)
     return channels, {"shadowmask": time.perf_counter() - t0}
 

@@ -367,3 +367,23 @@ def test_texel_validity_finds_the_part_of_a_solid_inside_a_box():
     light = block(res.maps["Slab"], "Slab")[:, 4 * RES:5 * RES, 0]
     first_valid = int(np.argmax(cols_out))
     assert np.all(light[:, :4][full[:, :4]] > 0.5 * light[:, first_valid].min())
+
+
+def test_shadowmask_of_a_csg_solid_is_one_light_per_channel():
+    """Four point lights, two above the slotted slab and two below it: its top sees
+    the two above fully and cannot be lit by the two below, exactly (hard shadows,
+    stratified samples): R = 1, G = 0, B = 0, A = 1, in the solid's atlas, with A
+    the fourth light as on a mesh."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    slab, _ = slotted_slab()
+    lamps = [point_light(location=loc) for loc in ((4.3, 0.2, 3.5), (4.0, 0.0, -1.0), (3.5, 0.5, -2.0),
+                                                   (4.6, -0.3, 2.5))]
+    for i, lamp in enumerate(lamps):
+        lamp.name = f"Lamp{i}"
+    res = bake.bake_objects(bpy.context, [slab], resolution=RES, seed=3, bake_pass="SHADOWMASK",
+                            shadowmask_lights="Lamp0,Lamp1,Lamp2,Lamp3")
+    assert "Slab" in res.maps and not res.skipped and res.mask_lights == ["Lamp0", "Lamp1", "Lamp2", "Lamp3"]
+    top = block(res.maps["Slab"], "Slab")[:, 4 * RES:5 * RES]      # face 4: +z
+    x = 3.0 + 2.0 * (np.arange(RES) + 0.5) / RES
+    whole = np.abs(x - 4.03)[None, :].repeat(RES, axis=0) > 2.0 / RES      # columns clear of the slot
+    assert np.all(top[whole] == np.array([1.0, 0.0, 0.0, 1.0], np.float32))

@@ -45,11 +45,13 @@ def light_rows(scene, names):
     return np.asarray(out, np.int64)
 
 
-def texel_visibility(cs, lightmap_ids, lights, points=DEFAULT_POINTS, samples=DEFAULT_SAMPLES, seed=0):
+def texel_visibility(cs, lightmap_ids, lights, points=DEFAULT_POINTS, samples=DEFAULT_SAMPLES, seed=0,
+                     csg_leaves=()):
     """Visibility of the compiled lights `lights` (rows of cs.lights) over the measured
-    texels of the given instance lightmaps -> (texel ids, V float64[K, len(lights)])."""
+    texels of the given instance lightmaps and CSG leaves ((instance, leaf) pairs: over
+    the solid's boundary) -> (texel ids, V float64[K, len(lights)])."""
     return texel_rays.per_texel(cs, lightmap_ids, texel_rays.VISIBILITY, points=points, rays=samples,
-                                xor=MASK_XOR, seed=seed, lights=lights)
+                                xor=MASK_XOR, seed=seed, lights=lights, csg_leaves=csg_leaves)
 
 
 def mask_channels(cs, ids, V):

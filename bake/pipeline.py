@@ -747,7 +747,7 @@ def compute_bake(job, progress=None, phase=None, should_stop=None):
         result.error_maps = _error_maps(cs, job, solids)
     if job.settings.directional and not ao:
         t_dir = time.perf_counter()
-        _direction_maps(cs, job, result)
+        _direction_maps(cs, job, result, solids)
         result.seconds["direction"] = time.perf_counter() - t_dir
     result.seconds["extract"] = time.perf_counter() - t1
     if job.settings.denoise:
@@ -776,38 +776,33 @@ def _solid_mask(cs, job, name, leaves, masks):
     return bm
 
 
-def _direction_maps(cs, job, result):
-    """A directional bake's images per baked mesh or primitive object
-    (engine/transport/directional_lightmap.py): its direction image (DOMINANT) or
-    its three L1 images (SH) into `result`; CSG solids are told they get none."""
+def _direction_maps(cs, job, result, solids):
+    """A directional bake's images per baked object (engine/transport/directional_lightmap.py):
+    its direction image (DOMINANT) or its three L1 images (SH) into `result`, in the
+    layout of its lightmap (a CSG solid's: its atlas, `solids` its leaves)."""
     from ..engine.transport import directional_lightmap, open_area
     lm = cs.lightmaps
     E = open_area.baked(lm, np.arange(lm.area.shape[0]))
     sh = job.settings.directional == "SH"
     if sh:
         L1 = directional_lightmap.l1_channels(cs, E)
-        axes = []
-        for a in range(3):
-            rgba = np.zeros((L1.shape[0], 4))
-            rgba[:, :3] = spectrum.as_rgb(L1[:, :, a], cs.spectral) / math.pi
-            rgba[:, 3] = lm.coverage
-            axes.append(rgba)
+        layers = [(result.l1_maps[a], spectrum.as_rgb(L1[:, :, i], cs.spectral) / math.pi)
+                  for i, a in enumerate("xyz")]
     else:
-        channels = directional_lightmap.direction_channels(cs, E)
+        layers = [(result.direction_maps, directional_lightmap.direction_channels(cs, E)[:, :3])]
     moments = getattr(cs, "bake_moments", None)
     nbytes = 0
     for name, bm in result.maps.items():
-        if name in job.csg:
-            result.warnings.append(f"object '{name}': directional lightmaps are not made for exact CSG solids")
-            continue
-        if sh:
-            for a, rgba in zip("xyz", axes):
-                result.l1_maps[a][name] = BakedMap(name, images.texel_rgba(lm, bm.lightmap_id, rgba), bm.lightmap_id)
-                nbytes += result.l1_maps[a][name].rgba.nbytes
-        else:
-            result.direction_maps[name] = BakedMap(name, images.texel_rgba(lm, bm.lightmap_id, channels),
-                                                   bm.lightmap_id)
-            nbytes += result.direction_maps[name].rgba.nbytes
+        for maps, rgb in layers:
+            if name in job.csg:
+                # through the solid's atlas, as its lightmap (which stores E/pi, A its visible share)
+                out = csg_atlas.atlas(cs, job, name, solids[name], lightmaps=lm._replace(irradiance=math.pi * rgb))
+            else:
+                rgba = np.concatenate([rgb, lm.coverage[:, None]], axis=1)
+                out = BakedMap(name, images.texel_rgba(lm, bm.lightmap_id, rgba), bm.lightmap_id)
+            if out is not None:
+                maps[name] = out
+                nbytes += out.rgba.nbytes
     result.directional = {"mode": job.settings.directional.lower(), "image_bytes": int(nbytes),
                           "moment_bytes": int(sum(a.nbytes for a in moments)) if moments else 0}
 

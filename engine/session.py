@@ -319,7 +319,11 @@ def _bake_texels(cs, lightmap_ids, csg_leaves, settings, direct, deadline, phase
             E = E[:, :nb]
         parts.append((ids, E))
     if direct and csg_leaves:
-        parts.append(gather_direct_csg(cs, csg_leaves, settings))
+        ids, E = gather_direct_csg(cs, csg_leaves, settings, moments=directional)
+        if directional:
+            cs.bake_moments = _summed_moments(cs.bake_moments, (ids, E[:, nb:], E[:, :nb].copy()), nb)
+            E = E[:, :nb]
+        parts.append((ids, E))
     seconds["direct"] = time.perf_counter() - t0
     if should_stop():
         raise Cancelled("bake cancelled")
@@ -411,10 +415,12 @@ def gather_direct(cs, lightmap_ids, settings, moments=False):
                                                 seed=int(settings.seed), moments=moments)
 
 
-def gather_direct_csg(cs, leaves, settings):
-    """Direct irradiance of CSG leaf texels over their visible part -> (texel ids, E)."""
+def gather_direct_csg(cs, leaves, settings, moments=False):
+    """Direct irradiance of CSG leaf texels over their visible part -> (texel ids, E)
+    (moments: as gather_direct's)."""
     from .transport import csg_bake
-    return csg_bake.direct_csg_texels(cs, leaves, int(settings.bake_direct_samples), seed=int(settings.seed))
+    return csg_bake.direct_csg_texels(cs, leaves, int(settings.bake_direct_samples), seed=int(settings.seed),
+                                      moments=moments)
 
 
 def add_direct(lightmaps, gathered):

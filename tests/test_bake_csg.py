@@ -387,3 +387,34 @@ def test_shadowmask_of_a_csg_solid_is_one_light_per_channel():
     x = 3.0 + 2.0 * (np.arange(RES) + 0.5) / RES
     whole = np.abs(x - 4.03)[None, :].repeat(RES, axis=0) > 2.0 / RES      # columns clear of the slot
     assert np.all(top[whole] == np.array([1.0, 0.0, 0.0, 1.0], np.float32))
+
+
+def test_directional_bake_of_a_csg_solid_points_at_the_light():
+    """A point lamp above the slotted slab, nothing else: every full texel of its top
+    is lit by that lamp alone, so its direction image (in the solid's atlas) holds
+    the unit direction from the texel to the lamp (k = 1), and the hook reads it."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    slab, _ = slotted_slab()
+    point_light()
+    res = bake.bake_objects(bpy.context, [slab], resolution=RES, seed=3, photons=20_000, directional=True,
+                            hook_materials=True)
+    assert not [w for w in res.warnings if "directional" in w]
+    u = block(res.direction_maps["Slab"], "Slab")[:, 4 * RES:5 * RES]      # face 4: +z
+    full = u[..., 3] >= 1.0 - 1e-9
+    M = np.array(slab.matrix_world)
+    p4 = np.zeros(4)
+    angles = []
+    for y, x in zip(*np.nonzero(full)):
+        c = np.array(primitives.prim_point(np.int32(primitives.BOX), p4, np.int64(4), (x + 0.5) / RES,
+                                           (y + 0.5) / RES)[:3])
+        d = np.array(LIGHT) - (M[:3, :3] @ c + M[:3, 3])
+        d /= np.linalg.norm(d)
+        angles.append(math.degrees(math.acos(min(1.0, float(u[y, x, :3] @ d / np.linalg.norm(u[y, x, :3]))))))
+    angles = np.array(angles)
+    print(f"\nangle to the lamp: mean {angles.mean():.2f}, max {angles.max():.2f} degrees; "
+          f"|u| {np.linalg.norm(u[full][:, :3], axis=1).min():.4f}")
+    assert full.sum() > 200 and angles.max() < 0.5             # measured: 0.07 degrees at most
+    assert np.all(np.linalg.norm(u[full][:, :3], axis=1) > 0.99)  # measured: 0.999
+    mats = {s.material.name for s in slab.material_slots}
+    assert any(n.get("photon_lightmaps_hook") == "Direction Image" for m in mats
+               for n in bpy.data.materials[m].node_tree.nodes)

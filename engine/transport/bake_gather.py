@@ -233,9 +233,10 @@ def _indirect_prim_core(scene, tx, job, out, var, start, stop, w, bands, q):
 def _indirect_csg(scene, tx, job, acc, wsum, q, start, stop):
     """acc[row] += J·E_indirect, wsum[row] += J, q[row] += the error sums, like
     csg_bake._gather_csg (outside only). An item's rows are its own (its texel and
-    that texel's split regions), so parallel items never write the same row."""
+    that texel's split regions), so parallel items never write the same row. acc's
+    rows: job.bands wide, or a directional bake's."""
     cb = csg_trace.csg_base(tx.buf)
-    nb = acc.shape[1]
+    nb = job.bands
     n_points = job.points
     k = texel_gather.grid_side(n_points)
     for i in range(start, stop):
@@ -245,7 +246,7 @@ def _indirect_csg(scene, tx, job, acc, wsum, q, start, stop):
             continue
         w = new_path_scratch(nb)
         bits = np.empty(3 * csg.MAX_WORK + 8, np.int32)
-        e = np.zeros(nb)
+        e = np.zeros(acc.shape[1])
         state = texel_gather.texel_stream(tx, it, job.stream)
         for s in range(n_points):
             state, j1 = next_float(state)
@@ -254,8 +255,9 @@ def _indirect_csg(scene, tx, job, acc, wsum, q, start, stop):
             ok, row, jac, px, py, pz, nx, ny, nz, cs_, ct = csg_texel_sample(tx, it, cb, bits, u1, u2)
             if not ok:
                 continue
-            for b in range(nb):
+            for b in range(e.shape[0]):
                 e[b] = 0.0
+            texel_gather.add_normal(e, nb, nx, ny, nz)
             state = point_indirect(scene, w, job.mode, n_rays, (px, py, pz), (nx, ny, nz), 1, state, e)
             if scene.caustics:
                 add_caustic(scene.caustic_maps, tx.lid[it], tx.face[it], cs_, ct, (nx, ny, nz), w.ind, e)
@@ -280,7 +282,7 @@ class Texels:
         if not getattr(cs, "lightmaps_hold_direct", False) and np.any(cs.lightmaps.flux):
             raise ValueError("a bake's final gather needs a photon pass that recorded direct light")
         self.cs, self.points, self.mode = cs, int(points), int(mode)
-        # a directional bake's mesh and primitive rows carry moments (CSG solids' do not)
+        # a directional bake's rows carry moments
         self.width = texel_gather.moment_width(cs.n_bands) if moments else cs.n_bands
         self.scene = kernel_scene(cs, inst_side=texel_gather.instance_sides(cs))
         self.mesh = self.prim = self.csg = None
@@ -303,7 +305,7 @@ class Texels:
 
     def run(self, item_rays, stream, cached=False):
         """One pass, item_rays[part][item] rays per point -> (ids, E, var, rays) per texel row
-        (E: rows self.width wide; a CSG part's rows, the bands alone).
+        (E: rows self.width wide).
         cached: mesh texels interpolate an irradiance cache whose records get
         rays-per-point × points rays each (engine/transport/irradiance_cache.py); those no
         record reaches are gathered per texel. Also sets self.seconds, the time
@@ -338,7 +340,7 @@ class Texels:
         if self.csg is not None:
             tx, r = self.csg, item_rays[i]
             n_rows = self.cs.lightmaps.area.shape[0]
-            acc, wsum, q = np.zeros((n_rows, nb)), np.zeros(n_rows), np.zeros((n_rows, 3))
+            acc, wsum, q = np.zeros((n_rows, self.width)), np.zeros(n_rows), np.zeros((n_rows, 3))
             parallel.run(_indirect_csg, tx.lm.shape[0], self.scene, tx, self.job(r, stream), acc, wsum, q,
                          remote=True)
             rows = np.flatnonzero(wsum > 0.0).astype(np.int64)
@@ -347,9 +349,7 @@ class Texels:
             row_rays = np.zeros(n_rows, np.int64)
             for it_row, k in zip(*csg_rows(self.cs.lightmaps, tx.row)):
                 row_rays[it_row] = r[k]
-            E = np.zeros((rows.size, self.width))
-            E[:, :nb] = acc[rows] / wsum[rows][:, None]
-            parts.append((rows, E, var, row_rays[rows]))
+            parts.append((rows, acc[rows] / wsum[rows][:, None], var, row_rays[rows]))
         self.seconds = time.perf_counter() - t0
         return parts
 
@@ -407,8 +407,8 @@ def gathered_indirect(cs, lightmap_ids=(), csg_leaves=(), points=texel_gather.DE
     cache (engine/transport/irradiance_cache.py: records with points × rays rays each at a
     sparse, adaptive set of places, interpolated at every texel's points); an
     adaptive second pass adds per-texel rays as before. info (a dict) gets the
-    cache's counts. moments: Gathered.moments holds the mesh and primitive
-    texels' moments for a directional bake (CSG texels': zeros)."""
+    cache's counts. moments: Gathered.moments holds the texels' moments for a
+    directional bake."""
     points, rays = int(points), int(rays)
     if points < 1 or rays < 1:
         raise ValueError(f"points and rays must be >= 1, got {points}, {rays}")

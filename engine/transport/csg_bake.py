@@ -38,7 +38,8 @@ from ..geometry.raycast import STACK_WORDS
 from ..core.sampling import next_float
 from ..core.jit import INLINE
 from .texel_gather import (
-    NO_XOR, direct_irradiance_stratum, grid_side, jitter, light_stratum, texel_shift, texel_stream)
+    NO_XOR, add_normal, direct_irradiance_stratum, grid_side, jitter, light_stratum, moment_width, texel_shift,
+    texel_stream)
 from ..core import parallel
 
 GUTTER = 1   # texels around each leaf block
@@ -262,17 +263,17 @@ def csg_texel_sample(tx, it, cb, bits, u1, u2):
 
 
 @njit(cache=True, nogil=True)
-def _gather_csg(g, ls, tx, n_samples, acc, wsum, start, stop):
+def _gather_csg(g, ls, tx, n_samples, nb, acc, wsum, start, stop):
     """acc[row] += J·E_direct and wsum[row] += J over the samples of each item's
     texel that lie on the solid's boundary as part of the item's leaf (rows of
-    a split texel by the region label of the sample's cell)."""
+    a split texel by the region label of the sample's cell). acc: (rows, nb), or a
+    directional bake's rows (texel_gather.moment_width(nb))."""
     cb = csg_trace.csg_base(tx.buf)
-    nb = acc.shape[1]
     k = grid_side(n_samples)
     for it in range(start, stop):
         stack = np.empty(STACK_WORDS, np.int32)
         bits = np.empty(3 * csg.MAX_WORK + 8, np.int32)
-        e = np.zeros(nb)
+        e = np.zeros(acc.shape[1])
         rad = np.empty(nb)
         state = texel_stream(tx, it, NO_XOR)
         state, shift = texel_shift(state, k)
@@ -283,11 +284,12 @@ def _gather_csg(g, ls, tx, n_samples, acc, wsum, start, stop):
             ok, row, jac, px, py, pz, nx, ny, nz, _, _ = csg_texel_sample(tx, it, cb, bits, u1, u2)
             if not ok:
                 continue
-            for bb in range(nb):
+            for bb in range(e.shape[0]):
                 e[bb] = 0.0
+            add_normal(e, nb, nx, ny, nz)
             state = direct_irradiance_stratum(g, ls, stack, (px, py, pz), (nx, ny, nz), state, e,
                                               (light_stratum(s, k, shift), k), rad, 1)
-            for bb in range(nb):
+            for bb in range(e.shape[0]):
                 acc[row, bb] += jac * e[bb]
             wsum[row] += jac
 
@@ -346,7 +348,7 @@ def csg_texel_items(cs, leaves, seed=0):
                      flip=np.asarray(pl["flip"], np.int64), eps=np.asarray(pl["eps"], np.float64), **cat)
 
 
-def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
+def direct_csg_texels(cs, leaves, samples_per_texel, seed=0, moments=False):
     """Direct irradiance of CSG leaf texels, averaged over their visible part.
 
     leaves: (instance, solid_leaves() entry) pairs of primitive leaves. Returns
@@ -354,15 +356,17 @@ def direct_csg_texels(cs, leaves, samples_per_texel, seed=0):
     include sub-texel rows of split texels. Sample streams are keyed like
     texel_gather's (seed, instance, slot, texel), so results are deterministic.
     Lights inside the solid are not gathered (the solid's inside is closed).
+    moments: E's rows are a directional bake's (texel_gather.moment_width wide).
     """
     lm = cs.lightmaps
     nb = cs.n_bands
+    width = moment_width(nb) if moments else nb
     tx = csg_texel_items(cs, leaves, seed)
     if tx is None:
-        return np.zeros(0, np.int64), np.zeros((0, nb))
-    acc = np.zeros((lm.area.shape[0], nb))
+        return np.zeros(0, np.int64), np.zeros((0, width))
+    acc = np.zeros((lm.area.shape[0], width))
     wsum = np.zeros(lm.area.shape[0])
-    parallel.run(_gather_csg, tx.lm.shape[0], cs.geometry, cs.lights, tx, int(samples_per_texel), acc, wsum,
+    parallel.run(_gather_csg, tx.lm.shape[0], cs.geometry, cs.lights, tx, int(samples_per_texel), nb, acc, wsum,
                  remote=True)
     ids = np.flatnonzero(wsum > 0.0).astype(np.int64)
     return ids, acc[ids] / wsum[ids][:, None]

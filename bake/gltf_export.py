@@ -16,6 +16,13 @@ Encodings (the lightmap holds E/π, linear, unbounded):
   M clip. The texture's extras say so (`photon_lightmaps.encoding`, `range`).
 - EXR: the float image beside the file (`<file stem>_<object>.exr`, by uri),
   for engines that read OpenEXR.
+
+A directional bake's images (engine/transport/directional_lightmap.py) go along
+as textures that the object's materials name in their extras,
+`photon_lightmaps.directional`, with the same TEXCOORD (no extension carries
+them): the dominant direction u (|u| <= 1) as an 8-bit PNG of 0.5 + 0.5 u, or
+L1 SH's three images, as 8-bit PNGs of each coefficient over the lightmap,
+0.5 + L1 / (4 E) (values beyond ±2 E clip). With EXR, all are floats as baked.
 """
 import copy
 import json
@@ -62,6 +69,36 @@ def lightmapped_objects(scene):
     return out
 
 
+def directional_images(ob, size):
+    """(mode, images) of `ob`'s directional bake whose images match its lightmap's size:
+    ("dominant", [direction]), ("sh", [L1x, L1y, L1z]), or None."""
+    sh = [images.our_image(ob, images.L1[a]) for a in "xyz"]
+    if all(img is not None and tuple(img.size) == tuple(size) for img in sh):
+        return "sh", sh
+    img = images.our_image(ob, images.DIRECTION)
+    if img is not None and tuple(img.size) == tuple(size):
+        return "dominant", [img]
+    return None
+
+
+def signed_png(values, E=None):
+    """A directional image's signed values (..., 3) as 8-bit RGBA: the dominant
+    direction u as 0.5 + 0.5 u; L1, given the lightmap E, as 0.5 + L1 / (4 E)."""
+    if E is None:
+        c = 0.5 + 0.5 * np.clip(values, -1.0, 1.0)
+    else:
+        ratio = np.divide(values, E, out=np.zeros_like(values), where=E > 0.0)
+        c = 0.5 + 0.25 * np.clip(ratio, -2.0, 2.0)
+    rgb = np.round(c * 255.0)
+    return np.concatenate([rgb, np.full(rgb.shape[:-1] + (1,), 255.0)], axis=-1).astype(np.uint8)
+
+
+def signed_decode(rgba8, E=None):
+    """signed_png's inverse (E: the decoded lightmap, for L1)."""
+    c = np.asarray(rgba8, np.float64)[..., :3] / 255.0
+    return 2.0 * c - 1.0 if E is None else (4.0 * c - 2.0) * E
+
+
 def export_gltf(context, path, *, encoding="RGBM", m_range=RGBM_RANGE):
     """Writes the scene to `path` (.glb or .gltf) through Blender's glTF exporter with each
     baked object's lightmap (MOZ_lightmap) -> report {"objects": {name: {...}}, "skipped": [...]}."""
@@ -105,9 +142,11 @@ def export_gltf(context, path, *, encoding="RGBM", m_range=RGBM_RANGE):
         gltf.setdefault("textures", []).append({"source": source, "sampler": len(gltf["samplers"]) - 1,
                                                 "extras": extras})
         texture = len(gltf["textures"]) - 1
-        n_mat = _attach(gltf, name, texture, uv)
+        directional = _add_directional(gltf, blob, path, context.scene.objects[name], rgba, encoding, uv)
+        n_mat = _attach(gltf, name, texture, uv, directional)
         report[name] = {"texture": texture, "texcoord": uv, "materials": n_mat, "width": img.size[0],
-                        "height": img.size[1], "encoding": encoding, "max_encoding_error": error}
+                        "height": img.size[1], "encoding": encoding, "max_encoding_error": error,
+                        "directional": directional}
     used = gltf.setdefault("extensionsUsed", [])
     if EXTENSION not in used:
         used.append(EXTENSION)
@@ -123,8 +162,39 @@ def export_gltf(context, path, *, encoding="RGBM", m_range=RGBM_RANGE):
     return {"path": path, "objects": report, "skipped": skipped}
 
 
-def _attach(gltf, name, texture, uv):
-    """MOZ_lightmap on the materials of node `name`'s primitives (copies per object) -> count."""
+def _add_directional(gltf, blob, path, ob, lightmap, encoding, uv):
+    """The object's directional images as textures -> the materials' extras entry
+    (None: it has none)."""
+    found = directional_images(ob, lightmap.shape[1::-1])
+    if found is None:
+        return None
+    mode, imgs = found
+    textures = []
+    for img, suffix in zip(imgs, ("_direction",) if mode == "dominant" else ("_l1x", "_l1y", "_l1z")):
+        rgba = _pixels(img)
+        if encoding == "RGBM":
+            png = signed_png(rgba[::-1, :, :3], None if mode == "dominant" else lightmap[::-1, :, :3])
+            source = _add_image(gltf, blob, _png_bytes(png), ob.name + suffix)
+        else:
+            stem = os.path.splitext(os.path.basename(path))[0]
+            file = f"{stem}_{images.file_name(ob.name)}{suffix}.exr"
+            _save_exr(rgba, os.path.join(os.path.dirname(path), file))
+            gltf.setdefault("images", []).append({"name": ob.name + suffix, "uri": file})
+            source = len(gltf["images"]) - 1
+        gltf.setdefault("samplers", []).append({"magFilter": 9729, "minFilter": 9729})
+        gltf.setdefault("textures", []).append({"source": source, "sampler": len(gltf["samplers"]) - 1})
+        textures.append({"index": len(gltf["textures"]) - 1, "texCoord": uv})
+    if encoding == "RGBM":
+        decode = "u = 2 c - 1" if mode == "dominant" else "L1 = (4 c - 2) * lightmap"
+    else:
+        decode = "as stored (world space; L1 in the lightmap's units, E/pi)"
+    key = "direction" if mode == "dominant" else "l1"
+    return {"mode": mode, key: textures[0] if mode == "dominant" else textures, "decode": decode}
+
+
+def _attach(gltf, name, texture, uv, directional=None):
+    """MOZ_lightmap on the materials of node `name`'s primitives (copies per object), and
+    a directional bake's textures in their extras -> count."""
     nodes = [n for n in gltf.get("nodes", []) if n.get("name") == name and "mesh" in n]
     if not nodes:
         raise SceneError(f"object '{name}': not in the exported glTF (hidden, or not exported)")
@@ -141,6 +211,8 @@ def _attach(gltf, name, texture, uv):
         base = copy.deepcopy(materials[prim["material"]]) if "material" in prim else {}
         base["name"] = f"{base.get('name', 'material')}_{name}"
         base.setdefault("extensions", {})[EXTENSION] = {"index": texture, "texCoord": uv, "intensity": 1.0}
+        if directional is not None:
+            base.setdefault("extras", {}).setdefault("photon_lightmaps", {})["directional"] = directional
         materials.append(base)
         prim["material"] = len(materials) - 1
         count += 1

@@ -123,3 +123,50 @@ def test_file_export_operator(tmp_path):
     assert len(lit) == 1 and lit[0]["name"].endswith("_floor")
     from photon_lightmaps.ui import menus
     assert any(fn is menus.export_menu for fn in bpy.types.TOPBAR_MT_file_export._dyn_ui_initialize())
+
+
+@pytest.mark.parametrize("mode", ["DOMINANT", "SH"])
+def test_directional_maps_go_along_in_the_materials_extras(tmp_path, mode):
+    """A directional bake's images are textures that the object's materials name in
+    their extras, on the lightmap's TEXCOORD; the PNGs decode to the baked values
+    within their 8-bit step (the direction: 1/255; L1: 2/255 of the decoded lightmap)."""
+    from photon_lightmaps import bake
+    from test_directional import normal_mapped_plane
+    ensure_registered()
+    _, ob = normal_mapped_plane()
+    res = bake.bake_objects(bpy.context, [ob], resolution=16, seed=1, directional=mode, pack=True)
+    report = gltf_export.export_gltf(bpy.context, str(tmp_path / "plane.glb"))
+    gltf, blob = gltf_export.read_glb(tmp_path / "plane.glb")
+    row = report["objects"]["plane"]
+    mat = gltf["materials"][gltf["meshes"][[n for n in gltf["nodes"] if n["name"] == "plane"][0]["mesh"]]
+                            ["primitives"][0]["material"]]
+    extra = mat["extras"]["photon_lightmaps"]["directional"]
+    assert extra == row["directional"] and extra["mode"] == mode.lower()
+
+    def png(texture, name):
+        image = gltf["images"][gltf["textures"][texture]["source"]]
+        view = gltf["bufferViews"][image["bufferView"]]
+        file = tmp_path / f"{name}.png"
+        file.write_bytes(blob[view["byteOffset"]:view["byteOffset"] + view["byteLength"]])
+        img = bpy.data.images.load(str(file))
+        img.colorspace_settings.name = "Non-Color"
+        w, h = img.size
+        q = np.round(np.array(img.pixels[:], np.float64).reshape(h, w, 4) * 255.0)
+        bpy.data.images.remove(img)
+        return q
+
+    E = gltf_export.rgbm_decode(png(row["texture"], "lightmap"))
+    if mode == "DOMINANT":
+        assert extra["direction"]["texCoord"] == row["texcoord"]
+        got = gltf_export.signed_decode(png(extra["direction"]["index"], "direction"))
+        want = res.direction_maps["plane"].rgba[..., :3]
+        assert np.abs(got - want).max() <= 1.0 / 255.0 + 1e-6
+        assert np.abs(want).max() > 0.5
+    else:
+        for a, tex in zip("xyz", extra["l1"]):
+            assert tex["texCoord"] == row["texcoord"]
+            got = gltf_export.signed_decode(png(tex["index"], "l1" + a), E)
+            want = res.l1_maps[a]["plane"].rgba[..., :3]
+            step = 2.0 / 255.0 * E + np.abs(want) * 0.01
+            assert np.all(np.abs(got - want) <= step + 1e-6), a
+        assert max(np.abs(res.l1_maps[a]["plane"].rgba[..., :3]).max() for a in "xyz") > 0.01

@@ -120,32 +120,49 @@ def hook_group():
     return ng
 
 
+def _reader_group(prop, name, description, images):
+    """A directional reader's node group: inputs Lightmap, the images' colours
+    (`images`: socket names) and Normal, output Lightmap -> (group, its input node,
+    output node, Geometry node, vmath), or the existing group alone (its nodes
+    made once). vmath(op, a, b=None, scale=None) links a Vector Math node."""
+    ng, new = _find_or_new_group(prop, name, description)
+    if not new:
+        return ng, None
+    io = ng.interface
+    lm_in = io.new_socket("Lightmap", in_out="INPUT", socket_type="NodeSocketColor")
+    lm_in.default_value = (0.0, 0.0, 0.0, 1.0)
+    for socket in images:
+        io.new_socket(socket, in_out="INPUT", socket_type="NodeSocketColor")
+    io.new_socket("Normal", in_out="INPUT", socket_type="NodeSocketVector")
+    io.new_socket("Lightmap", in_out="OUTPUT", socket_type="NodeSocketColor")
+    n, l = ng.nodes, ng.links
+
+    def vmath(op, a, b=None, scale=None):
+        node = n.new("ShaderNodeVectorMath")
+        node.operation = op
+        l.new(a, node.inputs[0])
+        if b is not None:
+            l.new(b, node.inputs[1])
+        if scale is not None:
+            l.new(scale, node.inputs["Scale"])
+        return node.outputs["Value"] if op in ("LENGTH", "DOT_PRODUCT") else node.outputs["Vector"]
+
+    nodes = n.new("NodeGroupInput"), n.new("NodeGroupOutput"), n.new("ShaderNodeNewGeometry")
+    return ng, nodes + (vmath,)
+
+
 def direction_group():
     """The shared node group of directional lightmaps: the lightmap scaled to the
     shading normal (engine/transport/directional_lightmap.py's formula):
     E · [k · max(0, n'·s) / max(n·s, MIN_COS) + (1 - k) (1 + n'·n) / 2], with
     u = k s from the direction image and n the surface's true normal."""
     from ..engine.transport.directional_lightmap import MIN_COS
-    ng, new = _find_or_new_group(DIRECTION_PROP, DIRECTION_GROUP,
-                                 "Photon Lightmaps: a directional lightmap read for the shading normal")
-    if not new:
+    ng, made = _reader_group(DIRECTION_PROP, DIRECTION_GROUP,
+                             "Photon Lightmaps: a directional lightmap read for the shading normal", ("Direction",))
+    if made is None:
         return ng
-    io = ng.interface
-    lm_in = io.new_socket("Lightmap", in_out="INPUT", socket_type="NodeSocketColor")
-    lm_in.default_value = (0.0, 0.0, 0.0, 1.0)
-    io.new_socket("Direction", in_out="INPUT", socket_type="NodeSocketColor")
-    io.new_socket("Normal", in_out="INPUT", socket_type="NodeSocketVector")
-    io.new_socket("Lightmap", in_out="OUTPUT", socket_type="NodeSocketColor")
+    gi, go, geo, vmath = made
     n, l = ng.nodes, ng.links
-    gi, go, geo = n.new("NodeGroupInput"), n.new("NodeGroupOutput"), n.new("ShaderNodeNewGeometry")
-
-    def vmath(op, a, b=None):
-        node = n.new("ShaderNodeVectorMath")
-        node.operation = op
-        l.new(a, node.inputs[0])
-        if b is not None:
-            l.new(b, node.inputs[1])
-        return node.outputs["Value"] if op in ("LENGTH", "DOT_PRODUCT") else node.outputs["Vector"]
 
     def math(op, a, b=None):
         node = n.new("ShaderNodeMath")
@@ -164,11 +181,7 @@ def direction_group():
                math("MAXIMUM", vmath("DOT_PRODUCT", true, s), MIN_COS))
     ambient = math("MULTIPLY", math("ADD", vmath("DOT_PRODUCT", normal, true), 1.0), 0.5)
     g = math("ADD", math("MULTIPLY", k, lit), math("MULTIPLY", math("SUBTRACT", 1.0, k), ambient))
-    scaled = n.new("ShaderNodeVectorMath")
-    scaled.operation = "SCALE"
-    l.new(gi.outputs["Lightmap"], scaled.inputs[0])
-    l.new(g, scaled.inputs["Scale"])
-    l.new(scaled.outputs["Vector"], go.inputs["Lightmap"])
+    l.new(vmath("SCALE", gi.outputs["Lightmap"], scale=g), go.inputs["Lightmap"])
     return ng
 
 
@@ -177,30 +190,12 @@ def l1_group():
     the shading normal n' by its first-order coefficients,
     max(0, E + L1x (n'x - nx) + L1y (n'y - ny) + L1z (n'z - nz)), n the surface's
     true normal (engine/transport/directional_lightmap.py l1_channels)."""
-    ng, new = _find_or_new_group(L1_PROP, L1_GROUP,
-                                 "Photon Lightmaps: an L1 SH lightmap read for the shading normal")
-    if not new:
+    ng, made = _reader_group(L1_PROP, L1_GROUP, "Photon Lightmaps: an L1 SH lightmap read for the shading normal",
+                             ("L1x", "L1y", "L1z"))
+    if made is None:
         return ng
-    io = ng.interface
-    lm_in = io.new_socket("Lightmap", in_out="INPUT", socket_type="NodeSocketColor")
-    lm_in.default_value = (0.0, 0.0, 0.0, 1.0)
-    for a in "xyz":
-        io.new_socket("L1" + a, in_out="INPUT", socket_type="NodeSocketColor")
-    io.new_socket("Normal", in_out="INPUT", socket_type="NodeSocketVector")
-    io.new_socket("Lightmap", in_out="OUTPUT", socket_type="NodeSocketColor")
+    gi, go, geo, vmath = made
     n, l = ng.nodes, ng.links
-    gi, go, geo = n.new("NodeGroupInput"), n.new("NodeGroupOutput"), n.new("ShaderNodeNewGeometry")
-
-    def vmath(op, a, b=None, scale=None):
-        node = n.new("ShaderNodeVectorMath")
-        node.operation = op
-        l.new(a, node.inputs[0])
-        if b is not None:
-            l.new(b, node.inputs[1])
-        if scale is not None:
-            l.new(scale, node.inputs["Scale"])
-        return node.outputs["Vector"]
-
     d = n.new("ShaderNodeSeparateXYZ")
     l.new(vmath("SUBTRACT", gi.outputs["Normal"], geo.outputs["True Normal"]), d.inputs[0])
     total = gi.outputs["Lightmap"]

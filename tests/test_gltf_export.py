@@ -67,23 +67,29 @@ def test_export_gltf_writes_moz_lightmap_that_blender_reads_back(exported):
     assert set(report["objects"]) <= names
 
 
+def embedded_png(gltf, blob, texture, file):
+    """Texture `texture`'s embedded PNG, read by Blender (rows bottom-up, as baked
+    images hold them) -> its bytes (h, w, 4) as float64 0..255."""
+    image = gltf["images"][gltf["textures"][texture]["source"]]
+    view = gltf["bufferViews"][image["bufferView"]]
+    file.write_bytes(blob[view["byteOffset"]:view["byteOffset"] + view["byteLength"]])
+    img = bpy.data.images.load(str(file))
+    img.colorspace_settings.name = "Non-Color"
+    w, h = img.size
+    q = np.round(np.array(img.pixels[:], np.float64).reshape(h, w, 4) * 255.0)
+    bpy.data.images.remove(img)
+    return q
+
+
 def test_rgbm_images_decode_to_the_baked_values(exported):
     """Each object's embedded PNG, decoded, against its baked image, per texel within
     the RGBM step (Blender reads the PNG rows bottom-up, as the baked image holds them)."""
     tmp, out, report, baked = exported
     gltf, blob = gltf_export.read_glb(out)
     for name, row in report["objects"].items():
-        png = gltf["images"][gltf["textures"][row["texture"]]["source"]]
-        view = gltf["bufferViews"][png["bufferView"]]
-        file = tmp / f"{name}.png"
-        file.write_bytes(blob[view["byteOffset"]:view["byteOffset"] + view["byteLength"]])
-        img = bpy.data.images.load(str(file))
-        img.colorspace_settings.name = "Non-Color"
-        w, h = img.size
-        q = np.round(np.array(img.pixels[:], np.float64).reshape(h, w, 4) * 255.0)
-        bpy.data.images.remove(img)
+        q = embedded_png(gltf, blob, row["texture"], tmp / f"{name}.png")
         dec = gltf_export.rgbm_decode(q)
-        ref = baked[name].reshape(h, w, 4)[..., :3]
+        ref = baked[name].reshape(q.shape)[..., :3]
         step = q[..., 3:4] / 255.0 * gltf_export.RGBM_RANGE / 255.0
         assert np.all(np.abs(dec - np.minimum(ref, gltf_export.RGBM_RANGE)) <= 0.5 * step + 1e-6), name
         assert ref.max() > 0.0
@@ -144,16 +150,7 @@ def test_directional_maps_go_along_in_the_materials_extras(tmp_path, mode):
     assert extra == row["directional"] and extra["mode"] == mode.lower()
 
     def png(texture, name):
-        image = gltf["images"][gltf["textures"][texture]["source"]]
-        view = gltf["bufferViews"][image["bufferView"]]
-        file = tmp_path / f"{name}.png"
-        file.write_bytes(blob[view["byteOffset"]:view["byteOffset"] + view["byteLength"]])
-        img = bpy.data.images.load(str(file))
-        img.colorspace_settings.name = "Non-Color"
-        w, h = img.size
-        q = np.round(np.array(img.pixels[:], np.float64).reshape(h, w, 4) * 255.0)
-        bpy.data.images.remove(img)
-        return q
+        return embedded_png(gltf, blob, texture, tmp_path / f"{name}.png")
 
     E = gltf_export.rgbm_decode(png(row["texture"], "lightmap"))
     if mode == "DOMINANT":

@@ -808,18 +808,17 @@ def _direction_maps(cs, job, result, solids):
 
 
 def _stitch_seams(cs, job, result):
-    """Seam stitching over the baked mesh lightmaps, all together (seams between
+    """Seam stitching over the baked mesh and primitive lightmaps, all together (seams between
     objects too), and over their direction images if the bake is directional, which
     are read across the seams as the lightmaps are: engine/transport/seam_stitch.py
     -> BakeResult.seams."""
     from ..engine.transport import seam_stitch
     lm = cs.lightmaps
-    by_id = {bm.lightmap_id: bm for name, bm in result.maps.items()
-             if name not in job.csg and name not in job.primitives and bm.tiles is None}
-    charts = seam_stitch.mesh_charts(cs, sorted(by_id))
-    images = [by_id[lid].rgba for lid, _, _ in charts]
+    by_id = {bm.lightmap_id: bm for name, bm in result.maps.items() if name not in job.csg and bm.tiles is None}
+    charts = seam_stitch.mesh_charts(cs, sorted(by_id)) + seam_stitch.primitive_charts(cs, sorted(by_id))
+    images = [by_id[lid].rgba for lid, *_ in charts]
     seams = seam_stitch.find_seams(charts, {k: im.shape[:2] for k, im in enumerate(images)})
-    holds = [lm.coverage[lightmap.texel_slice(lm, lid)].reshape(im.shape[:2]) for (lid, _, _), im in
+    holds = [lm.coverage[lightmap.texel_slice(lm, lid)].reshape(im.shape[:2]) for (lid, *_), im in
              zip(charts, images)]
     channels = (0, 1, 2, 3) if job.settings.bake_pass == "SHADOWMASK" else (0, 1, 2)
     before = seam_stitch.seam_jump(seams, images, channels)
@@ -831,7 +830,7 @@ def _stitch_seams(cs, job, result):
     for key, maps in [("direction", result.direction_maps)] + [("l1" + a, result.l1_maps[a]) for a in "xyz"]:
         by_lid = {bm.lightmap_id: bm.rgba for bm in maps.values()}
         if by_lid and charts:
-            images = [by_lid[lid] for lid, _, _ in charts]
+            images = [by_lid[lid] for lid, *_ in charts]
             report[key + "_jump_before"] = seam_stitch.seam_jump(seams, images)[0]
             seam_stitch.stitch(seams, images, holds)
             report[key + "_jump_after"] = seam_stitch.seam_jump(seams, images)[0]

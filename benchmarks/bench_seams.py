@@ -57,7 +57,7 @@ def main():
     cs = plain.cs
     by_id = {bm.lightmap_id: name for name, bm in plain.result.maps.items()}
     charts = seam_stitch.mesh_charts(cs, sorted(by_id))
-    names = [by_id[lid] for lid, _, _ in charts]
+    names = [by_id[lid] for lid, *_ in charts]
     seams = seam_stitch.find_seams(charts, {k: (RES, RES) for k in range(len(charts))})
     rows = []
 

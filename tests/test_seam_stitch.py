@@ -19,7 +19,7 @@ def _seams_of(scene):
     cs = session.compile(scene)
     charts = seam_stitch.mesh_charts(cs, [ids[0] for ids in cs.instance_lightmaps])
     lm = cs.lightmaps
-    shapes = {k: (int(lm.height[lid]), int(lm.width[lid])) for k, (lid, _, _) in enumerate(charts)}
+    shapes = {k: (int(lm.height[lid]), int(lm.width[lid])) for k, (lid, *_) in enumerate(charts)}
     return charts, seam_stitch.find_seams(charts, shapes)
 
 
@@ -180,3 +180,25 @@ def test_cli_stitch_seams_reports_the_jump(tmp_path):
     seams = rep["seams"]
     assert seams["edges"] > 1 and seams["jump_after"] < seams["jump_before"] / 5
     assert rep["seconds"]["seams"] > 0
+
+
+def test_primitives_are_stitched_where_their_charts_meet_themselves():
+    """A sphere primitive (one octahedral chart, folded along its border) and a cylinder
+    primitive (its side wrapping around; its caps meet the side at a crease) under a
+    lamp: their seams are found from the charts themselves, and stitching closes them."""
+    from photon_lightmaps.operators import csg_primitives
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    ball = csg_primitives.new_primitive_object("sphere", "ball", location=(-0.8, 0.0, 0.6), segments=32)
+    post = csg_primitives.new_primitive_object("cylinder", "post", location=(0.8, 0.0, 0.6), segments=32)
+    data = bpy.data.lights.new("lamp", "POINT")
+    data.energy = 300.0
+    lamp = bpy.data.objects.new("lamp", data)
+    lamp.location = (0.3, -1.5, 1.8)
+    bpy.context.scene.collection.objects.link(lamp)
+    res = bake.bake_objects(bpy.context, [ball, post], seed=1, resolution=16, stitch_seams=True)
+    rep = res.seams
+    print(f"\n{rep}")
+    # the sphere's fold: 4 border sides of 16 cells, each folded onto itself (32 pairs);
+    # the cylinder's wrap: 16 cells. Measured: the jump falls from 1.52 to 0.025.
+    assert rep["edges"] == 32 + 16
+    assert rep["jump_after"] < rep["jump_before"] / 40

@@ -43,9 +43,14 @@ MAX_FAN = 8
 Seams = namedtuple("Seams", ["edges", "ia", "ta", "wa", "ib", "tb", "wb"])
 
 
+def _unit(v):
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
+
+
 def mesh_charts(cs, lightmap_ids):
     """Per mesh lightmap among `lightmap_ids`: (id, world triangles (n, 3, 3), its
-    lightmap UVs in texels (n, 3, 2)). Primitive and CSG lightmaps have none."""
+    lightmap UVs in texels (n, 3, 2), the triangles' unit normals (n, 3)). Primitive
+    and CSG lightmaps have none."""
     from .texel_gather import lightmap_owners
     g, lm = cs.geometry, cs.lightmaps
     owners = lightmap_owners(cs)
@@ -58,22 +63,70 @@ def mesh_charts(cs, lightmap_ids):
         xf = np.asarray(g.inst_xf[inst], np.float64)
         p = np.asarray(g.tri_p[rows], np.float64) @ xf[:, :3].T + xf[:, 3]
         uv = np.asarray(g.tri_uv[rows], np.float64) * np.array([int(lm.width[lid]), int(lm.height[lid])])
-        out.append((int(lid), p, uv))
+        out.append((int(lid), p, uv, _unit(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]))))
+    return out
+
+
+def primitive_charts(cs, lightmap_ids):
+    """Per primitive lightmap among `lightmap_ids`: (id, world triangles, UVs in
+    texels, normals), as mesh_charts gives a mesh's: each face chart cut into one
+    cell per texel, its corners on the texels' corners, two triangles a cell. Where
+    the surface meets itself (a cylinder's side around its seam, the sphere's
+    octahedral fold, a torus both ways) two cells' edges then share their world
+    endpoints, which find_seams pairs as it pairs a mesh's. A triangle's normal is
+    the surface's at its middle (a flat cell across the sphere's octahedral kink
+    can lean far from it); triangles that a chart's corner collapses are left out."""
+    from .texel_gather import affine_compose, lightmap_owners
+    from ..geometry import primitives
+    g, lm = cs.geometry, cs.lightmaps
+    owners = lightmap_owners(cs)
+    out = []
+    for lid in lightmap_ids:
+        inst, _, (kind, row) = owners[int(lid)]
+        if kind != "prim":
+            continue
+        pk, params = np.int32(g.prim_kind[row]), np.asarray(g.prim_params[row][:4], np.float64)
+        wxf = affine_compose(np.asarray(g.inst_xf[inst], np.float64), np.asarray(g.prim_xf[row], np.float64))
+        faces, h = int(lm.tiles[lid]), int(lm.height[lid])
+        r = int(lm.width[lid]) // faces
+        cof = np.linalg.inv(wxf[:, :3]).T * np.sign(np.linalg.det(wxf[:, :3]))   # normals to world
+        ps, uvs, ns = [], [], []
+        for f in range(faces):
+            corners = np.array([[primitives.prim_point(pk, params, np.int64(f), i / r, j / h)[:3]
+                                 for i in range(r + 1)] for j in range(h + 1)])
+            corners = corners @ wxf[:, :3].T + wxf[:, 3]
+            texel = np.stack(np.meshgrid(f * r + np.arange(r + 1.0), np.arange(h + 1.0)), axis=-1)
+            for tri in (((0, 0), (0, 1), (1, 1)), ((0, 0), (1, 1), (1, 0))):     # (dj, di) of its corners
+                ps.append(np.stack([corners[dj:dj + h, di:di + r] for dj, di in tri], axis=2).reshape(-1, 3, 3))
+                t = np.stack([texel[dj:dj + h, di:di + r] for dj, di in tri], axis=2).reshape(-1, 3, 2)
+                uvs.append(t)
+                mid = (t.mean(axis=1) - [f * r, 0.0]) / [r, h]
+                d = np.array([primitives.prim_point(pk, params, np.int64(f), u, v)[3:9] for u, v in mid])
+                ns.append(np.cross(d[:, :3], d[:, 3:]) @ cof.T)
+        p, uv = np.concatenate(ps), np.concatenate(uvs)
+        flat = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        n = np.concatenate(ns)
+        n = np.where(np.linalg.norm(n, axis=1, keepdims=True) > 0.0, n, flat)   # an apex: the cell's own
+        area = np.linalg.norm(flat, axis=1)
+        keep = area > 1e-12 * max(float(area.max()), 1e-300)
+        out.append((int(lid), p[keep], uv[keep], _unit(n[keep])))
     return out
 
 
 def find_seams(charts, shapes):
-    """The seam edges of `charts` (mesh_charts) and their sample points -> Seams.
+    """The seam edges of `charts` (mesh_charts, primitive_charts) and their sample
+    points -> Seams.
 
     Two triangles drawing the same edge (its two world endpoints, welded) make a
     seam when they lie in different lightmaps or their UVs differ there, and their
-    faces meet at up to SMOOTH_DEGREES. shapes: image index of each chart ->
+    normals are at most SMOOTH_DEGREES apart. shapes: image index of each chart ->
     (height, width)."""
     if not charts:
         return _empty()
-    P = np.concatenate([p for _, p, _ in charts])
-    UV = np.concatenate([uv for _, _, uv in charts])
-    img = np.concatenate([np.full(len(p), k, np.int64) for k, (_, p, _) in enumerate(charts)])
+    P = np.concatenate([c[1] for c in charts])
+    UV = np.concatenate([c[2] for c in charts])
+    normal = np.concatenate([c[3] for c in charts])
+    img = np.concatenate([np.full(len(c[1]), k, np.int64) for k, c in enumerate(charts)])
     a, b = np.tile([0, 1, 2], len(P)), np.tile([1, 2, 0], len(P))      # each triangle's edges a -> b
     tri = np.repeat(np.arange(len(P)), 3)
     pa, pb = P[tri, a], P[tri, b]
@@ -99,8 +152,6 @@ def find_seams(charts, shapes):
     same = ((img[tri[first]] == img[tri[second]])
             & np.all(np.abs(ua[first] - ua[second]) < 1e-4, axis=1)
             & np.all(np.abs(ub[first] - ub[second]) < 1e-4, axis=1))
-    normal = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     smooth = np.einsum("ij,ij->i", normal[tri[first]], normal[tri[second]]) >= np.cos(np.radians(SMOOTH_DEGREES))
     first, second = first[~same & smooth], second[~same & smooth]
     if first.size == 0:

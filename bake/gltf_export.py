@@ -131,17 +131,10 @@ def export_gltf(context, path, *, encoding="RGBM", m_range=RGBM_RANGE):
             error = float(np.abs(rgbm_decode(rgbm_encode(rgba[..., :3], m_range), m_range)
                                  - np.clip(rgba[..., :3], 0.0, m_range)).max())
         else:
-            stem = os.path.splitext(os.path.basename(path))[0]
-            file = f"{stem}_{images.file_name(name)}.exr"
-            _save_exr(rgba, os.path.join(os.path.dirname(path), file))
-            gltf.setdefault("images", []).append({"name": f"{name}_Lightmap", "uri": file})
-            source = len(gltf["images"]) - 1
+            source = _exr_image(gltf, path, rgba, name, "")
             extras = {"photon_lightmaps": {"encoding": "EXR", "quantity": "E/pi"}}
             error = 0.0
-        gltf.setdefault("samplers", []).append({"magFilter": 9729, "minFilter": 9729})
-        gltf.setdefault("textures", []).append({"source": source, "sampler": len(gltf["samplers"]) - 1,
-                                                "extras": extras})
-        texture = len(gltf["textures"]) - 1
+        texture = _add_texture(gltf, source, extras)
         directional = _add_directional(gltf, blob, path, context.scene.objects[name], rgba, encoding, uv)
         n_mat = _attach(gltf, name, texture, uv, directional)
         report[name] = {"texture": texture, "texcoord": uv, "materials": n_mat, "width": img.size[0],
@@ -176,14 +169,8 @@ def _add_directional(gltf, blob, path, ob, lightmap, encoding, uv):
             png = signed_png(rgba[::-1, :, :3], None if mode == "dominant" else lightmap[::-1, :, :3])
             source = _add_image(gltf, blob, _png_bytes(png), ob.name + suffix)
         else:
-            stem = os.path.splitext(os.path.basename(path))[0]
-            file = f"{stem}_{images.file_name(ob.name)}{suffix}.exr"
-            _save_exr(rgba, os.path.join(os.path.dirname(path), file))
-            gltf.setdefault("images", []).append({"name": ob.name + suffix, "uri": file})
-            source = len(gltf["images"]) - 1
-        gltf.setdefault("samplers", []).append({"magFilter": 9729, "minFilter": 9729})
-        gltf.setdefault("textures", []).append({"source": source, "sampler": len(gltf["samplers"]) - 1})
-        textures.append({"index": len(gltf["textures"]) - 1, "texCoord": uv})
+            source = _exr_image(gltf, path, rgba, ob.name, suffix)
+        textures.append({"index": _add_texture(gltf, source), "texCoord": uv})
     if encoding == "RGBM":
         decode = "u = 2 c - 1" if mode == "dominant" else "L1 = (4 c - 2) * lightmap"
     else:
@@ -256,6 +243,26 @@ def _save_exr(rgba, file):
         img.save()
     finally:
         bpy.data.images.remove(img)
+
+
+def _exr_image(gltf, path, rgba, name, suffix):
+    """Object `name`'s image (suffix: which of its images; "": the lightmap) as an
+    OpenEXR file beside the glTF file, named by uri -> its image index."""
+    stem = os.path.splitext(os.path.basename(path))[0]
+    file = f"{stem}_{images.file_name(name)}{suffix}.exr"
+    _save_exr(rgba, os.path.join(os.path.dirname(path), file))
+    gltf.setdefault("images", []).append({"name": name + (suffix or "_Lightmap"), "uri": file})
+    return len(gltf["images"]) - 1
+
+
+def _add_texture(gltf, source, extras=None):
+    """A texture of image `source`, filtered linearly -> its index."""
+    gltf.setdefault("samplers", []).append({"magFilter": 9729, "minFilter": 9729})
+    texture = {"source": source, "sampler": len(gltf["samplers"]) - 1}
+    if extras is not None:
+        texture["extras"] = extras
+    gltf.setdefault("textures", []).append(texture)
+    return len(gltf["textures"]) - 1
 
 
 def _add_image(gltf, blob, data, name):

@@ -260,10 +260,10 @@ def run_unwraps(plan, progress=None, should_stop=None):
 def directional_mode(value):
     """A directional option as given (None: unset; False or "": none; True: "DOMINANT";
     or a DIRECTIONAL_MODES name, any case) -> None, "" or a mode; SceneError otherwise."""
-    if value is None or value is False:
-        return None if value is None else ""
-    if value is True:
-        return "DOMINANT"
+    if value is None:
+        return None
+    if isinstance(value, bool):
+        return "DOMINANT" if value else ""
     mode = str(value).strip().upper()
     if mode in ("", "NONE"):
         return ""
@@ -593,14 +593,14 @@ def _fill_invalid(cs, job, ids, leaves=(), solids=None):
     channels[rows, 1] = np.where(invalid, 0.0, 1.0 - share)
     channels[:, 3] = lm.coverage
     counts, maps = {}, {}
+    # a solid's validity colours go through its atlas, as its error image (the layouts store E/pi)
+    carrier = lm._replace(irradiance=math.pi * channels[:, :3]) if leaves else None
     for name, i in job.targets.items():
         if name in job.csg:
-            # a solid's texels are its leaves' rows (a split texel's regions are counted with it)
+            # a solid's counted texels are its leaves' texels (a split texel once, not per region)
             mine = np.concatenate([np.arange(s.start, s.stop) for s in
                                    (lightmap.texel_slice(lm, d["lightmap"]) for d in solids[name])] or [[]])
             inside = np.isin(rows, mine)
-            # the colours through the solid's atlas, as its error image (the layouts store E/pi)
-            carrier = lm._replace(irradiance=math.pi * channels[:, :3])
             bm = csg_atlas.atlas(cs, job, name, solids[name], lightmaps=carrier)
             if bm is not None:
                 maps[name] = bm
@@ -790,15 +790,17 @@ def _direction_maps(cs, job, result, solids):
                   for i, a in enumerate("xyz")]
     else:
         layers = [(result.direction_maps, directional_lightmap.direction_channels(cs, E)[:, :3])]
+    # per layer, its rows as a mesh image's (A = coverage) and as a solid's atlas takes
+    # them (its lightmap's layout: E/pi, A its visible share)
+    layers = [(maps, np.concatenate([rgb, lm.coverage[:, None]], axis=1), lm._replace(irradiance=math.pi * rgb))
+              for maps, rgb in layers]
     moments = getattr(cs, "bake_moments", None)
     nbytes = 0
     for name, bm in result.maps.items():
-        for maps, rgb in layers:
+        for maps, rgba, carrier in layers:
             if name in job.csg:
-                # through the solid's atlas, as its lightmap (which stores E/pi, A its visible share)
-                out = csg_atlas.atlas(cs, job, name, solids[name], lightmaps=lm._replace(irradiance=math.pi * rgb))
+                out = csg_atlas.atlas(cs, job, name, solids[name], lightmaps=carrier)
             else:
-                rgba = np.concatenate([rgb, lm.coverage[:, None]], axis=1)
                 out = BakedMap(name, images.texel_rgba(lm, bm.lightmap_id, rgba), bm.lightmap_id)
             if out is not None:
                 maps[name] = out

@@ -266,8 +266,9 @@ def test_l1_sh_keeps_colours_from_two_sides():
 
 
 def test_l1_coefficients_on_their_closed_cases():
-    """A uniform sky (k = 0) is exact in L1: E (1 + n'.n) / 2. Any light reads E itself
-    for the surface's own normal."""
+    """A uniform sky (k = 0) is exact in L1: E (1 + n'.n) / 2. A sun alone (k = 1, from
+    s) is the clamped cosine's first-order lobe 1/4 + (n'.s)/2, scaled to read E at n:
+    L1 = E (s / 2) / (1/4 + (n.s)/2)."""
     rng = np.random.default_rng(5)
     n = np.tile([0.0, 0.0, 1.0], (50, 1))
     E = rng.uniform(0.1, 2.0, (50, 3))
@@ -276,11 +277,12 @@ def test_l1_coefficients_on_their_closed_cases():
     tilt /= np.linalg.norm(tilt, axis=1, keepdims=True)
     read = E + np.einsum("kbj,kj->kb", L1, tilt - n)
     assert np.allclose(read, E * ((1 + tilt @ np.array([0.0, 0.0, 1.0])) / 2)[:, None], atol=1e-12)
-    u = rng.normal(size=(50, 3, 3)) * 0.3
-    u[..., 2] = np.abs(u[..., 2]) + 0.2
-    L1 = DL.l1_coefficients(E, u, n)
-    assert np.all(np.isfinite(L1))
-    assert np.allclose(E + np.einsum("kbj,kj->kb", L1, n - n), E)
+    s = rng.normal(size=(50, 3, 3))
+    s[..., 2] = np.abs(s[..., 2]) + 0.2
+    s /= np.linalg.norm(s, axis=2, keepdims=True)
+    L1 = DL.l1_coefficients(E, s, n)
+    cos = s[..., 2]
+    assert np.allclose(L1, E[..., None] * (s / 2) / (0.25 + cos / 2)[..., None], atol=1e-12)
 
 
 def test_cli_directional_sh_writes_three_images(tmp_path):

@@ -74,8 +74,9 @@ def primitive_charts(cs, lightmap_ids):
     the surface meets itself (a cylinder's side around its seam, the sphere's
     octahedral fold, a torus both ways) two cells' edges then share their world
     endpoints, which find_seams pairs as it pairs a mesh's. A triangle's normal is
-    the surface's at its middle (a flat cell across the sphere's octahedral kink
-    can lean far from it); triangles that a chart's corner collapses are left out."""
+    the surface's at its cell's centre (a flat cell across the sphere's octahedral
+    kink can lean far from it); triangles that a chart's corner collapses are left
+    out."""
     from .texel_gather import affine_compose, lightmap_owners
     from ..geometry import primitives
     g, lm = cs.geometry, cs.lightmaps
@@ -96,13 +97,14 @@ def primitive_charts(cs, lightmap_ids):
                                  for i in range(r + 1)] for j in range(h + 1)])
             corners = corners @ wxf[:, :3].T + wxf[:, 3]
             texel = np.stack(np.meshgrid(f * r + np.arange(r + 1.0), np.arange(h + 1.0)), axis=-1)
+            # the surface's normal at each cell's centre, for both its triangles
+            d = np.array([[primitives.prim_point(pk, params, np.int64(f), (i + 0.5) / r, (j + 0.5) / h)[3:9]
+                           for i in range(r)] for j in range(h)]).reshape(-1, 6)
+            normal = np.cross(d[:, :3], d[:, 3:]) @ cof.T
             for tri in (((0, 0), (0, 1), (1, 1)), ((0, 0), (1, 1), (1, 0))):     # (dj, di) of its corners
                 ps.append(np.stack([corners[dj:dj + h, di:di + r] for dj, di in tri], axis=2).reshape(-1, 3, 3))
-                t = np.stack([texel[dj:dj + h, di:di + r] for dj, di in tri], axis=2).reshape(-1, 3, 2)
-                uvs.append(t)
-                mid = (t.mean(axis=1) - [f * r, 0.0]) / [r, h]
-                d = np.array([primitives.prim_point(pk, params, np.int64(f), u, v)[3:9] for u, v in mid])
-                ns.append(np.cross(d[:, :3], d[:, 3:]) @ cof.T)
+                uvs.append(np.stack([texel[dj:dj + h, di:di + r] for dj, di in tri], axis=2).reshape(-1, 3, 2))
+                ns.append(normal)
         p, uv = np.concatenate(ps), np.concatenate(uvs)
         flat = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         n = np.concatenate(ns)
